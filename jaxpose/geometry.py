@@ -1,0 +1,386 @@
+"""Rotations and poses (pure JAX: jit, vmap and grad all work).
+
+Conventions (``../shared/docs/methods.md``):
+
+* A pose is ``(R, t)`` with ``x_cam = R @ x_body + t``: ``R`` maps target-body vectors into the
+  camera frame, ``t`` is the target origin in the camera frame (OpenCV's ``rvec/tvec`` meaning).
+* Quaternions are scalar-first ``(w, x, y, z)``; :func:`quat_to_dcm` is the *active* rotation
+  matrix of the quaternion (SciPy's ``Rotation.from_quat([x, y, z, w]).as_matrix()``).
+* Angles are radians.
+* Euler angles: ``euler_to_dcm(angles, sequence="xyz")`` is the product of *active* elementary
+  rotations ``R_{s0}(a0) @ R_{s1}(a1) @ R_{s2}(a2)`` (an intrinsic ``s0-s1-s2`` sequence), where
+  ``R_x(a)`` rotates vectors by ``a`` about ``x``. Any Tait-Bryan sequence (three distinct axes)
+  is accepted. The default :data:`DEFAULT_EULER_SEQUENCE` is ``"xyz"``: roll ``phi`` about ``x``,
+  pitch ``theta`` about ``y``, yaw ``psi`` about ``z`` (Ning et al. 2018, eq. 2, whose exact order
+  is lost).
+
+Every function broadcasts over leading batch axes. The so(3) exponential and logarithm are
+NaN-safe in value *and* gradient at the identity and near a half turn (double-``jnp.where`` with
+Taylor branches, dtype-dependent thresholds), following jaxlie's approach.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+__all__ = [
+    "DEFAULT_EULER_SEQUENCE",
+    "Pose",
+    "dcm_to_euler",
+    "dcm_to_quat",
+    "elementary_rotation",
+    "euler_to_dcm",
+    "hat",
+    "quat_conjugate",
+    "quat_multiply",
+    "quat_normalize",
+    "quat_to_dcm",
+    "rotation_angle",
+    "se3_exp",
+    "so3_exp",
+    "so3_log",
+    "vee",
+]
+
+DEFAULT_EULER_SEQUENCE = "xyz"
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def _eps(x: Array) -> float:
+    """A small threshold that depends on the dtype (float32 needs a wider Taylor branch)."""
+    return 1e-6 if jnp.asarray(x).dtype == jnp.float32 else 1e-12
+
+
+def _check_last(x: Array, size: int, name: str) -> Array:
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    if x.ndim < 1 or x.shape[-1] != size:
+        raise ValueError(f"{name} must have shape (..., {size}); got {x.shape}")
+    return x
+
+
+def _check_matrix(R: Array, name: str = "R") -> Array:
+    R = jnp.asarray(R)
+    if not jnp.issubdtype(R.dtype, jnp.floating):
+        R = R.astype(jnp.result_type(float))
+    if R.ndim < 2 or R.shape[-2:] != (3, 3):
+        raise ValueError(f"{name} must have shape (..., 3, 3); got {R.shape}")
+    return R
+
+
+def _parse_sequence(sequence: str) -> tuple[int, int, int]:
+    seq = sequence.lower()
+    if len(seq) != 3 or any(c not in _AXES for c in seq) or len(set(seq)) != 3:
+        raise ValueError(
+            f"Euler sequence must be three distinct axes from 'xyz' (a Tait-Bryan sequence such "
+            f"as 'xyz' or 'zyx'); got {sequence!r}"
+        )
+    return _AXES[seq[0]], _AXES[seq[1]], _AXES[seq[2]]
+
+
+# ----------------------------------------------------------------------------- so(3) helpers
+
+
+def hat(omega: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
+    """Skew-symmetric matrix ``[omega]_x`` with ``hat(a) @ b == cross(a, b)``."""
+    omega = _check_last(omega, 3, "omega")
+    x, y, z = omega[..., 0], omega[..., 1], omega[..., 2]
+    zero = jnp.zeros_like(x)
+    return jnp.stack(
+        [
+            jnp.stack([zero, -z, y], axis=-1),
+            jnp.stack([z, zero, -x], axis=-1),
+            jnp.stack([-y, x, zero], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def vee(omega_hat: Float[Array, "... 3 3"]) -> Float[Array, "... 3"]:
+    """Inverse of :func:`hat` (uses the antisymmetric part)."""
+    W = _check_matrix(omega_hat, "omega_hat")
+    return 0.5 * jnp.stack(
+        [W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]],
+        axis=-1,
+    )
+
+
+def so3_exp(omega: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
+    """Rodrigues' formula ``exp([omega]_x)`` (rotation vector in radians to rotation matrix).
+
+    NaN-safe in value and gradient at ``omega = 0`` (Taylor branch).
+    """
+    omega = _check_last(omega, 3, "omega")
+    theta2 = jnp.sum(omega**2, axis=-1)
+    small = theta2 < _eps(omega)
+    theta2_safe = jnp.where(small, 1.0, theta2)
+    theta_safe = jnp.sqrt(theta2_safe)
+    a = jnp.where(small, 1.0 - theta2 / 6.0 + theta2**2 / 120.0, jnp.sin(theta_safe) / theta_safe)
+    b = jnp.where(
+        small, 0.5 - theta2 / 24.0 + theta2**2 / 720.0, (1.0 - jnp.cos(theta_safe)) / theta2_safe
+    )
+    W = hat(omega)
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=omega.dtype), W.shape)
+    return eye + a[..., None, None] * W + b[..., None, None] * (W @ W)
+
+
+def so3_log(R: Float[Array, "... 3 3"]) -> Float[Array, "... 3"]:
+    """Rotation vector (radians) of a rotation matrix; the inverse of :func:`so3_exp`.
+
+    Goes through the quaternion (Shepperd's method) and ``2 atan2(|v|, w) v / |v|``, which stays
+    finite, with finite gradients, at the identity and at a half turn.
+    """
+    return _quat_log(dcm_to_quat(R))
+
+
+def _quat_log(q: Float[Array, "... 4"]) -> Float[Array, "... 3"]:
+    w, v = q[..., 0], q[..., 1:]
+    # q and -q are the same rotation: take w >= 0 so that the angle is in [0, pi].
+    sign = jnp.where(w < 0, -1.0, 1.0)
+    w, v = w * sign, v * sign[..., None]
+    n2 = jnp.sum(v**2, axis=-1)
+    small = n2 < _eps(q)
+    n_safe = jnp.sqrt(jnp.where(small, 1.0, n2))
+    w_safe = jnp.where(small, w, 1.0)
+    # small |v|: 2 atan(n/w)/n ~ (2/w)(1 - n^2/(3 w^2))
+    scale = jnp.where(
+        small,
+        2.0 / w_safe * (1.0 - n2 / (3.0 * w_safe**2)),
+        2.0 * jnp.arctan2(n_safe, w) / n_safe,
+    )
+    return scale[..., None] * v
+
+
+def se3_exp(xi: Float[Array, "... 6"]) -> tuple[Float[Array, "... 3 3"], Float[Array, "... 3"]]:
+    """Exponential of a twist ``xi = (rho, omega)`` (translation part first) as ``(R, t)``.
+
+    ``t = V(omega) rho`` with the left Jacobian ``V``; NaN-safe at ``omega = 0``.
+    """
+    xi = _check_last(xi, 6, "xi")
+    rho, omega = xi[..., :3], xi[..., 3:]
+    theta2 = jnp.sum(omega**2, axis=-1)
+    small = theta2 < _eps(xi)
+    theta2_safe = jnp.where(small, 1.0, theta2)
+    theta_safe = jnp.sqrt(theta2_safe)
+    b = jnp.where(
+        small, 0.5 - theta2 / 24.0 + theta2**2 / 720.0, (1.0 - jnp.cos(theta_safe)) / theta2_safe
+    )
+    c = jnp.where(
+        small,
+        1.0 / 6.0 - theta2 / 120.0 + theta2**2 / 5040.0,
+        (theta_safe - jnp.sin(theta_safe)) / (theta2_safe * theta_safe),
+    )
+    W = hat(omega)
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=xi.dtype), W.shape)
+    V = eye + b[..., None, None] * W + c[..., None, None] * (W @ W)
+    return so3_exp(omega), jnp.einsum("...ij,...j->...i", V, rho)
+
+
+# ----------------------------------------------------------------------------- quaternions
+
+
+def quat_normalize(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
+    """Unit quaternion with the same direction (scalar-first)."""
+    q = _check_last(q, 4, "q")
+    return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def quat_to_dcm(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
+    """Active rotation matrix of a scalar-first quaternion ``(w, x, y, z)`` (normalised first).
+
+    For SPEED/SPEED+ labels, ``R_cam_body = quat_to_dcm(q_vbs2tango)`` (see :mod:`jaxpose.io`).
+    """
+    q = quat_normalize(q)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return jnp.stack(
+        [
+            jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def dcm_to_quat(R: Float[Array, "... 3 3"]) -> Float[Array, "... 4"]:
+    """Scalar-first unit quaternion with ``w >= 0`` of a rotation matrix (Shepperd's method).
+
+    All four candidate formulas are evaluated and the best-conditioned one is selected with
+    ``jnp.where``; the square roots are guarded so that unselected branches give no NaN gradient.
+    """
+    R = _check_matrix(R)
+    r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
+    r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
+    r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
+    t = jnp.stack(
+        [1 + r00 + r11 + r22, 1 + r00 - r11 - r22, 1 - r00 + r11 - r22, 1 - r00 - r11 + r22], -1
+    )
+    cands = jnp.stack(
+        [
+            jnp.stack([t[..., 0], r21 - r12, r02 - r20, r10 - r01], -1),
+            jnp.stack([r21 - r12, t[..., 1], r10 + r01, r02 + r20], -1),
+            jnp.stack([r02 - r20, r10 + r01, t[..., 2], r21 + r12], -1),
+            jnp.stack([r10 - r01, r02 + r20, r21 + r12, t[..., 3]], -1),
+        ],
+        axis=-2,
+    )
+    scale = 0.5 / jnp.sqrt(jnp.maximum(t, 1e-30))
+    cands = cands * scale[..., None]
+    k = jnp.argmax(t, axis=-1)
+    q = jnp.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
+    q = q * jnp.where(q[..., :1] < 0, -1.0, 1.0)
+    return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def quat_multiply(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
+    """Hamilton product ``p * q`` (scalar-first); ``quat_to_dcm(p*q) == quat_to_dcm(p) @ quat_to_dcm(q)``."""
+    p = _check_last(p, 4, "p")
+    q = _check_last(q, 4, "q")
+    pw, pv = p[..., :1], p[..., 1:]
+    qw, qv = q[..., :1], q[..., 1:]
+    w = pw * qw - jnp.sum(pv * qv, axis=-1, keepdims=True)
+    v = pw * qv + qw * pv + jnp.cross(pv, qv)
+    return jnp.concatenate([w, v], axis=-1)
+
+
+def quat_conjugate(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
+    """Conjugate (the inverse rotation of a unit quaternion)."""
+    q = _check_last(q, 4, "q")
+    return q * jnp.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
+
+
+# ----------------------------------------------------------------------------- Euler angles
+
+
+def elementary_rotation(axis: int, angle: Float[Array, "..."]) -> Float[Array, "... 3 3"]:
+    """Active rotation by ``angle`` (radians) about coordinate axis ``axis`` (0=x, 1=y, 2=z)."""
+    angle = jnp.asarray(angle)
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    one, zero = jnp.ones_like(c), jnp.zeros_like(c)
+    if axis == 0:
+        rows = [[one, zero, zero], [zero, c, -s], [zero, s, c]]
+    elif axis == 1:
+        rows = [[c, zero, s], [zero, one, zero], [-s, zero, c]]
+    elif axis == 2:
+        rows = [[c, -s, zero], [s, c, zero], [zero, zero, one]]
+    else:
+        raise ValueError(f"axis must be 0, 1 or 2; got {axis}")
+    return jnp.stack([jnp.stack(r, -1) for r in rows], -2)
+
+
+def euler_to_dcm(
+    angles: Float[Array, "... 3"], sequence: str = DEFAULT_EULER_SEQUENCE
+) -> Float[Array, "... 3 3"]:
+    """Rotation matrix ``R_{s0}(a0) @ R_{s1}(a1) @ R_{s2}(a2)`` of Euler angles (radians).
+
+    ``angles[..., k]`` is the angle about axis ``sequence[k]``. With the default ``"xyz"``,
+    ``angles = (roll phi, pitch theta, yaw psi)``. Ning et al. 2018 eq. 2 (order lost; see module
+    docstring).
+    """
+    angles = _check_last(angles, 3, "angles")
+    i, j, k = _parse_sequence(sequence)
+    return (
+        elementary_rotation(i, angles[..., 0])
+        @ elementary_rotation(j, angles[..., 1])
+        @ elementary_rotation(k, angles[..., 2])
+    )
+
+
+def dcm_to_euler(
+    R: Float[Array, "... 3 3"], sequence: str = DEFAULT_EULER_SEQUENCE
+) -> Float[Array, "... 3"]:
+    """Inverse of :func:`euler_to_dcm` for a Tait-Bryan ``sequence``.
+
+    The middle angle is in ``[-pi/2, pi/2]``, the others in ``(-pi, pi]``. At gimbal lock (middle
+    angle at +-pi/2) the split between first and third angle is not unique.
+    """
+    R = _check_matrix(R)
+    i, j, k = _parse_sequence(sequence)
+    s = 1.0 if (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
+    b = jnp.arcsin(jnp.clip(s * R[..., i, k], -1.0, 1.0))
+    a = jnp.arctan2(-s * R[..., j, k], R[..., k, k])
+    c = jnp.arctan2(-s * R[..., i, j], R[..., i, i])
+    return jnp.stack([a, b, c], axis=-1)
+
+
+def rotation_angle(R_a: Float[Array, "... 3 3"], R_b: Float[Array, "... 3 3"]) -> Float[Array, "..."]:
+    """Geodesic angle (radians, in ``[0, pi]``) of ``R_a @ R_b.T``."""
+    R_a = _check_matrix(R_a, "R_a")
+    R_b = _check_matrix(R_b, "R_b")
+    return jnp.linalg.norm(so3_log(R_a @ jnp.swapaxes(R_b, -1, -2)), axis=-1)
+
+
+# ----------------------------------------------------------------------------- poses
+
+
+class Pose(eqx.Module):
+    """A rigid pose ``x_cam = R @ x_body + t`` (leading batch axes allowed).
+
+    Attributes:
+        R: ``(..., 3, 3)`` rotation, body to camera (``R_cam_body``).
+        t: ``(..., 3)`` body origin in the camera frame, metres.
+    """
+
+    R: Float[Array, "... 3 3"]
+    t: Float[Array, "... 3"]
+
+    def __check_init__(self):
+        if jnp.shape(self.R)[-2:] != (3, 3) or jnp.shape(self.t)[-1:] != (3,):
+            raise ValueError(
+                f"Pose needs R of shape (..., 3, 3) and t of shape (..., 3); got "
+                f"{jnp.shape(self.R)} and {jnp.shape(self.t)}"
+            )
+
+    @classmethod
+    def identity(cls, dtype=None) -> Pose:
+        dtype = dtype or jnp.result_type(float)
+        return cls(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype=dtype))
+
+    @classmethod
+    def from_quat(cls, q_wxyz: Float[Array, "... 4"], t: Float[Array, "... 3"]) -> Pose:
+        return cls(quat_to_dcm(q_wxyz), jnp.asarray(t))
+
+    @classmethod
+    def from_euler(
+        cls, angles: Float[Array, "... 3"], t: Float[Array, "... 3"], sequence: str = DEFAULT_EULER_SEQUENCE
+    ) -> Pose:
+        return cls(euler_to_dcm(angles, sequence), jnp.asarray(t))
+
+    @classmethod
+    def from_rotvec(cls, rotvec: Float[Array, "... 3"], t: Float[Array, "... 3"]) -> Pose:
+        """From an OpenCV-style ``(rvec, tvec)`` pair."""
+        return cls(so3_exp(rotvec), jnp.asarray(t))
+
+    def quat(self) -> Float[Array, "... 4"]:
+        return dcm_to_quat(self.R)
+
+    def rotvec(self) -> Float[Array, "... 3"]:
+        return so3_log(self.R)
+
+    def euler(self, sequence: str = DEFAULT_EULER_SEQUENCE) -> Float[Array, "... 3"]:
+        return dcm_to_euler(self.R, sequence)
+
+    def apply(self, points_body: Float[Array, "... n 3"]) -> Float[Array, "... n 3"]:
+        """Body points to camera frame: ``R @ p + t`` for each point."""
+        points_body = _check_last(points_body, 3, "points_body")
+        return jnp.einsum("...ij,...nj->...ni", self.R, points_body) + self.t[..., None, :]
+
+    def inverse(self) -> Pose:
+        Rt = jnp.swapaxes(self.R, -1, -2)
+        return Pose(Rt, -jnp.einsum("...ij,...j->...i", Rt, self.t))
+
+    def compose(self, other: Pose) -> Pose:
+        """``self @ other``: apply ``other`` first, then ``self``."""
+        return Pose(self.R @ other.R, jnp.einsum("...ij,...j->...i", self.R, other.t) + self.t)
+
+    def __matmul__(self, other: Pose) -> Pose:
+        return self.compose(other)
+
+    def retract(self, xi: Float[Array, "... 6"]) -> Pose:
+        """Left perturbation ``exp(xi) @ self`` with ``xi = (rho, omega)`` in the camera frame."""
+        dR, dt = se3_exp(xi)
+        return Pose(dR, dt).compose(self)
+
