@@ -1,0 +1,1 @@
+"""Image-side steps (NumPy + OpenCV), one file a step; see each module."""

@@ -1,0 +1,457 @@
+"""Synthetic renderer (NumPy + OpenCV, no GPU) of a wireframe model seen by a pinhole camera.
+
+Faces are shaded (Lambert + ambient, optional specular) and drawn far to near (painter's
+algorithm) as polygons whose sides are subdivided before projection, so lens distortion bends
+straight edges exactly as the camera does. Antennas are thick lines drawn in the same depth order.
+An Earth-like textured background, Gaussian blur and sensor noise are optional.
+
+Written to be extended (stereo pairs, textures, glints, motion blur) through these hooks:
+
+* ``albedo``: per-face reflectance, ``(F,)``;
+* ``textures``: ``{face_index: f(points_body (M, 3)) -> (M,) albedo}``, evaluated at the body-frame
+  point seen through each pixel of that face (ray/plane intersection), so a texture is attached to
+  the body and looks the same from any camera (what stereo matching needs);
+* ``specular``: ``(strength, shininess)`` Blinn-Phong glints;
+* :func:`render_layers` returns the noise-free radiance and the face-index buffer before the
+  sensor model (:func:`apply_sensor`), so motion blur or a second camera can reuse them.
+
+The returned :class:`Rendering` holds the image, the true pose and the visible edge endpoints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..camera import PinholeCamera
+from ..geometry import Pose, quat_to_dcm
+
+__all__ = [
+    "Rendering",
+    "VisibleEdges",
+    "apply_sensor",
+    "earth_background",
+    "project_points",
+    "random_pose",
+    "render",
+    "render_layers",
+    "solar_cell_texture",
+    "visible_edges",
+]
+
+BACKGROUND = -1  # face-index buffer value of background pixels
+_ANTENNA = -2  # face-index buffer value of antenna pixels
+
+
+@dataclass
+class VisibleEdges:
+    """Visible parts of model edges at a pose.
+
+    Attributes:
+        edge_ids: ``(K,)`` indices into ``model.edges`` (antennas: ``len(model.edges) + a``).
+        segments: ``(K, 2, 2)`` pixel endpoints of the visible part (distorted image).
+        fraction: ``(K,)`` visible share of each edge's length.
+        points_body: ``(K, 2, 3)`` body-frame points at those endpoints.
+    """
+
+    edge_ids: np.ndarray
+    segments: np.ndarray
+    fraction: np.ndarray
+    points_body: np.ndarray
+
+
+@dataclass
+class Rendering:
+    """A rendered image with its ground truth."""
+
+    image: np.ndarray  # (H, W) uint8
+    pose: Pose
+    camera: PinholeCamera
+    visible: VisibleEdges
+    face_ids: np.ndarray  # (H, W) int: front face index, -1 background, -2 antenna
+    roi: np.ndarray  # (4,) true bounding box u0, v0, u1, v1 of the target (pixels)
+
+
+# ----------------------------------------------------------------------------- geometry helpers
+def _pose_np(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    return np.asarray(pose.R, dtype=float), np.asarray(pose.t, dtype=float)
+
+
+def project_points(camera: PinholeCamera, points_cam: np.ndarray) -> np.ndarray:
+    """Pixels ``(..., 2)`` of camera-frame points ``(..., 3)`` with distortion (NumPy twin of
+    :meth:`PinholeCamera.project` for the eager image side; tested against it)."""
+    P = np.asarray(points_cam, dtype=float)
+    z = np.where(P[..., 2] > 1e-9, P[..., 2], 1e-9)
+    x, y = P[..., 0] / z, P[..., 1] / z
+    k1, k2, p1, p2, k3 = np.asarray(camera.dist, dtype=float)
+    r2 = x * x + y * y
+    rad = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    fx, fy, cx, cy = (float(v) for v in (camera.fx, camera.fy, camera.cx, camera.cy))
+    return np.stack([fx * xd + cx, fy * yd + cy], -1)
+
+
+def _pixel_rays(camera: PinholeCamera, pixels: np.ndarray) -> np.ndarray:
+    """Undistorted normalised rays ``(M, 3)`` (z = 1) of pixels ``(M, 2)`` (OpenCV's iteration)."""
+    K = np.asarray(camera.K, dtype=float)
+    xy = cv2.undistortPoints(
+        pixels.reshape(-1, 1, 2).astype(np.float64), K, np.asarray(camera.dist)
+    )
+    xy = xy.reshape(-1, 2)
+    return np.concatenate([xy, np.ones((len(xy), 1))], 1)
+
+
+def _image_size(camera: PinholeCamera, shape) -> tuple[int, int]:
+    if shape is not None:
+        return int(shape[0]), int(shape[1])
+    if camera.width <= 0 or camera.height <= 0:
+        raise ValueError("the camera has no image size: pass shape=(height, width)")
+    return camera.height, camera.width
+
+
+def _subdivide(poly: np.ndarray, n: int) -> np.ndarray:
+    """Polygon ``(k, 3)`` with every side split into ``n`` pieces: ``(k n, 3)``."""
+    nxt = np.roll(poly, -1, axis=0)
+    s = np.arange(n)[None, :, None] / n
+    return (poly[:, None] + s * (nxt - poly)[:, None]).reshape(-1, poly.shape[1])
+
+
+# ----------------------------------------------------------------------------- visibility
+def _face_depth_along_rays(n_cam, d_cam, rays):
+    """Depth z where rays (M, 3) with z = 1 meet the plane n . x = d."""
+    den = rays @ n_cam
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = d_cam / den
+    return np.where(np.abs(den) > 1e-12, z, np.inf)
+
+
+def visible_edges(
+    model,
+    pose: Pose,
+    camera: PinholeCamera,
+    *,
+    face_ids: np.ndarray | None = None,
+    shape=None,
+    samples: int = 48,
+    min_fraction: float = 0.05,
+    include_antennas: bool = True,
+) -> VisibleEdges:
+    """Visible parts of the model's edges (and antennas) at ``pose``.
+
+    An edge sample is visible when it is in front of the camera, inside the image, at least one of
+    the edge's faces is front-facing (free edges and antennas: always), and the front face of the
+    painter's buffer at its pixel is the edge's own face or lies behind it (ray/plane depth test,
+    1 mm tolerance). The longest visible run of samples gives the endpoints.
+    """
+    R, t = _pose_np(pose)
+    H, W = _image_size(camera, shape)
+    if face_ids is None:
+        face_ids = render_layers(model, pose, camera, shape=(H, W))[1]
+    segs3 = model.edge_points
+    owners = list(model.edge_faces)
+    if include_antennas and len(model.antennas):
+        segs3 = np.concatenate([segs3, model.antenna_points])
+        owners += [()] * len(model.antennas)
+    front = _front_facing(model, R, t)
+    s = np.linspace(0.0, 1.0, samples)
+    pts_body = segs3[:, :1] + s[None, :, None] * (segs3[:, 1:] - segs3[:, :1])  # (E, S, 3)
+    pts_cam = pts_body @ R.T + t
+    pix = project_points(camera, pts_cam)
+    ok = pts_cam[..., 2] > 1e-6
+    ok &= (pix[..., 0] >= 0) & (pix[..., 0] <= W - 1) & (pix[..., 1] >= 0) & (pix[..., 1] <= H - 1)
+    pi = np.clip(np.rint(pix).astype(int), 0, [W - 1, H - 1])
+    fid = face_ids[pi[..., 1], pi[..., 0]]
+    n_cam = model.face_normals @ R.T
+    d_cam = np.einsum("fi,fi->f", n_cam, model.face_centres @ R.T + t)
+    rays = pts_cam / np.where(np.abs(pts_cam[..., 2:]) > 1e-12, pts_cam[..., 2:], 1e-12)
+    for e, faces in enumerate(owners):
+        if faces and not any(front[f] for f in faces):
+            ok[e] = False
+            continue
+        occ = (fid[e] >= 0) & ~np.isin(fid[e], faces)
+        if occ.any():
+            idx = np.nonzero(occ)[0]
+            f = fid[e, idx]
+            zf = np.einsum("mi,mi->m", rays[e, idx], n_cam[f])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                zf = np.where(np.abs(zf) > 1e-12, d_cam[f] / zf, np.inf)
+            behind = zf < pts_cam[e, idx, 2] - 1e-3
+            ok[e, idx[behind]] = False
+    ids, out, frac, body = [], [], [], []
+    for e in range(len(segs3)):
+        run = _longest_run(ok[e])
+        if run is None:
+            continue
+        a, b = run
+        f = (b - a) / (samples - 1)
+        if f < min_fraction:
+            continue
+        ids.append(e)
+        out.append([pix[e, a], pix[e, b]])
+        frac.append(f)
+        body.append([pts_body[e, a], pts_body[e, b]])
+    return VisibleEdges(
+        np.array(ids, dtype=int),
+        np.array(out, dtype=float).reshape(-1, 2, 2),
+        np.array(frac, dtype=float),
+        np.array(body, dtype=float).reshape(-1, 2, 3),
+    )
+
+
+def _longest_run(mask: np.ndarray):
+    best, start, best_run = 0, None, None
+    for i, m in enumerate(np.append(mask, False)):
+        if m and start is None:
+            start = i
+        elif not m and start is not None:
+            if i - start > best:
+                best, best_run = i - start, (start, i - 1)
+            start = None
+    return best_run if best >= 2 else None
+
+
+def _front_facing(model, R, t) -> np.ndarray:
+    n_cam = model.face_normals @ R.T
+    c_cam = model.face_centres @ R.T + t
+    return np.einsum("fi,fi->f", n_cam, c_cam) < 0
+
+
+# ----------------------------------------------------------------------------- textures
+def solar_cell_texture(origin, axis_u, axis_v, cells=(8, 10), *, base=0.25, line=0.6, frame=0.02):
+    """A solar-panel-like texture: dark cells separated by bright lines (a body-attached hook).
+
+    ``origin`` is a panel corner and ``axis_u``, ``axis_v`` its two sides (body frame, metres).
+    """
+    o, au, av = (np.asarray(v, dtype=float) for v in (origin, axis_u, axis_v))
+    lu, lv = np.linalg.norm(au), np.linalg.norm(av)
+
+    def texture(points_body):
+        rel = points_body - o
+        a = rel @ au / lu**2
+        b = rel @ av / lv**2
+        fa, fb = (a * cells[0]) % 1.0, (b * cells[1]) % 1.0
+        w = 0.04
+        grid = (fa < w) | (fa > 1 - w) | (fb < w) | (fb > 1 - w)
+        edge = (a < frame) | (a > 1 - frame) | (b < frame) | (b > 1 - frame)
+        return np.where(grid | edge, line, base)
+
+    return texture
+
+
+def earth_background(shape, rng: np.random.Generator, *, brightness: float = 0.55) -> np.ndarray:
+    """An Earth-like background ``(H, W)`` in ``[0, 1]``: a limb at a random place, fractal clouds
+    over a darker ocean/land pattern, black space beyond the limb."""
+    H, W = shape
+    noise = np.zeros((H, W), dtype=np.float32)
+    amp = 1.0
+    for octave in range(6):
+        n = 4 * 2**octave
+        small = rng.random((n, max(2, int(n * W / H)))).astype(np.float32)
+        noise += amp * cv2.resize(small, (W, H), interpolation=cv2.INTER_CUBIC)
+        amp *= 0.55
+    noise = (noise - noise.min()) / max(float(noise.max() - noise.min()), 1e-6)
+    clouds = np.clip((noise - 0.5) * 3.0, 0, 1)
+    ground = 0.25 + 0.2 * noise
+    img = brightness * np.maximum(clouds, ground)
+    # Limb: a big circle whose edge crosses the image.
+    r = rng.uniform(1.5, 4.0) * max(H, W)
+    ang = rng.uniform(0, 2 * np.pi)
+    cx = W / 2 + np.cos(ang) * (r - rng.uniform(-0.3, 0.6) * max(H, W))
+    cy = H / 2 + np.sin(ang) * (r - rng.uniform(-0.3, 0.6) * max(H, W))
+    yy, xx = np.mgrid[0:H, 0:W]
+    inside = (xx - cx) ** 2 + (yy - cy) ** 2 < r**2
+    return np.where(inside, img, 0.0).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- rendering
+def render_layers(
+    model,
+    pose: Pose,
+    camera: PinholeCamera,
+    *,
+    shape=None,
+    sun_dir_cam=(0.4, -0.5, -0.75),
+    ambient: float = 0.08,
+    albedo=None,
+    textures=None,
+    specular: tuple[float, float] | None = None,
+    antenna_diameter_m: float = 0.015,
+    subdivisions: int = 16,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Noise-free radiance ``(H, W)`` float in ``[0, 1]`` (NaN on background) and the face-index
+    buffer (``-1`` background, ``-2`` antenna), by the painter's algorithm.
+
+    ``sun_dir_cam`` points from the target towards the Sun, in the camera frame.
+    """
+    R, t = _pose_np(pose)
+    H, W = _image_size(camera, shape)
+    if t[2] <= 0:
+        raise ValueError(f"the target origin must be in front of the camera (t_z > 0); got t = {t}")
+    F = len(model.faces)
+    albedo = np.full(F, 0.7) if albedo is None else np.broadcast_to(np.asarray(albedo, float), (F,))
+    sun = np.asarray(sun_dir_cam, dtype=float)
+    sun = sun / np.linalg.norm(sun)
+    n_cam = model.face_normals @ R.T
+    c_cam = model.face_centres @ R.T + t
+    front = np.einsum("fi,fi->f", n_cam, c_cam) < 0
+    lambert = np.clip(n_cam @ sun, 0.0, None)
+    shade = ambient + (1 - ambient) * lambert
+    if specular is not None:
+        strength, shininess = specular
+        view = -c_cam / np.linalg.norm(c_cam, axis=1, keepdims=True)
+        half = view + sun
+        half /= np.linalg.norm(half, axis=1, keepdims=True)
+        spec = strength * np.clip(np.einsum("fi,fi->f", n_cam, half), 0, None) ** shininess
+    else:
+        spec = np.zeros(F)
+
+    radiance = np.full((H, W), np.nan, dtype=np.float32)
+    face_ids = np.full((H, W), BACKGROUND, dtype=np.int32)
+    items = []  # (depth, kind, index)
+    for f in np.nonzero(front)[0]:
+        items.append((float(c_cam[f, 2]), "face", int(f)))
+    ant = model.antenna_points
+    for a in range(len(ant)):
+        items.append((float((ant[a] @ R.T + t)[:, 2].mean()), "antenna", a))
+    scale = 16  # fixed-point sub-pixel precision for cv2.fillPoly / cv2.line
+    for _, kind, k in sorted(items, key=lambda x: -x[0]):
+        if kind == "face":
+            poly = model.vertices[list(model.faces[k])] @ R.T + t
+            if np.any(poly[:, 2] <= 1e-6):
+                continue
+            pix = project_points(camera, _subdivide(poly, subdivisions))
+            if not np.all(np.isfinite(pix)) or np.abs(pix).max() > 1e6:
+                continue
+            mask = np.zeros((H, W), np.uint8)
+            cv2.fillPoly(
+                mask, [np.rint(pix * scale).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4
+            )
+            sel = mask.astype(bool)
+            face_ids[sel] = k
+            value = albedo[k] * shade[k] + spec[k]
+            if textures and k in textures:
+                vv, uu = np.nonzero(sel)
+                rays = _pixel_rays(camera, np.stack([uu, vv], 1).astype(float))
+                n, d = n_cam[k], float(n_cam[k] @ c_cam[k])
+                z = _face_depth_along_rays(n, d, rays)
+                pts_body = (rays * z[:, None] - t) @ R  # back to the body frame
+                tex = np.asarray(textures[k](pts_body), dtype=float)
+                radiance[vv, uu] = tex * shade[k] + spec[k]
+            else:
+                radiance[sel] = value
+        else:
+            seg = ant[k] @ R.T + t
+            if np.any(seg[:, 2] <= 1e-6):
+                continue
+            pix = project_points(camera, seg)
+            width = max(
+                1,
+                int(
+                    round(
+                        0.5 * float(camera.fx + camera.fy) * antenna_diameter_m / seg[:, 2].mean()
+                    )
+                ),
+            )
+            mask = np.zeros((H, W), np.uint8)
+            p = np.rint(pix * scale).astype(np.int64)
+            if np.abs(p).max() > 2**30:
+                continue
+            cv2.line(
+                mask, tuple(map(int, p[0])), tuple(map(int, p[1])), 1, width, cv2.LINE_8, shift=4
+            )
+            sel = mask.astype(bool)
+            face_ids[sel] = _ANTENNA
+            radiance[sel] = 0.75 * (ambient + (1 - ambient) * 0.8)
+    return radiance, face_ids
+
+
+def apply_sensor(
+    radiance: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    background: np.ndarray | None = None,
+    blur_sigma_px: float = 0.8,
+    noise_sigma: float = 0.01,
+    exposure: float = 1.0,
+) -> np.ndarray:
+    """Radiance (NaN = background) to an 8-bit image: background, Gaussian blur, noise, clipping."""
+    img = np.where(np.isnan(radiance), 0.0 if background is None else background, radiance)
+    img = img.astype(np.float32) * exposure
+    if blur_sigma_px > 0:
+        img = cv2.GaussianBlur(img, (0, 0), blur_sigma_px)
+    if noise_sigma > 0:
+        img = img + rng.normal(0.0, noise_sigma, img.shape).astype(np.float32)
+    return np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def render(
+    model,
+    pose: Pose,
+    camera: PinholeCamera,
+    *,
+    rng: np.random.Generator | int | None = None,
+    shape=None,
+    earth: bool = False,
+    blur_sigma_px: float = 0.8,
+    noise_sigma: float = 0.01,
+    exposure: float = 1.0,
+    **layer_options,
+) -> Rendering:
+    """Render ``model`` at ``pose``: image, true pose, visible edges, face buffer and true ROI.
+
+    ``layer_options`` go to :func:`render_layers` (light, albedo, textures, specular, ...). With
+    ``textures=None`` and the Tango model, the top of the solar panel gets solar cells.
+    """
+    rng = np.random.default_rng(rng)
+    H, W = _image_size(camera, shape)
+    if layer_options.get("textures", "default") == "default":
+        layer_options["textures"] = default_textures(model)
+    radiance, face_ids = render_layers(model, pose, camera, shape=(H, W), **layer_options)
+    bg = earth_background((H, W), rng) if earth else None
+    image = apply_sensor(
+        radiance,
+        rng,
+        background=bg,
+        blur_sigma_px=blur_sigma_px,
+        noise_sigma=noise_sigma,
+        exposure=exposure,
+    )
+    vis = visible_edges(model, pose, camera, face_ids=face_ids, shape=(H, W))
+    vv, uu = np.nonzero(face_ids != BACKGROUND)
+    roi = (
+        np.array([uu.min(), vv.min(), uu.max(), vv.max()], dtype=float)
+        if len(uu)
+        else np.full(4, np.nan)
+    )
+    return Rendering(image, pose, camera, vis, face_ids, roi)
+
+
+def default_textures(model) -> dict | None:
+    """Solar cells on the Tango panel top (face 0 of the built-in model); none for other models."""
+    if model.name != "tango":
+        return None
+    V = model.vertices
+    return {0: solar_cell_texture(V[0], V[3] - V[0], V[1] - V[0])}
+
+
+def random_pose(
+    rng: np.random.Generator,
+    camera: PinholeCamera,
+    *,
+    range_m: tuple[float, float] = (3.0, 12.0),
+    margin: float = 0.25,
+) -> Pose:
+    """A uniformly random attitude at a random range whose target origin projects inside the
+    central ``1 - 2 margin`` of the image."""
+    q = rng.normal(size=4)  # a normalised Gaussian 4-vector is a uniform random rotation
+    R = np.asarray(quat_to_dcm(q / np.linalg.norm(q)))
+    z = rng.uniform(*range_m)
+    W, H = camera.width or 2 * float(camera.cx), camera.height or 2 * float(camera.cy)
+    u = rng.uniform(margin * W, (1 - margin) * W)
+    v = rng.uniform(margin * H, (1 - margin) * H)
+    x = (u - float(camera.cx)) / float(camera.fx) * z
+    y = (v - float(camera.cy)) / float(camera.fy) * z
+    return Pose(np.asarray(R), np.array([x, y, z]))
