@@ -185,16 +185,20 @@ def dop_from_information(A: Float[Array, "6 6"]) -> DOPResult:
     A = jnp.asarray(A)
     if A.shape[-2:] != (6, 6):
         raise ValueError(f"information matrix must be (6, 6); got {A.shape}")
-    d = jnp.sqrt(jnp.clip(jnp.diagonal(A), jnp.finfo(A.dtype).tiny, None))
+    diag = jnp.diagonal(A)
+    positive = jnp.all(diag > 0)
+    d = jnp.sqrt(jnp.where(diag > 0, diag, 1.0))
     S = A / (d[:, None] * d[None, :])
     evals = jnp.linalg.eigvalsh(S)
     finite = jnp.all(jnp.isfinite(A))
-    singular = ~finite | (evals[0] <= _singular_tolerance(A.dtype) * evals[-1])
-    # A safe matrix for the solve so that the singular branch produces no NaN (not even in grads).
+    singular = ~finite | ~positive | (evals[0] <= _singular_tolerance(A.dtype) * evals[-1])
+    # A safe matrix and scale for the solve so that the singular branch produces no NaN, not even
+    # in gradients (double-where: the unselected branch must itself be finite).
     S_safe = jnp.where(singular, jnp.eye(6, dtype=A.dtype), S)
+    d_safe = jnp.where(singular, 1.0, d)
     Qs = jnp.linalg.inv(S_safe)
     Qs = 0.5 * (Qs + Qs.T)
-    Q = Qs / (d[:, None] * d[None, :])
+    Q = Qs / (d_safe[:, None] * d_safe[None, :])
     pdop = jnp.sqrt(jnp.trace(Q[:3, :3]))
     adop = jnp.sqrt(jnp.trace(Q[3:, 3:]))
     inf = jnp.asarray(jnp.inf, dtype=A.dtype)
