@@ -9,6 +9,7 @@ Float64 is recommended for navigation work: ``jax.config.update("jax_enable_x64"
 
 from . import geometry as geometry
 from .camera import PinholeCamera as PinholeCamera
+from .camera import StereoCamera as StereoCamera
 from .camera import as_camera as as_camera
 from .dop import DOPResult as DOPResult
 from .dop import dop as dop

@@ -15,7 +15,7 @@ from jaxtyping import Array, Bool, Float
 
 from .geometry import Pose
 
-__all__ = ["PinholeCamera", "as_camera"]
+__all__ = ["PinholeCamera", "StereoCamera", "as_camera"]
 
 
 def _scalar(x) -> Array:
@@ -202,3 +202,193 @@ def as_camera(camera) -> PinholeCamera:
     if getattr(K, "shape", None) == (3, 3):
         return PinholeCamera.from_K(K)
     raise ValueError(f"camera must be a PinholeCamera or a 3x3 K matrix; got {type(camera).__name__}")
+
+
+# ============================================================================ stereo rig
+
+
+class StereoCamera(eqx.Module):
+    """A calibrated stereo rig: two :class:`PinholeCamera` and the pose of the right one.
+
+    OpenCV's ``stereoCalibrate`` convention: a point ``x_left`` in the left camera frame is
+    ``x_right = R_rl @ x_left + t_rl`` in the right camera frame. For a side-by-side rig with the
+    right camera ``b`` metres to the right of the left one, ``R_rl = I`` and ``t_rl = (-b, 0, 0)``.
+    The left camera frame is the rig frame: triangulated points are returned in it, and a pose
+    estimated by the stereo tracker is the target pose in the left camera.
+
+    Attributes:
+        left, right: the two cameras (intrinsics, distortion, image size).
+        R_rl: ``(3, 3)`` rotation from the left to the right camera frame.
+        t_rl: ``(3,)`` left camera origin expressed in the right frame, metres.
+
+    Yang et al. 2024 (seed 001), Sec. 3: stereo correspondences are triangulated with the
+    distortion-corrected stereo model (:meth:`triangulate`).
+    """
+
+    left: PinholeCamera
+    right: PinholeCamera
+    R_rl: Float[Array, "3 3"]
+    t_rl: Float[Array, "3"]
+
+    def __init__(self, left: PinholeCamera, right: PinholeCamera, R_rl=None, t_rl=None):
+        if not isinstance(left, PinholeCamera) or not isinstance(right, PinholeCamera):
+            raise ValueError("StereoCamera needs two PinholeCamera instances (left, right)")
+        R_rl = jnp.eye(3, dtype=left.fx.dtype) if R_rl is None else _scalar(R_rl)
+        if t_rl is None:
+            raise ValueError("t_rl (left camera origin in the right frame, metres) is required")
+        t_rl = _scalar(t_rl)
+        if R_rl.shape != (3, 3) or t_rl.shape != (3,):
+            raise ValueError(f"R_rl must be 3x3 and t_rl of shape (3,); got {R_rl.shape}, {t_rl.shape}")
+        if not isinstance(t_rl, jax.core.Tracer) and float(jnp.linalg.norm(t_rl)) <= 0.0:
+            raise ValueError("the stereo baseline |t_rl| must be positive")
+        self.left, self.right, self.R_rl, self.t_rl = left, right, R_rl, t_rl
+
+    @classmethod
+    def from_baseline(cls, camera: PinholeCamera, baseline_m: float, right: PinholeCamera | None = None):
+        """A rectified side-by-side rig: identical cameras (unless ``right`` is given), the right
+        camera ``baseline_m`` metres along the left camera's +x axis."""
+        if not baseline_m > 0:
+            raise ValueError(f"baseline_m must be positive; got {baseline_m}")
+        zero = jnp.zeros_like(camera.fx)
+        return cls(camera, camera if right is None else right, None, jnp.stack([-baseline_m + zero, zero, zero]))
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def baseline(self) -> Float[Array, ""]:
+        """Distance between the two optical centres, metres."""
+        return jnp.linalg.norm(self.t_rl)
+
+    @property
+    def pose_right_left(self) -> Pose:
+        """The right camera's pose of the left camera frame (``x_right = R_rl x_left + t_rl``)."""
+        return Pose(self.R_rl, self.t_rl)
+
+    def to_right(self, points_left: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+        """Left-camera-frame points expressed in the right camera frame."""
+        return jnp.einsum("ij,...j->...i", self.R_rl, points_left) + self.t_rl
+
+    def project(self, points_left: Float[Array, "... 3"]) -> tuple[Float[Array, "... 2"], Float[Array, "... 2"]]:
+        """Pixels ``(left, right)`` of points given in the left camera frame (with distortion)."""
+        return self.left.project(points_left), self.right.project(self.to_right(points_left))
+
+    def projection_matrices(self) -> tuple[Float[Array, "3 4"], Float[Array, "3 4"]]:
+        """OpenCV ``P_left = K_l [I | 0]`` and ``P_right = K_r [R_rl | t_rl]`` (ideal pinholes)."""
+        eye = jnp.eye(3, dtype=self.R_rl.dtype)
+        P_l = self.left.K @ jnp.concatenate([eye, jnp.zeros((3, 1), eye.dtype)], axis=1)
+        P_r = self.right.K @ jnp.concatenate([self.R_rl, self.t_rl[:, None]], axis=1)
+        return P_l, P_r
+
+    # ------------------------------------------------------------------ triangulation
+    def triangulate(
+        self,
+        pixels_left: Float[Array, "... 2"],
+        pixels_right: Float[Array, "... 2"],
+        *,
+        method: str = "linear",
+    ) -> Float[Array, "... 3"]:
+        """Points in the left camera frame from their pixels in both images (distortion removed).
+
+        ``method="linear"``: the homogeneous DLT of Hartley and Zisserman (Sec. 12.2, what
+        ``cv2.triangulatePoints`` does) in normalised coordinates, solved by SVD.
+        ``method="midpoint"``: the midpoint of the common perpendicular of the two rays.
+        Both are exact for noise-free correspondences. Points at infinity (parallel rays) come
+        out with a huge or non-finite depth; mask them with :meth:`PinholeCamera.in_front` and a
+        depth limit.
+        """
+        pixels_left, pixels_right = _scalar(pixels_left), _scalar(pixels_right)
+        if pixels_left.shape[-1:] != (2,) or pixels_left.shape != pixels_right.shape:
+            raise ValueError(
+                f"pixels_left and pixels_right must have the same shape (..., 2); got "
+                f"{pixels_left.shape} and {pixels_right.shape}"
+            )
+        if method not in ("linear", "midpoint"):
+            raise ValueError(f"method must be 'linear' or 'midpoint'; got {method!r}")
+        shape = pixels_left.shape[:-1]
+        undistort = _maybe_distorted(self.left) or _maybe_distorted(self.right)
+        flat = _triangulate(
+            self, pixels_left.reshape(-1, 2), pixels_right.reshape(-1, 2), method, undistort
+        )
+        return flat.reshape(*shape, 3)
+
+    def triangulate_segments(
+        self,
+        segments_left: Float[Array, "... 2 2"],
+        segments_right: Float[Array, "... 2 2"],
+        *,
+        method: str = "linear",
+    ) -> Float[Array, "... 2 3"]:
+        """3-D endpoints (left camera frame) of segments whose endpoints correspond in both images.
+
+        ``segments_*[..., k, :]`` is endpoint ``k`` (start, end) in pixels; the right endpoints
+        must already be cut to the left ones (Yang et al. 2024 Sec. 3: the right line is cut where
+        it meets the epipolar lines of the left endpoints, see
+        :func:`jaxpose.vision.stereo_match.match_lines`).
+        """
+        segments_left, segments_right = _scalar(segments_left), _scalar(segments_right)
+        if segments_left.shape[-2:] != (2, 2) or segments_left.shape != segments_right.shape:
+            raise ValueError(
+                f"segments must have the same shape (..., 2, 2); got {segments_left.shape} and "
+                f"{segments_right.shape}"
+            )
+        return self.triangulate(segments_left, segments_right, method=method)
+
+    # ------------------------------------------------------------------ rectification (OpenCV)
+    def rectify(self, *, alpha: float = 0.0):
+        """OpenCV rectification (``cv2.stereoRectify`` + ``initUndistortRectifyMap``).
+
+        Eager only: delegates to :func:`jaxpose.vision.stereo_rectify.rectify` (the OpenCV part
+        lives in the vision layer so that this module stays pure JAX) and returns its
+        :class:`~jaxpose.vision.stereo_rectify.Rectification` (maps, ``R1, R2, P1, P2, Q``).
+        """
+        from .vision.stereo_rectify import rectify  # vision layer, imported on use only
+
+        return rectify(self, alpha=alpha)
+
+
+def _maybe_distorted(camera: PinholeCamera) -> bool:
+    """False only when the distortion is known (concrete) to be zero: Newton undistortion skipped."""
+    if isinstance(camera.dist, jax.core.Tracer):
+        return True
+    return camera.has_distortion()
+
+
+@eqx.filter_jit
+def _triangulate(rig: StereoCamera, pixels_left, pixels_right, method: str, undistort: bool):
+    xl = rig.left.normalize(pixels_left, undistort=undistort)
+    xr = rig.right.normalize(pixels_right, undistort=undistort)
+    if method == "linear":
+        return _triangulate_dlt(xl, xr, rig.R_rl, rig.t_rl)
+    return _triangulate_midpoint(xl, xr, rig.R_rl, rig.t_rl)
+
+
+def _triangulate_dlt(xl, xr, R, t):
+    """Homogeneous DLT on normalised coordinates ``(n, 2)``; returns ``(n, 3)``."""
+    eye = jnp.eye(3, dtype=R.dtype)
+    P1 = jnp.concatenate([eye, jnp.zeros((3, 1), R.dtype)], axis=1)
+    P2 = jnp.concatenate([R, t[:, None]], axis=1)
+
+    def one(a, b):
+        A = jnp.stack(
+            [a[0] * P1[2] - P1[0], a[1] * P1[2] - P1[1], b[0] * P2[2] - P2[0], b[1] * P2[2] - P2[1]]
+        )
+        _, _, vt = jnp.linalg.svd(A)
+        X = vt[-1]
+        return X[:3] / X[3]
+
+    return jax.vmap(one)(xl, xr)
+
+
+def _triangulate_midpoint(xl, xr, R, t):
+    """Midpoint of the common perpendicular of the two rays, in the left frame."""
+    ones = jnp.ones_like(xl[..., :1])
+    d1 = jnp.concatenate([xl, ones], -1)
+    d2 = jnp.einsum("ji,...j->...i", R, jnp.concatenate([xr, ones], -1))  # right ray in left frame
+    c2 = -R.T @ t  # right optical centre in the left frame
+    # minimise |s d1 - (c2 + u d2)|^2 over (s, u)
+    a, b, c = jnp.sum(d1 * d1, -1), jnp.sum(d1 * d2, -1), jnp.sum(d2 * d2, -1)
+    d, e = jnp.sum(d1 * c2, -1), jnp.sum(d2 * c2, -1)
+    den = a * c - b * b
+    den = jnp.where(jnp.abs(den) > 0, den, jnp.finfo(den.dtype).tiny)
+    s = (c * d - b * e) / den
+    u = (b * d - a * e) / den
+    return 0.5 * (s[..., None] * d1 + c2 + u[..., None] * d2)
