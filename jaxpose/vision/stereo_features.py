@@ -1,0 +1,229 @@
+"""Point and line features of the stereo tracker (Yang et al. 2024, Sec. 2), with OpenCV.
+
+* Points: ORB (``cv2.ORB_create``), matched frame to frame by Hamming KNN with a ratio test, the
+  survivors screened by RANSAC on the fundamental matrix (a tumbling rigid target seen by a
+  hovering chaser is a rigid relative motion, so inliers obey one epipolar geometry).
+* Lines: LSD (``cv2.line_descriptor.LSDDetector``, von Gioi et al.'s detector), kept when
+  ``L > mu min(W, H)`` (eq. 1); LBD descriptors (``cv2.line_descriptor.BinaryDescriptor``: the
+  72-float LBD binarised to 256 bits, 32 bytes, as the paper does); Hamming KNN with ``k = 2``
+  (eq. 2) and a ratio test (eq. 3).
+
+Eq. 3 as printed keeps a match when ``d1 / d2 > eps_match``, which would keep *ambiguous* matches
+(``d1 <= d2`` always); we read it as Lowe's test with the ratio the other way up, i.e. keep when
+``d1 / d2 < ratio`` (equivalently the "confidence" ``d2 / d1 > 1 / ratio``).
+
+Both detectors run on the whole image or inside an optional ``roi`` box, which saves most of the
+LSD time on a dark-sky background. Arrays handed on are float64 pixels ``(u, v)`` with the
+pixel-centre convention of :mod:`jaxpose.camera`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "FeatureOptions",
+    "FrameFeatures",
+    "detect_lines",
+    "detect_points",
+    "extract",
+    "knn_ratio_match",
+    "match_lines",
+    "match_points",
+]
+
+
+@dataclass(frozen=True)
+class FeatureOptions:
+    """Hyper-parameters of the features (defaults tuned on the rendered stereo sequences).
+
+    Attributes:
+        n_points: ORB budget per image.
+        orb_fast_threshold: FAST threshold of ORB (lower finds corners on dim panels).
+        mu: eq. 1 length factor; lines shorter than ``mu min(W, H)`` are dropped.
+        point_ratio, line_ratio: ratio-test thresholds (eq. 3 read as Lowe's test).
+        max_hamming_point, max_hamming_line: absolute Hamming caps on the best match (bits).
+        ransac_px: RANSAC threshold of the fundamental-matrix screening (pixels).
+        max_lines: keep at most this many lines (the longest).
+    """
+
+    n_points: int = 1200
+    orb_fast_threshold: int = 12
+    mu: float = 0.04
+    point_ratio: float = 0.8
+    line_ratio: float = 0.8
+    max_hamming_point: int = 64
+    max_hamming_line: int = 80
+    ransac_px: float = 1.5
+    max_lines: int = 120
+
+
+@dataclass
+class FrameFeatures:
+    """Features of one (left) image.
+
+    Attributes:
+        points: ``(N, 2)`` keypoint pixels.
+        point_desc: ``(N, 32)`` uint8 ORB descriptors.
+        segments: ``(M, 2, 2)`` line segments (start, end) in pixels.
+        line_desc: ``(M, 32)`` uint8 LBD descriptors (256 bits).
+    """
+
+    points: np.ndarray
+    point_desc: np.ndarray
+    segments: np.ndarray
+    line_desc: np.ndarray
+
+
+def _gray(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.ndim != 2 or img.size == 0:
+        raise ValueError(f"expected a non-empty grayscale or BGR image; got shape {np.shape(image)}")
+    if img.dtype != np.uint8:
+        img = np.clip(img, 0, 255).astype(np.uint8)
+    return img
+
+
+def _roi_slice(shape, roi, pad: int = 8):
+    H, W = shape
+    if roi is None:
+        return 0, 0, W, H
+    u0, v0, u1, v1 = (float(x) for x in roi)
+    if not np.all(np.isfinite([u0, v0, u1, v1])):
+        return 0, 0, W, H
+    u0, v0 = max(0, int(u0) - pad), max(0, int(v0) - pad)
+    u1, v1 = min(W, int(np.ceil(u1)) + pad + 1), min(H, int(np.ceil(v1)) + pad + 1)
+    if u1 - u0 < 16 or v1 - v0 < 16:
+        return 0, 0, W, H
+    return u0, v0, u1, v1
+
+
+_ORB: dict = {}
+_LSD: list = []
+_LBD: list = []
+
+
+def detect_points(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None):
+    """ORB keypoints ``(N, 2)`` and descriptors ``(N, 32)`` uint8 of a grayscale image."""
+    img = _gray(image)
+    key = (options.n_points, options.orb_fast_threshold)
+    if key not in _ORB:
+        _ORB[key] = cv2.ORB_create(nfeatures=options.n_points, fastThreshold=options.orb_fast_threshold)
+    u0, v0, u1, v1 = _roi_slice(img.shape, roi)
+    kps, desc = _ORB[key].detectAndCompute(np.ascontiguousarray(img[v0:v1, u0:u1]), None)
+    if desc is None or not kps:
+        return np.zeros((0, 2)), np.zeros((0, 32), np.uint8)
+    pts = np.array([k.pt for k in kps], dtype=np.float64) + [u0, v0]
+    return pts, desc
+
+
+def detect_lines(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None):
+    """LSD segments ``(M, 2, 2)`` longer than ``mu min(W, H)`` (eq. 1) and their LBD descriptors.
+
+    ``W, H`` are the full image's size whatever the ``roi``.
+    """
+    img = _gray(image)
+    if not _LSD:
+        _LSD.append(cv2.line_descriptor.LSDDetector.createLSDDetector())
+        _LBD.append(cv2.line_descriptor.BinaryDescriptor.createBinaryDescriptor())
+    H, W = img.shape
+    u0, v0, u1, v1 = _roi_slice(img.shape, roi)
+    crop = np.ascontiguousarray(img[v0:v1, u0:u1])
+    keylines = _LSD[0].detect(crop, 2, 1)
+    min_len = options.mu * min(W, H)
+    keylines = [k for k in keylines if k.octave == 0 and k.lineLength > min_len]
+    keylines.sort(key=lambda k: -k.lineLength)
+    keylines = keylines[: options.max_lines]
+    for i, k in enumerate(keylines):
+        k.class_id = i
+    if not keylines:
+        return np.zeros((0, 2, 2)), np.zeros((0, 32), np.uint8)
+    keylines, desc = _LBD[0].compute(crop, keylines)
+    if desc is None or not keylines:
+        return np.zeros((0, 2, 2)), np.zeros((0, 32), np.uint8)
+    seg = np.array(
+        [[[k.startPointX, k.startPointY], [k.endPointX, k.endPointY]] for k in keylines], dtype=np.float64
+    )
+    return seg + [u0, v0], np.asarray(desc, np.uint8)
+
+
+def extract(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None, lines: bool = True):
+    """:class:`FrameFeatures` of one image (``lines=False`` for the points-only mode)."""
+    pts, pdesc = detect_points(image, options=options, roi=roi)
+    if lines:
+        seg, ldesc = detect_lines(image, options=options, roi=roi)
+    else:
+        seg, ldesc = np.zeros((0, 2, 2)), np.zeros((0, 32), np.uint8)
+    return FrameFeatures(pts, pdesc, seg, ldesc)
+
+
+_BF: list = []
+
+
+def knn_ratio_match(desc_ref: np.ndarray, desc_cur: np.ndarray, *, ratio: float, max_distance: int):
+    """Hamming KNN (``k = 2``, eq. 2) with the ratio test (eq. 3) and cross-check.
+
+    Returns ``(i_ref, i_cur)`` int arrays of the kept pairs, each index used at most once.
+    """
+    if len(desc_ref) == 0 or len(desc_cur) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    if not _BF:
+        _BF.append(cv2.BFMatcher(cv2.NORM_HAMMING))
+    bf = _BF[0]
+    if len(desc_cur) < 2:
+        m = bf.match(desc_ref, desc_cur)
+        pairs = [(x.queryIdx, x.trainIdx) for x in m if x.distance <= max_distance]
+    else:
+        pairs = []
+        for knn in bf.knnMatch(desc_ref, desc_cur, k=2):
+            if len(knn) < 2:
+                continue
+            a, b = knn
+            if a.distance <= max_distance and a.distance < ratio * b.distance:
+                pairs.append((a.queryIdx, a.trainIdx))
+    if not pairs:
+        return np.zeros(0, int), np.zeros(0, int)
+    pairs = np.array(pairs)
+    # one-to-one: drop current features claimed by several reference features
+    _, first, counts = np.unique(pairs[:, 1], return_index=True, return_counts=True)
+    keep = first[counts == 1]
+    keep.sort()
+    return pairs[keep, 0], pairs[keep, 1]
+
+
+def match_points(
+    points_ref: np.ndarray,
+    desc_ref: np.ndarray,
+    points_cur: np.ndarray,
+    desc_cur: np.ndarray,
+    *,
+    options: FeatureOptions = FeatureOptions(),
+    ransac: bool = True,
+):
+    """ORB matches frame to frame: ratio test, then RANSAC on the fundamental matrix.
+
+    Returns ``(i_ref, i_cur)``. With fewer than 8 ratio-test survivors RANSAC is skipped.
+    """
+    i_ref, i_cur = knn_ratio_match(
+        desc_ref, desc_cur, ratio=options.point_ratio, max_distance=options.max_hamming_point
+    )
+    if ransac and len(i_ref) >= 8:
+        _, inl = cv2.findFundamentalMat(
+            points_ref[i_ref], points_cur[i_cur], cv2.FM_RANSAC, options.ransac_px, 0.999
+        )
+        if inl is not None:
+            keep = inl.ravel().astype(bool)
+            i_ref, i_cur = i_ref[keep], i_cur[keep]
+    return i_ref, i_cur
+
+
+def match_lines(desc_ref: np.ndarray, desc_cur: np.ndarray, *, options: FeatureOptions = FeatureOptions()):
+    """LBD matches frame to frame (eqs. 2-3). Returns ``(i_ref, i_cur)``."""
+    return knn_ratio_match(
+        desc_ref, desc_cur, ratio=options.line_ratio, max_distance=options.max_hamming_line
+    )

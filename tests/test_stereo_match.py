@@ -1,0 +1,123 @@
+"""Stereo correspondence (eq. 4-5) and frame-to-frame features (eqs. 1-3) on images drawn here."""
+
+import cv2
+import numpy as np
+import pytest
+
+from jaxpose import PinholeCamera, StereoCamera
+from jaxpose.vision.stereo_features import (
+    FeatureOptions,
+    detect_lines,
+    extract,
+    match_lines,
+    match_points,
+)
+from jaxpose.vision.stereo_match import (
+    StereoMatchOptions,
+    disparity_range,
+    match_lines_stereo,
+    match_points_stereo,
+    parabolic_offset,
+    zncc,
+)
+
+H, W = 384, 512
+
+
+def _scene(rng, shift=(0.0, 0.0), angle_deg=0.0):
+    """Smooth random texture with thick bright segments, optionally rotated/shifted (float32)."""
+    tex = cv2.GaussianBlur((rng.random((H, W)) * 255).astype(np.float32), (0, 0), 2.0)
+    tex = cv2.normalize(tex, None, 20, 200, cv2.NORM_MINMAX)
+    for _ in range(12):
+        p = rng.uniform([60, 60], [W - 60, H - 60], (2, 2))
+        cv2.line(tex, tuple(map(int, p[0])), tuple(map(int, p[1])), 250, 3, cv2.LINE_AA)
+    return tex
+
+
+def _shift(img, dx, dy=0.0, angle_deg=0.0):
+    M = cv2.getRotationMatrix2D((W / 2, H / 2), angle_deg, 1.0)
+    M[:, 2] += [dx, dy]
+    out = cv2.warpAffine(img, M, (W, H), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def pair():
+    rng = np.random.default_rng(7)
+    left = _scene(rng)
+    return np.clip(left, 0, 255).astype(np.uint8), _shift(left, -23.4), 23.4
+
+
+def test_zncc_and_parabola():
+    rng = np.random.default_rng(0)
+    a = rng.random((4, 7, 7))
+    np.testing.assert_allclose(zncc(a, 3.0 * a + 5.0), 1.0)
+    np.testing.assert_allclose(zncc(a, -a), -1.0)
+    assert zncc(a, np.ones_like(a)).tolist() == [0.0] * 4
+    x0 = 0.3
+    s = lambda x: 1.0 - (x - x0) ** 2  # noqa: E731
+    assert parabolic_offset(np.array(s(-1)), np.array(s(0)), np.array(s(1))) == pytest.approx(x0)
+
+
+def test_point_epipolar_search_subpixel(pair):
+    left, right, d = pair
+    pts = extract(left, lines=False).points
+    pm = match_points_stereo(left, right, pts, (5, 60))
+    assert pm.ok.mean() > 0.8
+    err = pts[pm.ok, 0] - pm.pixels_right[pm.ok, 0] - d
+    assert np.median(np.abs(err)) < 0.1 and np.percentile(np.abs(err), 95) < 0.3
+    np.testing.assert_array_equal(pm.pixels_right[:, 1], pts[:, 1])
+    # a disparity range that excludes the truth gives no match at the border of the range
+    assert match_points_stereo(left, right, pts, (30, 60)).ok.mean() < 0.05
+    with pytest.raises(ValueError, match="disparity"):
+        match_points_stereo(left, right, pts, (5, 6))
+    with pytest.raises(ValueError, match="odd"):
+        StereoMatchOptions(window=4)
+
+
+def test_line_stereo_match_and_cut(pair):
+    left, right, d = pair
+    seg, desc = detect_lines(left)
+    assert desc.shape == (len(seg), 32) and desc.dtype == np.uint8  # 256-bit LBD
+    lm = match_lines_stereo(left, right, seg, (5, 60))
+    assert lm.ok.sum() >= 5
+    # cut at the left endpoints' rows: same rows, shifted by the disparity
+    np.testing.assert_allclose(lm.segments_right[lm.ok, :, 1], seg[lm.ok, :, 1])
+    np.testing.assert_allclose(seg[lm.ok, :, 0] - lm.segments_right[lm.ok, :, 0], d, atol=0.4)
+    assert np.all(lm.fit_error[lm.ok] < StereoMatchOptions().eps_delta_px)
+    # horizontal segments are never matched along the rows
+    flat = np.array([[[100.0, 200.0], [300.0, 201.0]]])
+    assert not match_lines_stereo(left, right, flat, (5, 60)).ok.any()
+
+
+def test_eq1_length_filter(pair):
+    left, _, _ = pair
+    short = detect_lines(left, options=FeatureOptions(mu=0.02))[0]
+    long_ = detect_lines(left, options=FeatureOptions(mu=0.15))[0]
+    assert len(long_) < len(short)
+    assert np.all(np.linalg.norm(long_[:, 1] - long_[:, 0], axis=1) > 0.15 * min(H, W) - 1e-6)
+
+
+def test_frame_to_frame_matching_rotated_view():
+    rng = np.random.default_rng(3)
+    img = _scene(rng)
+    a, b = np.clip(img, 0, 255).astype(np.uint8), _shift(img, 6.0, -4.0, angle_deg=8.0)
+    fa, fb = extract(a), extract(b)
+    M = cv2.getRotationMatrix2D((W / 2, H / 2), 8.0, 1.0)
+    M[:, 2] += [6.0, -4.0]
+    ia, ib = match_points(fa.points, fa.point_desc, fb.points, fb.point_desc)
+    assert len(ia) > 100
+    pred = fa.points[ia] @ M[:, :2].T + M[:, 2]
+    assert np.mean(np.linalg.norm(pred - fb.points[ib], axis=1) < 3.0) > 0.95
+    la, lb = match_lines(fa.line_desc, fb.line_desc)
+    assert len(la) >= 5
+    mid_a = fa.segments[la].mean(1) @ M[:, :2].T + M[:, 2]
+    assert np.mean(np.linalg.norm(mid_a - fb.segments[lb].mean(1), axis=1) < 15.0) > 0.8
+
+
+def test_disparity_range_of_rig():
+    rig = StereoCamera.from_baseline(PinholeCamera(1000.0, 1000.0, 511.5, 383.5), 0.2)
+    lo, hi = disparity_range(rig, 1.0, 4.0)
+    assert lo <= 50 and hi >= 200
+    with pytest.raises(ValueError):
+        disparity_range(rig, 4.0, 1.0)
