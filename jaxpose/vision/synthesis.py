@@ -176,7 +176,8 @@ def synthesize(
 
     def keep(kind, pts, segs):
         pts = np.asarray(pts, dtype=float).reshape(-1, POINTS_PER_GROUP[kind], D)
-        segs = np.asarray(segs, dtype=int).reshape(len(pts), -1)
+        width = {"proximal_pair": 2, "parallel_pair": 2, "parallel_triad": 3, "open_triad": 3}
+        segs = np.asarray(segs, dtype=int).reshape(len(pts), width.get(kind, 4))
         if len(pts) > max_groups:
             order = np.argsort(-length[segs].sum(1), kind="stable")[:max_groups]
             pts, segs = pts[order], segs[order]

@@ -1,0 +1,142 @@
+"""The image-processing subsystem end to end (Sharma et al. 2018 Fig. 3): undistortion, Gaussian
+filter, WGE, ROI, coarse position, the WGE+Hough and Sobel+Hough streams (or LSD), merging, and
+feature synthesis. Each step is its own module; this one only chains them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..camera import PinholeCamera
+from .coarse import coarse_position
+from .hough import sobel_hough, wge_hough
+from .lsd import lsd_segments
+from .merge import antenna_candidates, merge_streams, merge_truncated
+from .roi import roi_diagonal, roi_from_gradient
+from .synthesis import FeatureGroups, synthesize
+from .undistort import undistort_image
+from .wge import weak_gradient_elimination
+
+__all__ = ["DetectionOptions", "Detection", "detect", "to_gray"]
+
+
+@dataclass(frozen=True)
+class DetectionOptions:
+    """Hyper-parameters of the image processing (defaults tuned on rendered Tango images).
+
+    ``kappa1..4`` scale the Hough parameters by the ROI diagonal (eqs. 5, 10); ``d_max_frac`` and
+    ``theta_max_deg`` are the synthesis thresholds (eqs. 14-15, ``d_max = d_max_frac l_ROI``);
+    ``detector`` is ``"hough"`` (the paper's two streams) or ``"lsd"``.
+    """
+
+    detector: str = "hough"
+    gaussian_sigma_px: float = 1.0
+    wge_cdf: float = 0.99
+    kappa1: float = 0.04
+    kappa2: float = 0.006
+    kappa3: float = 0.08
+    kappa4: float = 0.01
+    d_max_frac: float = 0.04
+    theta_max_deg: float = 4.0
+    max_segments: int = 40
+    max_groups: int = 24
+    min_roi_px: float = 12.0
+
+
+@dataclass
+class Detection:
+    """What the image processing found (pixels of the *undistorted* image)."""
+
+    camera: PinholeCamera  # the ideal camera of the undistorted image
+    roi: np.ndarray | None
+    coarse_t_cam: np.ndarray | None
+    segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
+    from_wge: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    antennas: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    groups: FeatureGroups | None = None
+    timings: dict = field(default_factory=dict)
+    image: np.ndarray | None = None  # the undistorted, smoothed grayscale image
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """Grayscale uint8 of an ``(H, W)`` or ``(H, W, 3|4)`` image (raises on anything else)."""
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] in (3, 4):
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    if img.ndim != 2:
+        raise ValueError(f"image must be (H, W) or (H, W, 3); got shape {img.shape}")
+    if img.dtype != np.uint8:
+        f = np.nan_to_num(img.astype(np.float64))
+        img = np.clip(f * (255.0 if f.max() <= 1.0 else 1.0), 0, 255).astype(np.uint8)
+    return img
+
+
+def detect(
+    image: np.ndarray,
+    camera: PinholeCamera,
+    characteristic_length_m: float,
+    options: DetectionOptions = DetectionOptions(),
+) -> Detection:
+    """Run the image processing on one image; never raises for a bad *image content* (no ROI ->
+    ``roi=None``, no segments -> empty arrays)."""
+    import time
+
+    tm = {}
+    t0 = time.perf_counter()
+    gray = to_gray(image)
+    if min(gray.shape) < 16:
+        raise ValueError(f"image too small: {gray.shape[1]}x{gray.shape[0]} pixels")
+    und, ideal = undistort_image(gray, camera)
+    smooth = (
+        cv2.GaussianBlur(und, (0, 0), options.gaussian_sigma_px)
+        if options.gaussian_sigma_px > 0
+        else und
+    )
+    tm["undistort_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    wge = weak_gradient_elimination(smooth, cdf=options.wge_cdf)
+    roi = roi_from_gradient(wge.filtered)
+    tm["wge_roi_s"] = time.perf_counter() - t0
+    det = Detection(ideal, None, None, timings=tm, image=smooth)
+    if roi is None or roi_diagonal(roi) < options.min_roi_px:
+        return det
+    det.roi = roi
+    det.coarse_t_cam = coarse_position(roi, ideal, characteristic_length_m)
+    l_roi = roi_diagonal(roi)
+    t0 = time.perf_counter()
+    if options.detector == "lsd":
+        segs = merge_truncated(lsd_segments(smooth, roi, kappa=options.kappa1))
+        from_wge = np.zeros(len(segs), bool)
+        antennas = np.nonzero(np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1) < l_roi / 3)[0]
+        sob = segs
+    elif options.detector == "hough":
+        w = merge_truncated(
+            wge_hough(wge.binary, roi, kappa1=options.kappa1, kappa2=options.kappa2)
+        )
+        sob = merge_truncated(
+            sobel_hough(smooth, roi, kappa3=options.kappa3, kappa4=options.kappa4)
+        )
+        segs, from_wge = merge_streams(w, sob)
+        antennas = antenna_candidates(segs, from_wge, sob, l_roi)
+    else:
+        raise ValueError(f"detector must be 'hough' or 'lsd'; got {options.detector!r}")
+    tm["segments_s"] = time.perf_counter() - t0
+    # Keep the longest segments (bounded combinatorics); antenna flags follow.
+    length = np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)
+    order = np.argsort(-length, kind="stable")[: options.max_segments]
+    is_ant = np.isin(np.arange(len(segs)), antennas)
+    segs, from_wge, is_ant = segs[order], from_wge[order], is_ant[order]
+    det.segments, det.from_wge, det.antennas = segs, from_wge, np.nonzero(is_ant)[0]
+    t0 = time.perf_counter()
+    det.groups = synthesize(
+        segs[~is_ant] if (~is_ant).sum() >= 2 else segs,
+        d_max=options.d_max_frac * l_roi,
+        theta_max_deg=options.theta_max_deg,
+        min_separation=0.02 * l_roi,
+        max_groups=options.max_groups,
+    )
+    det.groups.antennas = det.antennas
+    tm["synthesis_s"] = time.perf_counter() - t0
+    return det

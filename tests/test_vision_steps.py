@@ -1,0 +1,158 @@
+"""Image-processing steps one by one: undistortion, WGE, ROI, coarse position, Hough, LSD, merging,
+synthesis, and the chained detector on a rendered image."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxpose import PinholeCamera, Pose
+from jaxpose.geometry import euler_to_dcm
+from jaxpose.models import tango
+from jaxpose.vision.coarse import coarse_position
+from jaxpose.vision.features import DetectionOptions, detect, to_gray
+from jaxpose.vision.lsd import lsd_segments
+from jaxpose.vision.merge import merge_streams, merge_truncated, remove_duplicates
+from jaxpose.vision.render import project_points, render
+from jaxpose.vision.roi import roi_diagonal, roi_from_gradient
+from jaxpose.vision.synthesis import synthesize
+from jaxpose.vision.undistort import undistort_image
+from jaxpose.vision.wge import prewitt_magnitude, weak_gradient_elimination
+
+
+@pytest.fixture
+def camera():
+    return PinholeCamera(
+        1000.0, 1000.0, 399.5, 299.5, [-0.15, 0.05, 0.0, 0.0, 0.0], width=800, height=600
+    )
+
+
+def oblique_pose(z=6.0):
+    R = np.asarray(euler_to_dcm(jnp.array([2.4, 0.3, 0.5])))
+    return Pose(R, np.array([0.1, -0.05, z]))
+
+
+def test_undistort_straightens_lines(camera):
+    # A rendered image undistorted must show the ideal projection of the corners.
+    r = render(tango(), oblique_pose(), camera, rng=0, noise_sigma=0.0, blur_sigma_px=0.0)
+    und, ideal = undistort_image(r.image, camera)
+    assert not ideal.has_distortion() and und.shape == r.image.shape
+    pts = np.asarray(oblique_pose().apply(jnp.asarray(tango().vertices[:8])))
+    uv = project_points(ideal, pts)
+    # The target pixels of the undistorted image sit where the ideal camera projects them.
+    mask = und > 20
+    inside = [
+        mask[int(round(v)), int(round(u))]
+        or mask[max(int(v) - 2, 0) : int(v) + 3, max(int(u) - 2, 0) : int(u) + 3].any()
+        for u, v in uv
+    ]
+    assert np.mean(inside) >= 0.75
+    same, _ = undistort_image(r.image, camera.without_distortion())
+    assert same is r.image
+
+
+def test_prewitt_and_wge_thresholds():
+    img = np.zeros((64, 64), np.uint8)
+    img[:, 32:] = 200
+    G = prewitt_magnitude(img)
+    assert G[10, 31] == pytest.approx(600.0) and G[10, 5] == 0.0
+    res = weak_gradient_elimination(img)
+    assert np.all(res.filtered[:, 30:34].max(1) > 0) and res.filtered[:, :28].max() == 0
+    black = weak_gradient_elimination(np.zeros((32, 32), np.uint8))
+    assert black.filtered.max() == 0 and roi_from_gradient(black.filtered) is None
+
+
+def test_wge_cdf_matches_exponential_fit(rng):
+    g = rng.exponential(0.05, size=(200, 200)).astype(np.float32)
+    res = weak_gradient_elimination(None, magnitude=g)
+    kept = (res.filtered > 0).mean()
+    # The fitted CDF reaches 0.99 near the 0.99 quantile; whole bins are kept.
+    assert 0.003 < kept < 0.03
+
+
+def test_roi_quantiles():
+    F = np.zeros((100, 200))
+    F[20:60, 50:150] = 1.0
+    u0, v0, u1, v1 = roi_from_gradient(F)
+    assert u0 == pytest.approx(52, abs=1) and u1 == pytest.approx(147, abs=1)
+    assert v0 == pytest.approx(21, abs=1) and v1 == pytest.approx(58, abs=1)
+    assert roi_diagonal([0, 0, 3, 4]) == 5.0
+
+
+def test_coarse_position_eqs_6_to_9(camera):
+    ideal = camera.without_distortion()
+    roi = np.array([399.5 - 50, 299.5 - 50, 399.5 + 50, 299.5 + 50])
+    t = coarse_position(roi, ideal, 1.0)
+    np.testing.assert_allclose(t, [0, 0, 1000.0 / np.hypot(100, 100)], atol=1e-9)
+    t = coarse_position(roi + [200, 0, 200, 0], ideal, 1.0)
+    assert t[0] > 0 and t[1] == pytest.approx(0.0)  # right of centre -> +x (OpenCV)
+    with pytest.raises(ValueError):
+        coarse_position([5, 5, 5, 5], ideal, 1.0)
+
+
+def test_merge_truncated_and_duplicates():
+    a = np.array([[0.0, 0.0], [40.0, 0.0]])
+    b = np.array([[45.0, 0.5], [90.0, 0.5]])
+    c = np.array([[0.0, 30.0], [90.0, 30.0]])
+    out = merge_truncated(np.stack([a, b, c]))
+    assert len(out) == 2
+    longest = out[np.argmax(np.linalg.norm(out[:, 1] - out[:, 0], axis=1))]
+    assert np.linalg.norm(longest[1] - longest[0]) == pytest.approx(90.0, abs=0.1)
+    keep = remove_duplicates(np.stack([c, c + [1.0, 1.0], c * [0.5, 1]]))
+    assert len(keep) == 1
+    # Streams: a short WGE segment crossing a long Sobel one in its middle is dropped.
+    sob = np.array([[[0.0, 50.0], [100.0, 50.0]]])
+    wge = np.array([[[50.0, 40.0], [50.0, 60.0]], [[0.0, 0.0], [0.0, 20.0]]])
+    segs, from_wge = merge_streams(wge, sob)
+    assert len(segs) == 2 and from_wge.sum() == 1
+
+
+def test_synthesis_of_a_square_and_a_u():
+    sq = np.array(
+        [[[0, 0], [100, 0]], [[100, 0], [100, 100]], [[100, 100], [0, 100]], [[0, 100], [0, 0]]],
+        float,
+    )
+    g = synthesize(sq, d_max=5.0)
+    assert g.count("closed_tetrad") == 1 and g.most_complex() == "closed_tetrad"
+    assert g.count("parallel_pair") == 2 and g.count("proximal_pair") == 4
+    corners = {tuple(np.round(p).astype(int)) for p in g.points["closed_tetrad"][0]}
+    assert corners == {(0, 0), (100, 0), (100, 100), (0, 100)}
+    # A "Z" (far ends on opposite sides) is not an open triad (eq. 16); a "U" is.
+    z = np.array([[[0, 0], [0, 50]], [[0, 50], [100, 50]], [[100, 50], [100, 100]]], float)
+    u = np.array([[[0, 0], [0, 50]], [[0, 50], [100, 50]], [[100, 50], [100, 0]]], float)
+    assert synthesize(z, d_max=3.0).count("open_triad") == 0
+    assert synthesize(u, d_max=3.0).count("open_triad") == 1
+    assert synthesize(np.zeros((0, 2, 2)), d_max=1.0).most_complex() is None
+
+
+def test_detect_on_a_rendering(camera):
+    m = tango()
+    pose = oblique_pose()
+    r = render(m, pose, camera, rng=3)
+    for detector in ("hough", "lsd"):
+        det = detect(r.image, camera, m.characteristic_length, DetectionOptions(detector=detector))
+        assert det.roi is not None and len(det.segments) >= 4
+        # ROI inside the true box grown by 10%; coarse range within 35%.
+        grow = 0.1 * roi_diagonal(r.roi)
+        assert det.roi[0] >= r.roi[0] - grow and det.roi[2] <= r.roi[2] + grow
+        rng_true = float(np.linalg.norm(np.asarray(pose.t)))
+        assert abs(np.linalg.norm(det.coarse_t_cam) / rng_true - 1) < 0.35
+        assert det.groups.most_complex() is not None
+
+
+def test_detect_bad_images(camera):
+    m = tango()
+    black = detect(np.zeros((600, 800), np.uint8), camera, 1.0)
+    assert black.roi is None and black.groups is None
+    sat = detect(np.full((600, 800), 255, np.uint8), camera, 1.0)
+    assert sat.roi is None
+    noise = detect(
+        np.random.default_rng(0).integers(0, 255, (600, 800)).astype(np.uint8),
+        camera,
+        m.characteristic_length,
+    )
+    assert noise.roi is None or len(noise.segments) >= 0
+    with pytest.raises(ValueError, match="too small"):
+        detect(np.zeros((8, 8), np.uint8), camera, 1.0)
+    with pytest.raises(ValueError, match="image must be"):
+        to_gray(np.zeros((4, 4, 4, 4)))
+    assert lsd_segments(np.zeros((50, 50), np.uint8)).shape[1:] == (2, 2)
