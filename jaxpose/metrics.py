@@ -98,9 +98,9 @@ def reprojection_error_2d(
     if mask is None:
         return jnp.mean(d, axis=-1)
     mask = jnp.asarray(mask)
-    n = jnp.sum(mask, axis=-1)
+    n = jnp.sum(mask, axis=-1).astype(d.dtype)
     total = jnp.sum(jnp.where(mask, d, 0.0), axis=-1)
-    return jnp.where(n > 0, total / jnp.maximum(n, 1), jnp.inf)
+    return jnp.where(n > 0, total / jnp.maximum(n, 1.0), jnp.inf)
 
 
 def endpoint_rates(
