@@ -59,8 +59,9 @@ PAPER_GROUPS = sorted(set(TABLE4_GROUPS + TABLE56_GROUPS))
 class Scenario:
     """Simulation parameters (Ning et al. Table 3 is lost; these are jaxpose's documented defaults).
 
-    Features are uniform in a ``plane_size_m`` square (the body ``z = 0`` plane, centred on the body
-    origin), seen by a ``focal_length_m`` lens with ``pixel_size_m`` pixels on an ``image_size``
+    Features are uniform in a ``plane_size_m`` square of the body ``z = 0`` plane centred at
+    ``plane_centre_m`` (the body origin by default; ``(0.5, 0.5)`` puts the origin at a corner, as
+    MATLAB's ``rand`` would), seen by a ``focal_length_m`` lens with ``pixel_size_m`` pixels on an ``image_size``
     sensor. The target origin sits at ``(offset_x_m, offset_y_m, range_m)`` in the camera frame and
     the relative attitude is ``attitude_deg`` (Euler angles of ``sequence`` in degrees, the same for
     every case; with ``random_attitude`` each case draws each angle uniformly in
@@ -79,6 +80,7 @@ class Scenario:
     attitude_deg: tuple[float, float, float] = (20.0, 20.0, 20.0)
     random_attitude: bool = False
     plane_size_m: float = 1.0
+    plane_centre_m: tuple[float, float] = (0.0, 0.0)
     sequence: str = "xyz"
     parameterization: str = "euler"
     sigma_px: float = 1.0
@@ -90,6 +92,7 @@ class Scenario:
         d = dataclasses.asdict(self)
         d["image_size"] = list(self.image_size)
         d["attitude_deg"] = list(self.attitude_deg)
+        d["plane_centre_m"] = list(self.plane_centre_m)
         return d
 
     def fingerprint(self, seed: int) -> str:
@@ -103,7 +106,7 @@ def make_cases(scenario: Scenario, n: int, cases: range | list[int], seed: int):
     pts, att = [], []
     for c in cases:
         rng = np.random.default_rng(np.random.SeedSequence([seed, n, c]))
-        xy = rng.uniform(-half, half, size=(n, 2))
+        xy = rng.uniform(-half, half, size=(n, 2)) + np.asarray(scenario.plane_centre_m)
         pts.append(np.c_[xy, np.zeros(n)])
         a = np.asarray(scenario.attitude_deg, dtype=float)
         if scenario.random_attitude:
@@ -404,6 +407,7 @@ def _scenario_from_results(results: dict) -> Scenario:
     d = {k: v for k, v in results["scenario"].items() if k in fields}
     d["image_size"] = tuple(d["image_size"])
     d["attitude_deg"] = tuple(d["attitude_deg"])
+    d["plane_centre_m"] = tuple(d["plane_centre_m"])
     return Scenario(**d)
 
 
@@ -511,6 +515,8 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--random-attitude", action="store_true", help="draw each angle in [-A, A] per case")
     g.add_argument("--sequence", default=d.sequence, help="Euler sequence of the attitude state")
     g.add_argument("--plane-size-m", type=float, default=d.plane_size_m)
+    g.add_argument("--plane-centre-m", type=float, nargs=2, default=list(d.plane_centre_m), metavar=("X", "Y"),
+                   help="centre of the feature square in the body frame (0.5 0.5: origin at a corner)")
 
 
 def scenario_from_args(args) -> Scenario:
@@ -525,6 +531,7 @@ def scenario_from_args(args) -> Scenario:
         random_attitude=args.random_attitude,
         sequence=args.sequence,
         plane_size_m=args.plane_size_m,
+        plane_centre_m=tuple(args.plane_centre_m),
     )
 
 
