@@ -261,19 +261,6 @@ def _residuals(pose: Pose, prob: _Problem):
     return e_p, e_l
 
 
-def _linearize(pose: Pose, prob: _Problem, cfg: _Config):
-    """Residuals and their Jacobians in the method's coordinates (``dop.point_jacobians``)."""
-    e_p, e_l = _residuals(pose, prob)
-    kw = dict(parameterization=_parameterization(cfg), sequence=cfg.sequence)
-    J_p = point_jacobians(prob.points, pose, prob.camera, **kw)  # (n, 2, 6)
-    if prob.segments.shape[0]:
-        J_e = point_jacobians(prob.segments.reshape(-1, 3), pose, prob.camera, **kw)
-        J_l = jnp.einsum("ka,kmab->kmb", prob.lines[:, :2], J_e.reshape(-1, 2, 2, 6))
-    else:
-        J_l = jnp.zeros((0, 2, 6), e_p.dtype)
-    return e_p, J_p, e_l, J_l
-
-
 def _robust_terms(e_p, e_l, prob: _Problem, cfg: _Config):
     """Squared Mahalanobis norms ``s`` of every feature, ``(n,)`` and ``(k,)``."""
     s_p = prob.w_points * jnp.sum(e_p**2, -1)
@@ -292,113 +279,187 @@ def _cost(pose: Pose, prob: _Problem, cfg: _Config):
     return _cost_from_residuals(*_residuals(pose, prob), prob, cfg)
 
 
-def _normal_equations(pose, prob, cfg):
-    e_p, J_p, e_l, J_l = _linearize(pose, prob, cfg)
-    s_p, s_l = _robust_terms(e_p, e_l, prob, cfg)
+def _rotation_generators(pose: Pose, cfg: _Config) -> Array:
+    """``G[k] = dR / d theta_k`` (``(3, 3, 3)``) for the method's rotation coordinates."""
+    if cfg.method == "newton-raphson":
+        eps = dcm_to_euler(pose.R, cfg.sequence)
+        return jnp.moveaxis(jax.jacfwd(partial(euler_to_dcm, sequence=cfg.sequence))(eps), -1, 0)
+    return hat(jnp.eye(3, dtype=pose.R.dtype)) @ pose.R  # d(exp([w]_x) R)/dw_k = [e_k]_x R
+
+
+def _project_xyz(camera: PinholeCamera, x, y, z):
+    """:meth:`PinholeCamera.project` on coordinate arrays (same guard, same distortion)."""
+    z_safe = jnp.where(z > 0, z, 1.0)
+    xy = camera.distort(jnp.stack([x / z_safe, y / z_safe], -1))
+    return camera.fx * xy[..., 0] + camera.cx, camera.fy * xy[..., 1] + camera.cy
+
+
+def _pixel_rows(pose: Pose, G: Array, points: Array, camera: PinholeCamera):
+    """Pixels ``(u, v)`` of ``points (m, 3)`` and their Jacobian rows, one array per column.
+
+    Written coordinate by coordinate so that under ``vmap`` everything is element-wise over
+    ``(batch, m)`` (no small matrix products). Equal to :func:`jaxpose.dop.point_jacobians`
+    (tested); ``bench/refine.py`` measures why this form is used in the loop.
+    """
+    R, t = pose.R, pose.t
+    P = [points[:, 0], points[:, 1], points[:, 2]]
+    X = [R[i, 0] * P[0] + R[i, 1] * P[1] + R[i, 2] * P[2] + t[i] for i in range(3)]
+    one, zero = jnp.ones_like(X[0]), jnp.zeros_like(X[0])
+    proj = partial(_project_xyz, camera)
+    (u, v), (ux, vx) = jax.jvp(proj, tuple(X), (one, zero, zero))
+    _, (uy, vy) = jax.jvp(proj, tuple(X), (zero, one, zero))
+    _, (uz, vz) = jax.jvp(proj, tuple(X), (zero, zero, one))
+    Ju, Jv = [ux, uy, uz], [vx, vy, vz]
+    for k in range(3):
+        dX = [G[k, i, 0] * P[0] + G[k, i, 1] * P[1] + G[k, i, 2] * P[2] for i in range(3)]
+        Ju.append(ux * dX[0] + uy * dX[1] + uz * dX[2])
+        Jv.append(vx * dX[0] + vy * dX[1] + vz * dX[2])
+    return u, v, Ju, Jv
+
+
+def _linearize(pose: Pose, prob: _Problem, cfg: _Config):
+    """IRLS normal equations ``A = J^T W J``, ``g = J^T W e`` and the robust cost at ``pose``."""
+    G = _rotation_generators(pose, cfg)
+    u, v, Ju, Jv = _pixel_rows(pose, G, prob.points, prob.camera)
+    ru, rv = u - prob.pixels[:, 0], v - prob.pixels[:, 1]
+    s_p = prob.w_points * (ru**2 + rv**2)
     w_p = prob.w_points * _res._weight_of_s(cfg.robust, s_p, cfg.robust_scale)
-    w_l = prob.w_lines * _res._weight_of_s(cfg.robust, s_l, cfg.robust_scale)
-    A = jnp.einsum("n,nki,nkj->ij", w_p, J_p, J_p) + jnp.einsum("n,nki,nkj->ij", w_l, J_l, J_l)
-    g = jnp.einsum("n,nki,nk->i", w_p, J_p, e_p) + jnp.einsum("n,nki,nk->i", w_l, J_l, e_l)
-    cost = _cost_from_residuals(e_p, e_l, prob, cfg)
+    rows = [(w_p, ru, Ju), (w_p, rv, Jv)]
+    rho = partial(_res.robust_rho, cfg.robust, scale=cfg.robust_scale)
+    cost = jnp.sum(rho(s_p))
+    if prob.segments.shape[0]:
+        ue, ve, Jue, Jve = _pixel_rows(pose, G, prob.segments.reshape(-1, 3), prob.camera)
+        l1, l2, l3 = (jnp.repeat(prob.lines[:, i], 2) for i in range(3))
+        d = l1 * ue + l2 * ve + l3  # (2k,): start, end of each segment
+        s_l = prob.w_lines * (d[0::2] ** 2 + d[1::2] ** 2)
+        w_l = jnp.repeat(prob.w_lines * _res._weight_of_s(cfg.robust, s_l, cfg.robust_scale), 2)
+        rows.append((w_l, d, [l1 * a + l2 * b for a, b in zip(Jue, Jve, strict=True)]))
+        cost = cost + jnp.sum(rho(s_l))
+    # One reduction each for A and g over all rows (rows along the last axis).
+    w = jnp.concatenate([w for w, _, _ in rows])
+    r = jnp.concatenate([r for _, r, _ in rows])
+    J = jnp.stack([jnp.concatenate([J[i] for _, _, J in rows]) for i in range(6)])  # (6, m)
+    A = jnp.sum(J[:, None, :] * (w * J)[None, :, :], axis=-1)
+    g = jnp.sum(J * (w * r), axis=-1)
     return A, g, cost
 
 
 # ----------------------------------------------------------------------------- 6x6 solve
 
 
-def _scaled_cholesky_solve(A: Array, b: Array, damping):
+def _scaled_cholesky_solve(A: Array, b: Array, damping=None):
     """Solve ``(A + damping * diag(A)) x = b`` for a ``6 x 6`` SPD ``A``; also a singular flag.
 
     Jacobi scaling ``S = D^-1/2 A D^-1/2`` (metres and radians differ in scale), then Cholesky
     written element by element: under ``vmap`` this is vector arithmetic over the batch, with no
-    per-matrix LAPACK call. ``singular`` is set when a pivot of ``S`` (undamped) falls below
+    per-matrix LAPACK call. ``singular`` is set when a pivot of the factored matrix falls below
     ``1e3 * eps`` (the threshold of :func:`jaxpose.dop.dop_from_information`).
     """
     n = A.shape[-1]
     dtype = A.dtype
     eps = float(jnp.finfo(dtype).eps)
-    diag = jnp.diagonal(A)
-    dmax = jnp.max(diag)
-    d = jnp.sqrt(jnp.maximum(diag, jnp.maximum(dmax, 1.0) * eps * eps))
-    S = A / (d[:, None] * d[None, :])
-    bs = b / d
     tol = 1e3 * eps
-
-    def factor(M):
-        L = [[None] * n for _ in range(n)]
-        ok = jnp.asarray(True)
-        for j in range(n):
-            s = M[j, j] - sum((L[j][k] ** 2 for k in range(j)), jnp.zeros((), dtype))
-            ok = ok & (s > tol)
-            piv = jnp.sqrt(jnp.maximum(s, tol))
-            L[j][j] = piv
-            for i in range(j + 1, n):
-                L[i][j] = (M[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), jnp.zeros((), dtype))) / piv
-        return L, ok
-
-    L_undamped, ok = factor(S)
-    if damping is None:
-        L = L_undamped
-    else:
-        L, _ = factor(S + damping * jnp.eye(n, dtype=dtype))
+    diag = jnp.diagonal(A)
+    d = jnp.sqrt(jnp.maximum(diag, jnp.maximum(jnp.max(diag), 1.0) * eps * eps))
+    S = A / (d[:, None] * d[None, :])
+    if damping is not None:
+        S = S + damping * jnp.eye(n, dtype=dtype)
+    bs = b / d
+    zero = jnp.zeros((), dtype)
+    L = [[None] * n for _ in range(n)]
+    ok = jnp.asarray(True)
+    for j in range(n):
+        piv2 = S[j, j] - sum((L[j][k] ** 2 for k in range(j)), zero)
+        ok = ok & (piv2 > tol)
+        L[j][j] = jnp.sqrt(jnp.maximum(piv2, tol))
+        for i in range(j + 1, n):
+            L[i][j] = (S[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), zero)) / L[j][j]
     y = [None] * n
     for i in range(n):
-        y[i] = (bs[i] - sum((L[i][k] * y[k] for k in range(i)), jnp.zeros((), dtype))) / L[i][i]
+        y[i] = (bs[i] - sum((L[i][k] * y[k] for k in range(i)), zero)) / L[i][i]
     x = [None] * n
     for i in reversed(range(n)):
-        x[i] = (y[i] - sum((L[k][i] * x[k] for k in range(i + 1, n)), jnp.zeros((), dtype))) / L[i][i]
+        x[i] = (y[i] - sum((L[k][i] * x[k] for k in range(i + 1, n)), zero)) / L[i][i]
     return jnp.stack(x) / d, ~ok
 
 
 # ----------------------------------------------------------------------------- native solver
 
 
+def _singular(A: Array) -> Array:
+    """Singularity test of :func:`jaxpose.dop.dop_from_information` (Jacobi-scaled pivots)."""
+    eps = float(jnp.finfo(A.dtype).eps)
+    d = jnp.sqrt(jnp.maximum(jnp.diagonal(A), jnp.finfo(A.dtype).tiny))
+    L = jnp.linalg.cholesky(A / (d[:, None] * d[None, :]))
+    piv = jnp.diagonal(L) ** 2
+    return ~jnp.all(jnp.isfinite(L)) | (jnp.min(piv) <= 1e3 * eps * jnp.max(piv))
+
+
 class _State(eqx.Module):
     pose: Pose
+    A: Array
+    g: Array
     cost: Array
     lam: Array
     step: Array
     done: Array
-    singular: Array
+    bad: Array
 
 
 def _native_solve(pose0: Pose, prob: _Problem, cfg: _Config):
+    """One linearisation per iteration: the candidate's normal equations are kept if accepted."""
     dtype = prob.points.dtype
     lm = cfg.method == "lm"
 
     def cond(st: _State):
-        return (~st.done) & (st.step < cfg.max_steps)
+        return (~st.done) & (st.step <= cfg.max_steps)
 
     def body(st: _State):
-        A, g, cost = _normal_equations(st.pose, prob, cfg)
-        delta, singular = _scaled_cholesky_solve(A, -g, st.lam if lm else None)
+        first = st.step == 0
+        delta, singular = _scaled_cholesky_solve(st.A, -st.g, st.lam if lm else None)
         finite = jnp.all(jnp.isfinite(delta))
         delta = jnp.where(finite, delta, 0.0)
         cand = _retract(st.pose, delta, cfg)
-        cost_c = _cost(cand, prob, cfg)
-        ok_c = jnp.isfinite(cost_c)
-        accept = ok_c & (cost_c <= cost) if lm else ok_c
-        pose = jax.tree.map(lambda a, b: jnp.where(accept, a, b), cand, st.pose)
-        new_cost = jnp.where(accept, cost_c, cost)
-        lam = jnp.where(accept, jnp.maximum(st.lam * 0.1, 1e-12), st.lam * 10.0)
+        A, g, cost = _linearize(cand, prob, cfg)
+        ok = jnp.isfinite(cost) & jnp.all(jnp.isfinite(A)) & jnp.all(jnp.isfinite(g))
+        accept = ok & (cost <= st.cost) if lm else ok
+        keep = lambda new, old: jnp.where(accept, new, old)  # noqa: E731
         dt, dw = delta[:3], delta[3:]
         small = (jnp.linalg.norm(dt) <= cfg.atol + cfg.rtol * jnp.linalg.norm(st.pose.t)) & (
             jnp.linalg.norm(dw) <= cfg.atol + cfg.rtol
         )
-        tiny_cost = new_cost <= jnp.finfo(dtype).tiny
-        # LM: no decrease possible any more, numerically at the minimum.
-        stuck = (lam > 1e12) if lm else jnp.asarray(False)
-        bad = (~finite) if lm else (~finite) | singular
-        done = (accept & small) | tiny_cost | stuck | bad
-        return _State(pose, new_cost, lam, st.step + 1, done, singular | ~finite)
+        # Converged: a small step, or a Gauss-Newton model that predicts a decrease at the
+        # round-off level of the cost (smaller steps cannot be resolved). With LM only while the
+        # damping is light (a heavily damped step is small for another reason).
+        pred = -jnp.dot(st.g, delta) - 0.5 * jnp.dot(delta, st.A @ delta)
+        flat = pred <= 1e3 * float(jnp.finfo(dtype).eps) * st.cost
+        light = (st.lam <= 1.0) if lm else jnp.asarray(True)
+        converged = ((small & (accept | light)) | (flat & light)) & ~first
+        bad = ~finite | (jnp.asarray(False) if lm else singular & ~first) | ~ok
+        new_cost = keep(cost, st.cost)
+        return _State(
+            pose=jax.tree.map(keep, cand, st.pose),
+            A=keep(A, st.A),
+            g=keep(g, st.g),
+            cost=new_cost,
+            lam=jnp.where(
+                first, st.lam, jnp.where(accept, jnp.maximum(st.lam * 0.1, 1e-12), st.lam * 10.0)
+            ),
+            step=st.step + 1,
+            done=converged | bad | (new_cost <= jnp.finfo(dtype).tiny) | (st.lam > 1e12),
+            bad=bad & ~accept,
+        )
 
+    # The first iteration takes a zero step from pose0 and linearises there (one copy of the
+    # linearisation in the compiled loop): A = 0, g = 0 and cost = inf make it accept.
     inf = jnp.asarray(jnp.inf, dtype)
     st0 = _State(
-        pose0, inf, jnp.asarray(1e-3, dtype), jnp.asarray(0, jnp.int32), jnp.asarray(False),
-        jnp.asarray(False),
+        pose0, jnp.zeros((6, 6), dtype), jnp.zeros(6, dtype), inf, jnp.asarray(1e-3, dtype),
+        jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False),
     )
     st = jax.lax.while_loop(cond, body, st0)
-    return st.pose, st.step, st.done, st.singular
+    converged = st.done & ~st.bad
+    return st.pose, jnp.maximum(st.step - 1, 0), converged, _singular(st.A) | st.bad
 
 
 # ----------------------------------------------------------------------------- implicit gradient
