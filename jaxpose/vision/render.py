@@ -138,6 +138,7 @@ def visible_edges(
     samples: int = 48,
     min_fraction: float = 0.05,
     include_antennas: bool = True,
+    buffer_scale: float = 1.0,
 ) -> VisibleEdges:
     """Visible parts of the model's edges (and antennas) at ``pose``.
 
@@ -145,11 +146,24 @@ def visible_edges(
     the edge's faces is front-facing (free edges and antennas: always), and the front face of the
     painter's buffer at its pixel is the edge's own face or lies behind it (ray/plane depth test,
     1 mm tolerance). The longest visible run of samples gives the endpoints.
+
+    Without ``face_ids`` the painter's buffer is rendered here, at ``buffer_scale`` times the
+    image resolution (0.25 is four times faster per side and plenty for visibility).
     """
     R, t = _pose_np(pose)
     H, W = _image_size(camera, shape)
+    scale = 1.0
     if face_ids is None:
-        face_ids = render_layers(model, pose, camera, shape=(H, W))[1]
+        scale = float(buffer_scale)
+        small = PinholeCamera(
+            float(camera.fx) * scale,
+            float(camera.fy) * scale,
+            (float(camera.cx) + 0.5) * scale - 0.5,
+            (float(camera.cy) + 0.5) * scale - 0.5,
+            camera.dist,
+        )
+        hs, ws = max(int(round(H * scale)), 1), max(int(round(W * scale)), 1)
+        face_ids = render_layers(model, pose, small, shape=(hs, ws), textures=None)[1]
     segs3 = model.edge_points
     owners = list(model.edge_faces)
     if include_antennas and len(model.antennas):
@@ -162,7 +176,8 @@ def visible_edges(
     pix = project_points(camera, pts_cam)
     ok = pts_cam[..., 2] > 1e-6
     ok &= (pix[..., 0] >= 0) & (pix[..., 0] <= W - 1) & (pix[..., 1] >= 0) & (pix[..., 1] <= H - 1)
-    pi = np.clip(np.rint(pix).astype(int), 0, [W - 1, H - 1])
+    hb, wb = face_ids.shape
+    pi = np.clip(np.rint((pix + 0.5) * scale - 0.5).astype(int), 0, [wb - 1, hb - 1])
     fid = face_ids[pi[..., 1], pi[..., 0]]
     n_cam = model.face_normals @ R.T
     d_cam = np.einsum("fi,fi->f", n_cam, model.face_centres @ R.T + t)
@@ -220,7 +235,7 @@ def _front_facing(model, R, t) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- textures
-def solar_cell_texture(origin, axis_u, axis_v, cells=(8, 10), *, base=0.25, line=0.6, frame=0.02):
+def solar_cell_texture(origin, axis_u, axis_v, cells=(8, 10), *, base=0.22, line=0.32, frame=0.02):
     """A solar-panel-like texture: dark cells separated by bright lines (a body-attached hook).
 
     ``origin`` is a panel corner and ``axis_u``, ``axis_v`` its two sides (body frame, metres).
@@ -403,7 +418,7 @@ def render(
     """Render ``model`` at ``pose``: image, true pose, visible edges, face buffer and true ROI.
 
     ``layer_options`` go to :func:`render_layers` (light, albedo, textures, specular, ...). With
-    ``textures=None`` and the Tango model, the top of the solar panel gets solar cells.
+    ``textures`` left out and the Tango model, the top of the solar panel gets solar cells.
     """
     rng = np.random.default_rng(rng)
     H, W = _image_size(camera, shape)

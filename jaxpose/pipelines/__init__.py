@@ -1,0 +1,1 @@
+"""Applications: the monocular initialisation (and, beside it, the stereo tracking) pipelines."""

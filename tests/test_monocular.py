@@ -1,0 +1,105 @@
+"""Monocular pose initialisation end to end on rendered images (and the SPEED+ sample)."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxpose import PinholeCamera, Pose
+from jaxpose.geometry import euler_to_dcm
+from jaxpose.metrics import rotation_error, success
+from jaxpose.models import tango
+from jaxpose.pipelines.monocular import InitOptions, draw_overlay, initialise_pose, load_image
+from jaxpose.vision.render import render
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def camera():
+    # SPEED+-like optics at a quarter of the resolution (faster, same geometry per pixel angle).
+    return PinholeCamera(
+        747.0, 747.0, 239.5, 149.5, [-0.22, 0.51, 0.0, 0.0, -0.13], width=480, height=300
+    )
+
+
+@pytest.fixture(scope="module")
+def scene(camera):
+    pose = Pose(np.asarray(euler_to_dcm(jnp.array([2.3, 0.4, 0.6]))), np.array([0.05, -0.03, 4.0]))
+    r = render(tango(), pose, camera, rng=7)
+    return r, initialise_pose(r.image, camera)
+
+
+def test_rendered_image_pose(scene):
+    r, res = scene
+    assert res.confidence in ("high", "low")
+    assert bool(success(res.pose, r.pose))
+    assert float(rotation_error(res.pose.R, jnp.asarray(r.pose.R))) < np.deg2rad(5)
+    js = res.to_json()
+    for key in (
+        "R_cam_body",
+        "t_cam",
+        "quat_wxyz",
+        "confidence",
+        "reprojection_error_px",
+        "roi",
+        "coarse_t_cam",
+        "runtime_s",
+    ):
+        assert key in js
+    assert abs(np.linalg.norm(js["coarse_t_cam"]) / np.linalg.norm(r.pose.t) - 1) < 0.4
+
+
+def test_overlay(scene):
+    r, res = scene
+    img = draw_overlay(r.image, res)
+    assert img.shape == r.image.shape + (3,)
+
+
+@pytest.mark.parametrize("kind", ["black", "saturated", "noise", "cut"])
+def test_bad_images_do_not_crash(camera, kind):
+    rng = np.random.default_rng(0)
+    if kind == "black":
+        img = np.zeros((300, 480), np.uint8)
+    elif kind == "saturated":
+        img = np.full((300, 480), 255, np.uint8)
+    elif kind == "noise":
+        img = rng.integers(0, 256, (300, 480)).astype(np.uint8)
+    else:  # the target cut by the frame
+        pose = Pose(np.asarray(euler_to_dcm(jnp.array([2.3, 0.4, 0.6]))), np.array([0.9, 0.0, 3.0]))
+        img = render(tango(), pose, camera, rng=1).image
+    res = initialise_pose(img, camera)
+    assert res.confidence in ("high", "low", "position-only", "none")
+    assert res.confidence in ("position-only", "none") or res.pose is not None
+    res.to_json()
+
+
+def test_tiny_and_unreadable(camera, tmp_path):
+    with pytest.raises(ValueError, match="too small"):
+        initialise_pose(np.zeros((8, 8), np.uint8), camera)
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(b"not an image")
+    with pytest.raises(ValueError, match="cannot read"):
+        load_image(bad)
+    with pytest.raises(ValueError, match="not found"):
+        load_image(tmp_path / "missing.png")
+    with pytest.raises(ValueError, match="method"):
+        initialise_pose(np.zeros((64, 64), np.uint8), camera, options=InitOptions(method="x"))
+
+
+def test_ransac_baseline_runs(scene, camera):
+    r, _ = scene
+    res = initialise_pose(
+        r.image, camera, options=InitOptions(method="ransac", ransac_iterations=512)
+    )
+    assert res.group_kind == "ransac" or res.confidence in ("position-only", "none")
+
+
+def test_speedplus_image_runs(speedplus_dir):
+    from jaxpose.io import load_camera, load_speed_labels
+
+    cam = load_camera(speedplus_dir / "camera.json")
+    lab = load_speed_labels(speedplus_dir)[0]
+    res = initialise_pose(load_image(lab.image), cam)
+    assert res.roi is not None
+    # The coarse range is within 30% on this rendered SPEED+ image.
+    assert abs(np.linalg.norm(res.coarse_t_cam) / np.linalg.norm(lab.r_Vo2To_vbs) - 1) < 0.3
