@@ -13,6 +13,14 @@ import sys
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("jaxpose.demo", "run the main job on an embedded default and print a short report"),
+    "init": (
+        "jaxpose.commands.init_pose",
+        "Sharma et al. 2018: the pose of the target in one image, no prior (JSON on stdout)",
+    ),
+    "eval-speedplus": (
+        "jaxpose.commands.eval_speedplus",
+        "run the monocular initialisation on a labelled SPEED+ folder and score it",
+    ),
     "select-study": (
         "jaxpose.studies.selection",
         "reproduce Ning et al. 2018 Sec. 5: quasi-optimal vs optimal feature selection",
