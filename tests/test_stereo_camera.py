@@ -46,7 +46,7 @@ def test_linear_triangulation_matches_opencv_with_noise(rng):
     ref = (Xh[:3] / Xh[3]).T
     ours = np.asarray(rig.triangulate(uv_l, uv_r))
     np.testing.assert_allclose(ours, ref, atol=1e-9)
-    # and, in pixel form, within a millimetre of OpenCV's pixel DLT (a different algebraic weighting)
+    # in pixel form, within a millimetre of OpenCV's pixel DLT (another algebraic weighting)
     Xh = cv2.triangulatePoints(P_l, P_r, uv_l.T.copy(), uv_r.T.copy())
     np.testing.assert_allclose(ours, (Xh[:3] / Xh[3]).T, atol=2e-3)
     # midpoint agrees with the DLT to within the noise
@@ -91,12 +91,16 @@ def test_transforms_jit_vmap_grad(rng):
     l, r = rig.project(X)
     f = jax.jit(lambda rig, a, b: rig.triangulate(a, b))
     np.testing.assert_allclose(f(rig, l, r), X, atol=1e-7)
-    batched = jax.vmap(lambda a, b: rig.triangulate(a, b, method="midpoint"))(l[:4, None], r[:4, None])
+    batched = jax.vmap(lambda a, b: rig.triangulate(a, b, method="midpoint"))(
+        l[:4, None], r[:4, None]
+    )
     np.testing.assert_allclose(batched[:, 0], X[:4], atol=1e-7)
     # depth sensitivity to the right u: dZ/du_r = Z^2 / (f b) for a rectified rig
     flat = StereoCamera.from_baseline(PinholeCamera(700.0, 700.0, 320.0, 240.0), 0.3)
     ul, ur = jnp.array([355.0, 240.0]), jnp.array([250.0, 240.0])  # (0.1, 0, 2) seen by both
-    g = jax.jit(jax.grad(lambda u: flat.triangulate(ul, jnp.stack([u, ur[1]]), method="midpoint")[2]))
+    g = jax.jit(
+        jax.grad(lambda u: flat.triangulate(ul, jnp.stack([u, ur[1]]), method="midpoint")[2])
+    )
     assert float(g(ur[0])) == pytest.approx(2.0**2 / (700.0 * 0.3), rel=1e-9)
 
 

@@ -33,6 +33,8 @@ __all__ = [
     "knn_ratio_match",
     "match_lines",
     "match_points",
+    "match_points_guided",
+    "ransac_filter",
 ]
 
 
@@ -48,6 +50,7 @@ class FeatureOptions:
         max_hamming_point, max_hamming_line: absolute Hamming caps on the best match (bits).
         ransac_px: RANSAC threshold of the fundamental-matrix screening (pixels).
         max_lines: keep at most this many lines (the longest).
+        subpixel: refine ORB keypoints with ``cv2.cornerSubPix`` (3x3 half-window).
     """
 
     n_points: int = 1200
@@ -59,6 +62,7 @@ class FeatureOptions:
     max_hamming_line: int = 80
     ransac_px: float = 1.5
     max_lines: int = 120
+    subpixel: bool = True
 
 
 @dataclass
@@ -83,7 +87,9 @@ def _gray(image: np.ndarray) -> np.ndarray:
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     if img.ndim != 2 or img.size == 0:
-        raise ValueError(f"expected a non-empty grayscale or BGR image; got shape {np.shape(image)}")
+        raise ValueError(
+            f"expected a non-empty grayscale or BGR image; got shape {np.shape(image)}"
+        )
     if img.dtype != np.uint8:
         img = np.clip(img, 0, 255).astype(np.uint8)
     return img
@@ -104,6 +110,7 @@ def _roi_slice(shape, roi, pad: int = 8):
 
 
 _ORB: dict = {}
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
 _LSD: list = []
 _LBD: list = []
 
@@ -113,13 +120,20 @@ def detect_points(image: np.ndarray, *, options: FeatureOptions = FeatureOptions
     img = _gray(image)
     key = (options.n_points, options.orb_fast_threshold)
     if key not in _ORB:
-        _ORB[key] = cv2.ORB_create(nfeatures=options.n_points, fastThreshold=options.orb_fast_threshold)
+        _ORB[key] = cv2.ORB_create(
+            nfeatures=options.n_points, fastThreshold=options.orb_fast_threshold
+        )
     u0, v0, u1, v1 = _roi_slice(img.shape, roi)
     kps, desc = _ORB[key].detectAndCompute(np.ascontiguousarray(img[v0:v1, u0:u1]), None)
     if desc is None or not kps:
         return np.zeros((0, 2)), np.zeros((0, 32), np.uint8)
-    pts = np.array([k.pt for k in kps], dtype=np.float64) + [u0, v0]
-    return pts, desc
+    pts = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 1, 2)
+    if options.subpixel:
+        # ORB keypoints sit on the FAST grid of their pyramid level (1.2^k px); refine at full
+        # resolution (Foerstner corner) so that stereo depth and frame-to-frame pixels agree
+        crop = np.ascontiguousarray(img[v0:v1, u0:u1])
+        pts = cv2.cornerSubPix(crop, pts, (3, 3), (-1, -1), _SUBPIX_CRITERIA)
+    return pts.reshape(-1, 2).astype(np.float64) + [u0, v0], desc
 
 
 def detect_lines(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None):
@@ -147,12 +161,15 @@ def detect_lines(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(
     if desc is None or not keylines:
         return np.zeros((0, 2, 2)), np.zeros((0, 32), np.uint8)
     seg = np.array(
-        [[[k.startPointX, k.startPointY], [k.endPointX, k.endPointY]] for k in keylines], dtype=np.float64
+        [[[k.startPointX, k.startPointY], [k.endPointX, k.endPointY]] for k in keylines],
+        dtype=np.float64,
     )
     return seg + [u0, v0], np.asarray(desc, np.uint8)
 
 
-def extract(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None, lines: bool = True):
+def extract(
+    image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None, lines: bool = True
+):
     """:class:`FrameFeatures` of one image (``lines=False`` for the points-only mode)."""
     pts, pdesc = detect_points(image, options=options, roi=roi)
     if lines:
@@ -165,27 +182,35 @@ def extract(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), ro
 _BF: list = []
 
 
-def knn_ratio_match(desc_ref: np.ndarray, desc_cur: np.ndarray, *, ratio: float, max_distance: int):
-    """Hamming KNN (``k = 2``, eq. 2) with the ratio test (eq. 3) and cross-check.
+def knn_ratio_match(
+    desc_ref: np.ndarray, desc_cur: np.ndarray, *, ratio: float, max_distance: int, allowed=None
+):
+    """Hamming KNN (``k = 2``, eq. 2) with the ratio test (eq. 3), one-to-one.
 
-    Returns ``(i_ref, i_cur)`` int arrays of the kept pairs, each index used at most once.
+    ``allowed`` (optional ``(n_ref, n_cur)`` bool) restricts the candidates of each reference
+    descriptor (guided matching: only current features near the predicted position); a lone
+    candidate passes the ratio test. Returns ``(i_ref, i_cur)`` int arrays of the kept pairs,
+    each index used at most once.
     """
     if len(desc_ref) == 0 or len(desc_cur) == 0:
         return np.zeros(0, int), np.zeros(0, int)
     if not _BF:
         _BF.append(cv2.BFMatcher(cv2.NORM_HAMMING))
     bf = _BF[0]
-    if len(desc_cur) < 2:
-        m = bf.match(desc_ref, desc_cur)
-        pairs = [(x.queryIdx, x.trainIdx) for x in m if x.distance <= max_distance]
-    else:
-        pairs = []
-        for knn in bf.knnMatch(desc_ref, desc_cur, k=2):
-            if len(knn) < 2:
-                continue
-            a, b = knn
-            if a.distance <= max_distance and a.distance < ratio * b.distance:
-                pairs.append((a.queryIdx, a.trainIdx))
+    mask = None if allowed is None else np.ascontiguousarray(allowed, dtype=np.uint8)
+    pairs = []
+    for knn in (
+        bf.knnMatch(desc_ref, desc_cur, k=2, mask=mask)
+        if mask is not None
+        else bf.knnMatch(desc_ref, desc_cur, k=2)
+    ):
+        if not knn:
+            continue
+        a = knn[0]
+        if a.distance > max_distance:
+            continue
+        if len(knn) < 2 or a.distance < ratio * knn[1].distance:
+            pairs.append((a.queryIdx, a.trainIdx))
     if not pairs:
         return np.zeros(0, int), np.zeros(0, int)
     pairs = np.array(pairs)
@@ -212,18 +237,67 @@ def match_points(
     i_ref, i_cur = knn_ratio_match(
         desc_ref, desc_cur, ratio=options.point_ratio, max_distance=options.max_hamming_point
     )
-    if ransac and len(i_ref) >= 8:
-        _, inl = cv2.findFundamentalMat(
-            points_ref[i_ref], points_cur[i_cur], cv2.FM_RANSAC, options.ransac_px, 0.999
-        )
-        if inl is not None:
-            keep = inl.ravel().astype(bool)
-            i_ref, i_cur = i_ref[keep], i_cur[keep]
+    if ransac:
+        i_ref, i_cur = ransac_filter(points_ref, points_cur, i_ref, i_cur, options=options)
     return i_ref, i_cur
 
 
-def match_lines(desc_ref: np.ndarray, desc_cur: np.ndarray, *, options: FeatureOptions = FeatureOptions()):
-    """LBD matches frame to frame (eqs. 2-3). Returns ``(i_ref, i_cur)``."""
+def ransac_filter(
+    points_ref, points_cur, i_ref, i_cur, *, options: FeatureOptions = FeatureOptions()
+):
+    """Keep the matches consistent with one fundamental matrix (``cv2.FM_RANSAC``, threshold
+    ``options.ransac_px``); fewer than 8 matches pass unchanged."""
+    if len(i_ref) < 8:
+        return i_ref, i_cur
+    _, inl = cv2.findFundamentalMat(
+        points_ref[i_ref], points_cur[i_cur], cv2.FM_RANSAC, options.ransac_px, 0.999
+    )
+    if inl is None:
+        return i_ref, i_cur
+    keep = inl.ravel().astype(bool)
+    return i_ref[keep], i_cur[keep]
+
+
+def match_points_guided(
+    predicted_ref: np.ndarray,
+    desc_ref: np.ndarray,
+    points_cur: np.ndarray,
+    desc_cur: np.ndarray,
+    *,
+    radius_px: float,
+    options: FeatureOptions = FeatureOptions(),
+):
+    """ORB matches searched near the predicted pixels of the reference features (search by
+    projection, as ORB-SLAM tracks): ratio test among the current keypoints within
+    ``radius_px`` of each prediction. Follow with :func:`ransac_filter` on the reference pixels.
+    Returns ``(i_ref, i_cur)``."""
+    if len(predicted_ref) == 0 or len(points_cur) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    d2 = ((predicted_ref[:, None, :] - points_cur[None, :, :]) ** 2).sum(-1)
+    allowed = d2 < radius_px**2
+    i_ref, i_cur = knn_ratio_match(
+        desc_ref,
+        desc_cur,
+        ratio=options.point_ratio,
+        max_distance=options.max_hamming_point,
+        allowed=allowed,
+    )
+    return i_ref, i_cur
+
+
+def match_lines(
+    desc_ref: np.ndarray,
+    desc_cur: np.ndarray,
+    *,
+    options: FeatureOptions = FeatureOptions(),
+    allowed=None,
+):
+    """LBD matches frame to frame (eqs. 2-3), optionally gated by ``allowed`` (see
+    :func:`knn_ratio_match`). Returns ``(i_ref, i_cur)``."""
     return knn_ratio_match(
-        desc_ref, desc_cur, ratio=options.line_ratio, max_distance=options.max_hamming_line
+        desc_ref,
+        desc_cur,
+        ratio=options.line_ratio,
+        max_distance=options.max_hamming_line,
+        allowed=allowed,
     )

@@ -22,7 +22,8 @@ class Rectification:
     """Output of :func:`rectify` (OpenCV's names and meanings).
 
     ``R1, R2``: rotations from the unrectified to the rectified left/right camera frames;
-    ``P1, P2``: ``3x4`` projection matrices of the rectified cameras (``P2[0, 3] = -fx * baseline``);
+    ``P1, P2``: ``3x4`` projection matrices of the rectified cameras
+    (``P2[0, 3] = -fx * baseline``);
     ``Q``: ``4x4`` disparity-to-depth matrix; ``map_left``/``map_right``: ``(map_x, map_y)`` float32
     maps for ``cv2.remap``; ``size``: ``(width, height)``.
     """

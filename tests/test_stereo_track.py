@@ -1,0 +1,138 @@
+"""Stereo sequence renderer, tracker and the stereo-track command on small rendered sequences."""
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions, target_roi
+from jaxpose.status import Status
+from jaxpose.vision.stereo_features import extract
+from jaxpose.vision.stereo_match import disparity_range, match_points_stereo
+from jaxpose.vision.stereo_render import (
+    StereoScene,
+    default_rig,
+    render_sequence,
+    render_stereo_frame,
+    scene_pose,
+    tumbler_model,
+)
+
+RIG = default_rig()
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return list(render_sequence(StereoScene(frames=6), RIG))
+
+
+def test_scene_motion_and_two_turns():
+    scene = StereoScene()
+    assert scene.n_frames() == int(np.ceil(720 / 10.2 * 5.0)) + 1
+    R0, t0 = scene_pose(scene, 0.0)
+    R1, _ = scene_pose(scene, 1.0)
+    # one second spins 10.2 degrees about the body z axis
+    angle = np.degrees(np.arccos((np.trace(R1 @ R0.T) - 1) / 2))
+    assert angle == pytest.approx(10.2, abs=1e-9)
+    np.testing.assert_allclose(R0 @ [0, 0, 1.0], R1 @ [0, 0, 1.0], atol=1e-12)
+    assert t0[2] == 2.0
+    with pytest.raises(ValueError):
+        StereoScene(frames=1).n_frames()
+
+
+def test_rendered_stereo_points_lie_on_the_model(frames):
+    fr = frames[0]
+    assert fr.left.shape == fr.right.shape == (768, 1024) and fr.left.dtype == np.uint8
+    f = extract(fr.left, roi=target_roi(fr.left), lines=False)
+    pm = match_points_stereo(fr.left, fr.right, f.points, disparity_range(RIG, 1.3, 2.7))
+    assert pm.ok.sum() > 100
+    X = np.asarray(RIG.triangulate(f.points[pm.ok], pm.pixels_right[pm.ok]))
+    Pb = (X - np.asarray(fr.pose.t)) @ np.asarray(fr.pose.R)  # body frame
+    m = tumbler_model()
+    body_half = np.abs(m.vertices[:8]).max(0)
+    on_body = np.all(np.abs(Pb) < body_half + 0.01, axis=1)
+    # nearly all on the body box, and those on its faces close to one face plane
+    assert on_body.mean() > 0.9
+    gap = np.min(np.abs(np.abs(Pb[on_body]) - body_half), axis=1)
+    assert np.median(gap) < 0.005
+
+
+def test_glints_and_blur_change_the_image():
+    base = render_stereo_frame(StereoScene(frames=2, noise_sigma=0.0), RIG, 1)
+    glint = render_stereo_frame(
+        StereoScene(frames=2, noise_sigma=0.0, glints=3.0, shininess=50.0), RIG, 1
+    )
+    blur = render_stereo_frame(StereoScene(frames=2, noise_sigma=0.0, blur=1.0), RIG, 1)
+    assert glint.left.astype(int).sum() > base.left.astype(int).sum()
+    assert np.abs(blur.left.astype(int) - base.left.astype(int)).mean() > 0.2
+    # blur smooths: less high-frequency energy
+    lap = lambda im: np.abs(np.diff(im.astype(float), axis=1)).mean()  # noqa: E731
+    assert lap(blur.left) < lap(base.left)
+    np.testing.assert_allclose(np.asarray(blur.pose.R), np.asarray(base.pose.R))
+
+
+@pytest.mark.parametrize("use_lines", [True, False])
+def test_tracker_follows_a_short_sequence(frames, use_lines):
+    tracker = StereoTracker(RIG, frames[0].pose, options=TrackerOptions(use_lines=use_lines))
+    for fr in frames:
+        res = tracker.process(fr.left, fr.right)
+        assert res.status == Status.OK
+        R, t = np.asarray(fr.pose.R), np.asarray(fr.pose.t)
+        angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
+        assert angle < 1.0
+        assert np.linalg.norm(res.t - t) < 0.02
+        assert set(res.timings) == {"features", "stereo", "triangulate", "match", "pose"}
+    if use_lines:
+        assert res.n_lines > 0
+
+
+def test_tracker_reports_lost_instead_of_a_pose(frames):
+    tracker = StereoTracker(RIG, frames[0].pose)
+    tracker.process(frames[0].left, frames[0].right)
+    black = np.zeros_like(frames[0].left)
+    res = tracker.process(black, black)
+    assert res.status == Status.LOST and np.all(np.isnan(res.R)) and np.all(np.isnan(res.t))
+    # the keyframe survives: the target reappears and tracking resumes
+    res = tracker.process(frames[2].left, frames[2].right)
+    assert res.status == Status.OK
+    with pytest.raises(ValueError, match="images must be"):
+        tracker.process(black[:10], black[:10])
+
+
+def test_tracker_rejects_unrectified_rigs():
+    from jaxpose import PinholeCamera, StereoCamera
+
+    cam = PinholeCamera(500.0, 500.0, 319.5, 239.5, width=640, height=480)
+    with pytest.raises(ValueError, match="rectified"):
+        StereoTracker(StereoCamera(cam, cam, np.eye(3), np.array([-0.3, 0.05, 0.0])))
+
+
+def test_stereo_track_command_json(tmp_path, capsys):
+    from jaxpose.cli import main
+
+    code = main(
+        [
+            "stereo-track",
+            "--frames",
+            "4",
+            "--image-size",
+            "640x480",
+            "--json",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    assert code == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    summary = json.loads(last)
+    assert set(summary) == {"frames", "rms_position_mm", "rms_attitude_deg", "lost_frames", "fps"}
+    assert summary["frames"] == 4 and summary["lost_frames"] == 0
+    assert len(summary["rms_position_mm"]) == 3 and len(summary["rms_attitude_deg"]) == 3
+    for name in (
+        "trajectory.csv",
+        "fig3_position_track.png",
+        "fig4_position.png",
+        "fig5_attitude.png",
+    ):
+        assert (tmp_path / name).is_file()
+    assert main(["stereo-track", "--blur", "2", "--out", str(tmp_path)]) == 2
