@@ -4,18 +4,21 @@ Per stereo pair (rectified, see :mod:`jaxpose.vision.stereo_match`):
 
 1. features of the left image (:mod:`jaxpose.vision.stereo_features`): ORB points, LSD lines
    (eq. 1) with LBD descriptors;
-2. stereo correspondence by epipolar ZNCC search (eqs. 4-5) and triangulation with the rig
-   (:meth:`jaxpose.camera.StereoCamera.triangulate`): 3-D points and segments in the current left
-   camera frame;
-3. frame-to-keyframe matching: ORB by ratio test + RANSAC, LBD by KNN + ratio test (eqs. 2-3);
-4. pose: the keyframe's 3-D features are the "body" of :func:`jaxpose.refine.refine_pose`, which
+2. frame-to-keyframe matching: ORB searched around the keyframe points' predicted pixels
+   (constant-velocity prediction, ratio test) then RANSAC on the fundamental matrix; LBD by KNN +
+   ratio test (eqs. 2-3) gated by the predicted segment midpoints;
+3. pose: the keyframe's 3-D features are the "body" of :func:`jaxpose.refine.refine_pose`, which
    minimises the point+line reprojection cost (eqs. 8-10) with a robust kernel by LM on se(3)
-   (eqs. 11-13); the result ``T_cur_kf`` composed with the keyframe's pose gives the target pose
-   ``T_cur_target = T_cur_kf T_kf_target``, so the trajectory is the chain of these increments;
-5. keyframe re-anchoring: when fewer than ``keyframe_ratio`` of the keyframe's features (or fewer
-   than ``keyframe_min``) survive as inliers, the current frame becomes the keyframe;
-   ``keyframe_every=1`` is the paper's pure frame-to-frame scheme;
-6. an explicit :data:`~jaxpose.status.Status.LOST` (pose NaN) when too few features match, the
+   (eqs. 11-13), in ``passes`` rounds that drop features left beyond ``reject_px``; the result
+   ``T_cur_kf`` composed with the keyframe's pose gives the target pose
+   ``T_cur_target = T_cur_kf T_kf_target``: the trajectory is the chain of these increments;
+4. keyframe re-anchoring: when the inliers fall below ``keyframe_ratio`` times those of the first
+   frame tracked against the keyframe (or below ``keyframe_min``), the current frame becomes the
+   keyframe: its features get stereo correspondences by epipolar ZNCC search (eqs. 4-5) and are
+   triangulated with the rig (:meth:`jaxpose.camera.StereoCamera.triangulate`) into 3-D points
+   and segments in its left camera frame. Only keyframes need 3-D features, so the stereo stages
+   run on keyframes only; ``keyframe_every=1`` is the paper's pure frame-to-frame scheme;
+5. an explicit :data:`~jaxpose.status.Status.LOST` (pose NaN) when too few features match, the
    solver fails, the fit error is large, or the step from the prediction is implausible; the
    tracker keeps the last good keyframe and a constant-velocity prediction and tries again on the
    next frame.
@@ -277,8 +280,10 @@ class StereoTracker:
         timings["triangulate"] = time.perf_counter() - t1
         return (ip[okp], P[okp]), (il[oks], S[oks])
 
-    def _make_keyframe(self, R, t, feats, pts, lines):
-        (ip, P), (il, S) = pts, lines
+    def _make_keyframe(self, R, t, left, right, feats, timings):
+        """Make the current frame the keyframe: stereo correspondence and triangulation of its
+        features (only keyframes need 3-D features, so the stereo stages run only here)."""
+        (ip, P), (il, S) = self._stereo(left, right, feats, timings)
         self.keyframe = _Keyframe(
             self.index, R, t, P, feats.points[ip], feats.point_desc[ip], S, feats.line_desc[il]
         )
@@ -322,18 +327,18 @@ class StereoTracker:
         roi = target_roi(left) if roi is None else roi
         feats = extract(left, options=o.features, roi=roi, lines=o.use_lines)
         timings["features"] = time.perf_counter() - t0
-        pts, lines = self._stereo(left, right, feats, timings)
         k = self.index
         self.index += 1
         if self.keyframe is None:
-            self._make_keyframe(self._R0, self._t0, feats, pts, lines)
+            self._make_keyframe(self._R0, self._t0, left, right, feats, timings)
+            kf = self.keyframe
             return FrameResult(
                 k,
                 self._R0,
                 self._t0,
                 int(Status.OK),
-                len(pts[0]),
-                len(lines[0]),
+                len(kf.points3d),
+                len(kf.segments3d),
                 keyframe=True,
                 timings=timings,
             )
@@ -366,6 +371,7 @@ class StereoTracker:
         timings["match"] = time.perf_counter() - t1
 
         t2 = time.perf_counter()
+        make_keyframe = False
         n_p, n_l = len(i_kf), len(l_kf)
         result = FrameResult(
             k,
@@ -443,10 +449,12 @@ class StereoTracker:
                     or inliers < o.keyframe_min
                     or self._since_kf >= o.keyframe_every
                 ):
-                    self._make_keyframe(result.R, result.t, feats, pts, lines)
-                    result.keyframe = True
+                    make_keyframe = True
         if result.status != Status.OK:
             # keep the keyframe; predict one more step of constant motion for the next try
             self._T_prev_kf = T_pred
         timings["pose"] = time.perf_counter() - t2
+        if make_keyframe:
+            self._make_keyframe(result.R, result.t, left, right, feats, timings)
+            result.keyframe = True
         return result
