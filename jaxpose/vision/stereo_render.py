@@ -143,6 +143,7 @@ class StereoScene:
         sun_dir_cam: initial direction to the Sun (camera frame).
         sun_rate_deg_s: drift of the Sun direction about the camera y axis.
         blur: exposure / frame interval (0: no motion blur).
+        blur_samples: most sub-frame renderings averaged for the blur (cost: one rendering each).
         glints: per-pixel specular strength (0: none); ``shininess`` its exponent.
         noise_sigma: sensor noise (fraction of full scale); ``defocus_px`` the optics blur.
         seed: noise seed.
@@ -157,6 +158,7 @@ class StereoScene:
     sun_dir_cam: tuple[float, float, float] = (0.5, -0.6, -0.62)
     sun_rate_deg_s: float = 0.5
     blur: float = 0.0
+    blur_samples: int = 3
     glints: float = 0.0
     shininess: float = 1500.0
     noise_sigma: float = 0.01
@@ -248,28 +250,10 @@ def render_stereo_frame(
     dt = 1.0 / scene.frame_rate_hz
     time_s = index * dt
     R_rl, t_rl = np.asarray(rig.R_rl), np.asarray(rig.t_rl)
-    # motion blur: sub-frame poses over the exposure, one sample per pixel of surface motion
     sweep_deg = abs(scene.rate_deg_s) * scene.blur * dt
-    n_sub = (
-        1
-        if scene.blur <= 0
-        else int(
-            np.clip(
-                np.ceil(
-                    sweep_deg
-                    * np.pi
-                    / 180
-                    * 0.5
-                    * scene.size_m
-                    / scene.range_m
-                    * float(rig.left.fx)
-                    / 1.5
-                ),
-                2,
-                5,
-            )
-        )
-    )
+    # sub-frame poses: about one per 1.5 px of motion of the target's rim, 2..blur_samples
+    rim_px = np.radians(sweep_deg) * 0.5 * scene.size_m / scene.range_m * float(rig.left.fx)
+    n_sub = 1 if scene.blur <= 0 else int(np.clip(np.ceil(rim_px / 1.5), 2, scene.blur_samples))
     offsets = [0.0] if n_sub == 1 else list(np.linspace(-0.5, 0.5, n_sub) * scene.blur * dt)
     images, roi = [], np.full(4, np.nan)
     sun_axis_angle = np.radians(scene.sun_rate_deg_s) * time_s
