@@ -103,3 +103,61 @@ def test_speedplus_image_runs(speedplus_dir):
     assert res.roi is not None
     # The coarse range is within 30% on this rendered SPEED+ image.
     assert abs(np.linalg.norm(res.coarse_t_cam) / np.linalg.norm(lab.r_Vo2To_vbs) - 1) < 0.3
+
+
+def test_cli_init_and_eval(tmp_path, camera, scene, capsys, monkeypatch):
+    import json
+
+    import cv2
+
+    from jaxpose.cli import main
+    from jaxpose.io import save_camera
+
+    monkeypatch.setenv("JAXPOSE_CACHE_DIR", str(tmp_path / "xla"))
+    r, _ = scene
+    cv2.imwrite(str(tmp_path / "img.png"), r.image)
+    save_camera(camera, tmp_path / "camera.json")
+    overlay = tmp_path / "overlay.png"
+    assert (
+        main(
+            [
+                "init",
+                str(tmp_path / "img.png"),
+                "--camera",
+                str(tmp_path / "camera.json"),
+                "--overlay",
+                str(overlay),
+            ]
+        )
+        == 0
+    )
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (
+        out["confidence"] in ("high", "low") and len(out["R_cam_body"]) == 3 and overlay.is_file()
+    )
+    assert (
+        main(["init", str(tmp_path / "missing.png"), "--camera", str(tmp_path / "camera.json")])
+        == 2
+    )
+    # eval-speedplus on a one-image labelled folder made of the rendering.
+    from jaxpose.geometry import dcm_to_quat
+
+    q = np.asarray(dcm_to_quat(jnp.asarray(r.pose.R)))
+    t = np.asarray(r.pose.t)
+    (tmp_path / "labels.csv").write_text(
+        "image,domain,qw,qx,qy,qz,tx,ty,tz\nimg.png,rendered," + ",".join(map(str, [*q, *t])) + "\n"
+    )
+    assert main(["eval-speedplus", str(tmp_path), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    for key in (
+        "images",
+        "success_rate",
+        "high_confidence",
+        "high_precision",
+        "esa_score_mean",
+        "coarse_range_within_20pct",
+        "median_runtime_s",
+        "per_image",
+    ):
+        assert key in summary
+    assert summary["images"] == 1 and summary["success_rate"] == 1.0
