@@ -194,31 +194,49 @@ def knn_ratio_match(
     """
     if len(desc_ref) == 0 or len(desc_cur) == 0:
         return np.zeros(0, int), np.zeros(0, int)
-    if not _BF:
-        _BF.append(cv2.BFMatcher(cv2.NORM_HAMMING))
-    bf = _BF[0]
-    mask = None if allowed is None else np.ascontiguousarray(allowed, dtype=np.uint8)
-    pairs = []
-    for knn in (
-        bf.knnMatch(desc_ref, desc_cur, k=2, mask=mask)
-        if mask is not None
-        else bf.knnMatch(desc_ref, desc_cur, k=2)
-    ):
-        if not knn:
-            continue
-        a = knn[0]
-        if a.distance > max_distance:
-            continue
-        if len(knn) < 2 or a.distance < ratio * knn[1].distance:
-            pairs.append((a.queryIdx, a.trainIdx))
-    if not pairs:
+    if allowed is not None:
+        pairs = _sparse_knn(desc_ref, desc_cur, np.asarray(allowed, bool), ratio, max_distance)
+    else:
+        if not _BF:
+            _BF.append(cv2.BFMatcher(cv2.NORM_HAMMING))
+        pairs = []
+        for knn in _BF[0].knnMatch(desc_ref, desc_cur, k=2):
+            if not knn:
+                continue
+            a = knn[0]
+            if a.distance > max_distance:
+                continue
+            if len(knn) < 2 or a.distance < ratio * knn[1].distance:
+                pairs.append((a.queryIdx, a.trainIdx))
+        pairs = np.array(pairs, dtype=int).reshape(-1, 2)
+    if len(pairs) == 0:
         return np.zeros(0, int), np.zeros(0, int)
-    pairs = np.array(pairs)
     # one-to-one: drop current features claimed by several reference features
     _, first, counts = np.unique(pairs[:, 1], return_index=True, return_counts=True)
     keep = first[counts == 1]
     keep.sort()
     return pairs[keep, 0], pairs[keep, 1]
+
+
+_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.int32)
+
+
+def _sparse_knn(desc_ref, desc_cur, allowed, ratio, max_distance) -> np.ndarray:
+    """Best and second-best Hamming distance of each reference descriptor among its allowed
+    candidates only (vectorised over the candidate pairs); the ratio test of eq. 3. ``(K, 2)``."""
+    i_ref, i_cur = np.nonzero(allowed)
+    if len(i_ref) == 0:
+        return np.zeros((0, 2), int)
+    dist = _POPCOUNT[np.bitwise_xor(desc_ref[i_ref], desc_cur[i_cur])].sum(1)
+    order = np.lexsort((dist, i_ref))
+    i_ref, i_cur, dist = i_ref[order], i_cur[order], dist[order]
+    first = np.r_[True, i_ref[1:] != i_ref[:-1]]
+    starts = np.nonzero(first)[0]
+    has_second = np.r_[starts[1:] - starts[:-1] > 1, len(i_ref) - starts[-1] > 1]
+    second = np.where(has_second, dist[np.minimum(starts + 1, len(dist) - 1)], np.inf)
+    best = dist[starts]
+    keep = (best <= max_distance) & (best < ratio * second)
+    return np.stack([i_ref[starts][keep], i_cur[starts][keep]], 1)
 
 
 def match_points(
@@ -273,8 +291,12 @@ def match_points_guided(
     Returns ``(i_ref, i_cur)``."""
     if len(predicted_ref) == 0 or len(points_cur) == 0:
         return np.zeros(0, int), np.zeros(0, int)
-    d2 = ((predicted_ref[:, None, :] - points_cur[None, :, :]) ** 2).sum(-1)
-    allowed = d2 < radius_px**2
+    p = np.asarray(predicted_ref, np.float32)
+    q = np.asarray(points_cur, np.float32)
+    dx = np.abs(p[:, None, 0] - q[None, :, 0])
+    dy = np.abs(p[:, None, 1] - q[None, :, 1])
+    allowed = (dx < radius_px) & (dy < radius_px)
+    allowed &= dx * dx + dy * dy < radius_px**2
     i_ref, i_cur = knn_ratio_match(
         desc_ref,
         desc_cur,

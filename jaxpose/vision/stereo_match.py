@@ -215,8 +215,10 @@ def match_points_stereo(
     s1 = c1[:, w:] - c1[:, :-w]  # (N, D)
     s2 = c2[:, w:] - c2[:, :-w]
     bb = np.maximum(s2 - s1 * s1 / (w * wr), 0.0)
-    view = np.lib.stride_tricks.sliding_window_view(strip, w, axis=2)  # (N, w, D, w)
-    ab = np.einsum("nik,nijk->nj", a, view, optimize=True)
+    # cross term sum_ik a[n,i,k] strip[n,i,j+k], one window column at a time (no (N,w,D,w) copy)
+    ab = np.zeros((N, D))
+    for k in range(w):
+        ab += np.einsum("ni,nij->nj", a[:, :, k], strip[:, :, k : k + D])
     den = np.sqrt(aa[:, None] * bb)
     score = np.where(den > 1e-9, ab / np.where(den > 1e-9, den, 1.0), -1.0)
     # a window reaching outside the right image is not a candidate
