@@ -25,6 +25,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "jaxpose.studies.selection",
         "reproduce Ning et al. 2018 Sec. 5: quasi-optimal vs optimal feature selection",
     ),
+    "pose-study": (
+        "jaxpose.studies.pose",
+        "predicted pose covariance vs Monte Carlo scatter of refined poses (noise levels, geometries)",
+    ),
     "stereo-track": (
         "jaxpose.studies.stereo_track",
         "Yang et al. 2024: track a tumbling target in a rendered (or given) stereo sequence",

@@ -144,7 +144,9 @@ def _float(x, dtype=None) -> Array:
 
 
 def _shape_error(name, want, got):
-    return ValueError(f"{name} must have shape {want} (one problem; use jax.vmap for batches); got {got}")
+    return ValueError(
+        f"{name} must have shape {want} (one problem; use jax.vmap for batches); got {got}"
+    )
 
 
 def _prepare(
@@ -206,12 +208,20 @@ def _prepare(
         if lines.shape != (k, 3):
             raise _shape_error("lines_img", f"({k}, 3) like segments_body", lines.shape)
         lvalid = _mask(line_mask, k, "line_mask")
-        lsig = _sigma(sigma if line_sigma is None and sigma is not None and jnp.ndim(sigma) == 0
-                      else line_sigma, k, "line_sigma")
+        lsig = _sigma(
+            sigma
+            if line_sigma is None and sigma is not None and jnp.ndim(sigma) == 0
+            else line_sigma,
+            k,
+            "line_sigma",
+        )
     l12 = jnp.sum(lines[:, :2] ** 2, -1)
     finite_lines = (
-        jnp.all(jnp.isfinite(segments), (-1, -2)) & jnp.all(jnp.isfinite(lines), -1)
-        & jnp.isfinite(lsig) & (lsig > 0) & (l12 > 0)
+        jnp.all(jnp.isfinite(segments), (-1, -2))
+        & jnp.all(jnp.isfinite(lines), -1)
+        & jnp.isfinite(lsig)
+        & (lsig > 0)
+        & (l12 > 0)
     )
     finite_pose = jnp.all(jnp.isfinite(R0)) & jnp.all(jnp.isfinite(t0))
     finite_cam = jnp.all(jnp.isfinite(jnp.stack([camera.fx, camera.fy, camera.cx, camera.cy])))
@@ -221,7 +231,9 @@ def _prepare(
     use = valid & finite_pts & finite_input
     luse = lvalid & finite_lines & finite_input
     l12_safe = jnp.where(luse, l12, 1.0)
-    lines_n = jnp.where(luse[:, None], lines / jnp.sqrt(l12_safe)[:, None], jnp.array([1.0, 0, 0], dtype))
+    lines_n = jnp.where(
+        luse[:, None], lines / jnp.sqrt(l12_safe)[:, None], jnp.array([1.0, 0, 0], dtype)
+    )
     problem = _Problem(
         points=jnp.where(use[:, None], points_body, 0.0),
         pixels=jnp.where(use[:, None], pixels, 0.0),
@@ -454,8 +466,14 @@ def _native_solve(pose0: Pose, prob: _Problem, cfg: _Config):
     # linearisation in the compiled loop): A = 0, g = 0 and cost = inf make it accept.
     inf = jnp.asarray(jnp.inf, dtype)
     st0 = _State(
-        pose0, jnp.zeros((6, 6), dtype), jnp.zeros(6, dtype), inf, jnp.asarray(1e-3, dtype),
-        jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False),
+        pose0,
+        jnp.zeros((6, 6), dtype),
+        jnp.zeros(6, dtype),
+        inf,
+        jnp.asarray(1e-3, dtype),
+        jnp.asarray(0, jnp.int32),
+        jnp.asarray(False),
+        jnp.asarray(False),
     )
     st = jax.lax.while_loop(cond, body, st0)
     converged = st.done & ~st.bad
@@ -521,13 +539,17 @@ def _optimistix_solve(pose0: Pose, prob: _Problem, cfg: _Config):
 
     def fn(y, p):
         e_p, e_l = _residuals(pose_of(y), p)
-        u = jnp.concatenate([e_p * jnp.sqrt(p.w_points)[:, None], e_l * jnp.sqrt(p.w_lines)[:, None]])
+        u = jnp.concatenate(
+            [e_p * jnp.sqrt(p.w_points)[:, None], e_l * jnp.sqrt(p.w_lines)[:, None]]
+        )
         if cfg.robust is None:
             return u.reshape(-1)
         s = jnp.sum(u**2, -1)
         pos = s > 0
         s_safe = jnp.where(pos, s, 1.0)
-        factor = jnp.where(pos, jnp.sqrt(_res.robust_rho(cfg.robust, s_safe, cfg.robust_scale) / s_safe), 1.0)
+        factor = jnp.where(
+            pos, jnp.sqrt(_res.robust_rho(cfg.robust, s_safe, cfg.robust_scale) / s_safe), 1.0
+        )
         return (u * factor[:, None]).reshape(-1)
 
     if cfg.method == "lm":
@@ -567,9 +589,14 @@ def _refine(pose0, prob, valid, lvalid, finite_input, cfg: _Config, backend: str
     n_valid = jnp.sum(valid) + jnp.sum(lvalid)
     finite_out = jnp.all(jnp.isfinite(pose.R)) & jnp.all(jnp.isfinite(pose.t)) & jnp.isfinite(cost)
     status = jnp.select(
-        [~finite_input, n_valid < MIN_FEATURES, singular | ~finite_out, behind, ~converged],
-        [Status.NONFINITE_INPUT, Status.TOO_FEW_POINTS, Status.SINGULAR, Status.BEHIND_CAMERA,
-         Status.NOT_CONVERGED],
+        [~finite_input, n_valid < MIN_FEATURES, behind, singular | ~finite_out, ~converged],
+        [
+            Status.NONFINITE_INPUT,
+            Status.TOO_FEW_POINTS,
+            Status.BEHIND_CAMERA,
+            Status.SINGULAR,
+            Status.NOT_CONVERGED,
+        ],
         Status.OK,
     ).astype(jnp.int32)
     bad_input = (~finite_input) | (n_valid < MIN_FEATURES) | ~finite_out
@@ -595,8 +622,14 @@ def _config(method, robust, robust_scale, max_steps, rtol, atol, sequence, has_l
         raise ValueError(f"max_steps must be at least 1; got {max_steps}")
     euler_to_dcm(jnp.zeros(3), sequence)  # validates the sequence
     return _Config(
-        method, robust, None if robust_scale is None else float(robust_scale), int(max_steps),
-        float(rtol), float(atol), sequence, bool(has_lines),
+        method,
+        robust,
+        None if robust_scale is None else float(robust_scale),
+        int(max_steps),
+        float(rtol),
+        float(atol),
+        sequence,
+        bool(has_lines),
     )
 
 
@@ -607,11 +640,11 @@ def refine_pose(
     camera: PinholeCamera | Array,
     *,
     mask: Array | None = None,
-    sigma: Float[Array, "n"] | float | None = None,
+    sigma: Float[Array, " n"] | float | None = None,
     segments_body: Float[Array, "k 2 3"] | None = None,
     lines_img: Float[Array, "k 3"] | None = None,
     line_mask: Array | None = None,
-    line_sigma: Float[Array, "k"] | float | None = None,
+    line_sigma: Float[Array, " k"] | float | None = None,
     robust: str | None = None,
     robust_scale: float | None = None,
     method: str = "lm",
@@ -635,9 +668,10 @@ def refine_pose(
         pixels: ``(n, 2)`` observed pixels of those points.
         camera: :class:`~jaxpose.camera.PinholeCamera` or ``3x3`` ``K``.
         mask: ``(n,)`` bool, valid points of a padded set (invalid ones may hold NaN).
-        sigma: pixel noise per axis, scalar or ``(n,)``; ``None`` is 1 pixel. Weights ``1/sigma^2``.
+        sigma: pixel noise per axis, scalar or ``(n,)``; ``None`` is 1 pixel (weights 1/sigma^2).
         segments_body: ``(k, 2, 3)`` 3-D segment endpoints (body frame) for line features.
-        lines_img: ``(k, 3)`` observed homogeneous lines (:func:`jaxpose.residuals.line_from_segment`).
+        lines_img: ``(k, 3)`` observed homogeneous lines
+            (:func:`~jaxpose.residuals.line_from_segment` of the observed segment endpoints).
         line_mask: ``(k,)`` bool, valid lines.
         line_sigma: pixel noise of the line distances; defaults to a scalar ``sigma``, else 1.
         robust: ``None``, ``"huber"``, ``"cauchy"`` or ``"tukey"`` (IRLS, see
@@ -665,7 +699,15 @@ def refine_pose(
         method, robust, robust_scale, max_steps, rtol, atol, sequence, segments_body is not None
     )
     pose0, prob, valid, lvalid, finite_input = _prepare(
-        pose0, points_body, pixels, camera, mask, sigma, segments_body, lines_img, line_mask,
+        pose0,
+        points_body,
+        pixels,
+        camera,
+        mask,
+        sigma,
+        segments_body,
+        lines_img,
+        line_mask,
         line_sigma,
     )
     res = _refine(pose0, prob, valid, lvalid, finite_input, cfg, backend)
@@ -692,11 +734,11 @@ def pose_covariance(
     points_body: Float[Array, "n 3"],
     camera: PinholeCamera | Array,
     *,
-    sigma: Float[Array, "n"] | float = 1.0,
+    sigma: Float[Array, " n"] | float = 1.0,
     mask: Array | None = None,
     segments_body: Float[Array, "k 2 3"] | None = None,
     lines_img: Float[Array, "k 3"] | None = None,
-    line_sigma: Float[Array, "k"] | float | None = None,
+    line_sigma: Float[Array, " k"] | float | None = None,
     line_mask: Array | None = None,
 ) -> Float[Array, "6 6"]:
     """First-order pose covariance ``(J^T W J)^-1 = sigma^2 (J^T J)^-1`` (metres, radians).
@@ -716,7 +758,9 @@ def pose_covariance(
 
     camera = as_camera(camera)
     A = jnp.sum(
-        information_blocks(points_body, pose, camera, sigma=sigma, mask=mask, parameterization="tangent"),
+        information_blocks(
+            points_body, pose, camera, sigma=sigma, mask=mask, parameterization="tangent"
+        ),
         axis=0,
     )
     if segments_body is not None:
@@ -725,7 +769,9 @@ def pose_covariance(
         segments_body = _float(segments_body)
         lines = _float(lines_img, segments_body.dtype)
         k = segments_body.shape[0]
-        J_e = point_jacobians(segments_body.reshape(-1, 3), pose, camera, parameterization="tangent")
+        J_e = point_jacobians(
+            segments_body.reshape(-1, 3), pose, camera, parameterization="tangent"
+        )
         l12 = lines[:, :2] / jnp.linalg.norm(lines[:, :2], axis=-1, keepdims=True)
         J_l = jnp.einsum("ka,kmab->kmb", l12, J_e.reshape(k, 2, 2, 6))
         ls = sigma if line_sigma is None and jnp.ndim(sigma) == 0 else line_sigma
@@ -770,11 +816,11 @@ def sensitivity(
     camera: PinholeCamera | Array,
     *,
     mask: Array | None = None,
-    sigma: Float[Array, "n"] | float | None = None,
+    sigma: Float[Array, " n"] | float | None = None,
     segments_body: Float[Array, "k 2 3"] | None = None,
     lines_img: Float[Array, "k 3"] | None = None,
     line_mask: Array | None = None,
-    line_sigma: Float[Array, "k"] | float | None = None,
+    line_sigma: Float[Array, " k"] | float | None = None,
     robust: str | None = None,
     robust_scale: float | None = None,
 ) -> PoseSensitivity:
@@ -791,11 +837,64 @@ def sensitivity(
     """
     if isinstance(pose, RefineResult):
         pose = pose.pose
-    cfg = _config("lm", robust, robust_scale, 1, 0.0, 0.0, DEFAULT_EULER_SEQUENCE, segments_body is not None)
+    cfg = _config(
+        "lm", robust, robust_scale, 1, 0.0, 0.0, DEFAULT_EULER_SEQUENCE, segments_body is not None
+    )
     camera = as_camera(camera)
+    # Validate shapes eagerly (ValueError), then compute everything in one compiled call.
+    _prepare(
+        pose,
+        points_body,
+        pixels,
+        camera,
+        mask,
+        sigma,
+        segments_body,
+        lines_img,
+        line_mask,
+        line_sigma,
+    )
+    return _sensitivity(
+        pose,
+        points_body,
+        pixels,
+        camera,
+        mask,
+        sigma,
+        segments_body,
+        lines_img,
+        line_mask,
+        line_sigma,
+        cfg,
+    )
+
+
+@eqx.filter_jit
+def _sensitivity(
+    pose,
+    points_body,
+    pixels,
+    camera,
+    mask,
+    sigma,
+    segments_body,
+    lines_img,
+    line_mask,
+    line_sigma,
+    cfg,
+) -> PoseSensitivity:
     has_lines = segments_body is not None
     pose_, prob, *_ = _prepare(
-        pose, points_body, pixels, camera, mask, sigma, segments_body, lines_img, line_mask, line_sigma
+        pose,
+        points_body,
+        pixels,
+        camera,
+        mask,
+        sigma,
+        segments_body,
+        lines_img,
+        line_mask,
+        line_sigma,
     )
     dtype = prob.points.dtype
     zero = jnp.zeros(6, dtype)
@@ -826,4 +925,3 @@ def sensitivity(
         d_segments_body=dlines[0] if has_lines else jnp.zeros((6, k, 2, 3), dtype),
         d_lines_img=dlines[1] if has_lines else jnp.zeros((6, k, 3), dtype),
     )
-

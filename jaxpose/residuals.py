@@ -78,7 +78,8 @@ def _check(x, shape_tail: tuple[int, ...], name: str) -> Array:
     if x.ndim != len(shape_tail) + 1 or x.shape[1:] != shape_tail:
         want = ", ".join(["n", *map(str, shape_tail)])
         raise ValueError(
-            f"{name} must have shape ({want}) (one problem; use jax.vmap for batches); got {x.shape}"
+            f"{name} must have shape ({want}) (one problem; use jax.vmap for batches); "
+            f"got {x.shape}"
         )
     return x
 
@@ -202,7 +203,9 @@ def _scale(kind, scale):
     return DEFAULT_ROBUST_SCALE[kind] if scale is None else scale
 
 
-def robust_rho(kind: str | None, s: Float[Array, "..."], scale: float | None = None) -> Float[Array, "..."]:
+def robust_rho(
+    kind: str | None, s: Float[Array, ...], scale: float | None = None
+) -> Float[Array, ...]:
     """Kernel ``rho(s)`` of a squared Mahalanobis norm ``s >= 0`` (g2o convention, eq. 10).
 
     ``kind=None`` gives ``s``. ``scale`` is ``c`` in units of ``sigma`` (default
@@ -225,7 +228,9 @@ def robust_rho(kind: str | None, s: Float[Array, "..."], scale: float | None = N
     return c2 / 3.0 * (1.0 - (1.0 - u) ** 3)
 
 
-def robust_weight(kind: str | None, r: Float[Array, "..."], scale: float | None = None) -> Float[Array, "..."]:
+def robust_weight(
+    kind: str | None, r: Float[Array, ...], scale: float | None = None
+) -> Float[Array, ...]:
     """IRLS weight ``rho'(r^2) = psi(r) / r`` of a residual norm ``r`` (in units of ``sigma``).
 
     Equal to the derivative of :func:`robust_rho` at ``s = r^2``: Huber ``min(1, c/|r|)``,
