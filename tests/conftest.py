@@ -8,6 +8,13 @@ import jax
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 
+# One persistent XLA cache for the whole run, shared by the xdist workers and by the CLI commands
+# that the tests call (they honour JAXPOSE_CACHE_DIR): each heavy solver compiles once per run.
+_CACHE = Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax-compilation"
+os.environ.setdefault("JAXPOSE_CACHE_DIR", str(_CACHE))
+jax.config.update("jax_compilation_cache_dir", os.environ["JAXPOSE_CACHE_DIR"])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
