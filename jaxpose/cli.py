@@ -57,20 +57,23 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    # First pass: find the command, then let its module add its own options.
-    known, _ = parser.parse_known_args(argv)
-    if known.command is None:
-        parser.print_help()
+    if not argv or argv[0] not in COMMANDS:
+        # No command (or an unknown one, or --help): the top-level parser answers.
+        if not argv:
+            parser.print_help()
+            return 2
+        parser.parse_args(argv)  # prints help or an error and exits
         return 2
-    module = importlib.import_module(known._module)
-    sub = argparse.ArgumentParser(prog=f"jaxpose {known.command}", description=COMMANDS[known.command][1])
+    command = argv[0]
+    module = importlib.import_module(COMMANDS[command][0])
+    sub = argparse.ArgumentParser(prog=f"jaxpose {command}", description=COMMANDS[command][1])
     module.add_arguments(sub)
     args = sub.parse_args(argv[1:])
     _enable_x64()
     try:
         return int(module.run(args) or 0)
     except (ValueError, FileNotFoundError) as err:
-        print(f"jaxpose {known.command}: error: {err}", file=sys.stderr)
+        print(f"jaxpose {command}: error: {err}", file=sys.stderr)
         return 2
 
 
