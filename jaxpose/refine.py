@@ -299,28 +299,34 @@ def _rotation_generators(pose: Pose, cfg: _Config) -> Array:
     return hat(jnp.eye(3, dtype=pose.R.dtype)) @ pose.R  # d(exp([w]_x) R)/dw_k = [e_k]_x R
 
 
-def _project_xyz(camera: PinholeCamera, x, y, z):
-    """:meth:`PinholeCamera.project` on coordinate arrays (same guard, same distortion)."""
-    z_safe = jnp.where(z > 0, z, 1.0)
-    xy = camera.distort(jnp.stack([x / z_safe, y / z_safe], -1))
-    return camera.fx * xy[..., 0] + camera.cx, camera.fy * xy[..., 1] + camera.cy
-
-
 def _pixel_rows(pose: Pose, G: Array, points: Array, camera: PinholeCamera):
     """Pixels ``(u, v)`` of ``points (m, 3)`` and their Jacobian rows, one array per column.
 
-    Written coordinate by coordinate so that under ``vmap`` everything is element-wise over
-    ``(batch, m)`` (no small matrix products). Equal to :func:`jaxpose.dop.point_jacobians`
-    (tested); ``bench/refine.py`` measures why this form is used in the loop.
+    The projection of :meth:`PinholeCamera.project` (same depth guard, same distortion) written
+    coordinate by coordinate, with the chain rule spelled out: ``d(u, v)/dX = diag(fx, fy)
+    D(x_n) dx_n/dX`` where ``D`` is the distortion's ``2 x 2`` Jacobian (two JVPs of
+    :meth:`PinholeCamera.distort`) and ``x_n = (X/Z, Y/Z)``; ``dX/dt = I`` and ``dX/dtheta_k =
+    G_k p``. Under ``vmap`` everything is element-wise over ``(batch, m)`` (no small matrix
+    products). Equal to :func:`jaxpose.dop.point_jacobians` (tested); at B = 10 000, n = 20 it
+    takes about a third of the CPU time of ``vmap(jacfwd)`` + ``einsum`` normal equations.
     """
     R, t = pose.R, pose.t
     P = [points[:, 0], points[:, 1], points[:, 2]]
     X = [R[i, 0] * P[0] + R[i, 1] * P[1] + R[i, 2] * P[2] + t[i] for i in range(3)]
-    one, zero = jnp.ones_like(X[0]), jnp.zeros_like(X[0])
-    proj = partial(_project_xyz, camera)
-    (u, v), (ux, vx) = jax.jvp(proj, tuple(X), (one, zero, zero))
-    _, (uy, vy) = jax.jvp(proj, tuple(X), (zero, one, zero))
-    _, (uz, vz) = jax.jvp(proj, tuple(X), (zero, zero, one))
+    iz = 1.0 / jnp.where(X[2] > 0, X[2], 1.0)
+    xn, yn = X[0] * iz, X[1] * iz
+
+    def distort(a, b):
+        d = camera.distort(jnp.stack([a, b], -1))
+        return d[..., 0], d[..., 1]
+
+    one, zero = jnp.ones_like(xn), jnp.zeros_like(xn)
+    (xd, yd), (dxx, dyx) = jax.jvp(distort, (xn, yn), (one, zero))
+    _, (dxy, dyy) = jax.jvp(distort, (xn, yn), (zero, one))
+    fx, fy = camera.fx, camera.fy
+    u, v = fx * xd + camera.cx, fy * yd + camera.cy
+    ux, uy, uz = fx * dxx * iz, fx * dxy * iz, -fx * (dxx * xn + dxy * yn) * iz
+    vx, vy, vz = fy * dyx * iz, fy * dyy * iz, -fy * (dyx * xn + dyy * yn) * iz
     Ju, Jv = [ux, uy, uz], [vx, vy, vz]
     for k in range(3):
         dX = [G[k, i, 0] * P[0] + G[k, i, 1] * P[1] + G[k, i, 2] * P[2] for i in range(3)]
@@ -398,6 +404,15 @@ def _scaled_cholesky_solve(A: Array, b: Array, damping=None):
 # ----------------------------------------------------------------------------- native solver
 
 
+_NEGLIGIBLE_DECREASE = 1e-12
+"""Predicted decrease ``1/2 d^T A d`` of the whitened cost below which a step is negligible: a
+step of ``1e-6`` standard deviations of the pose (``sigma`` as given), far below any statistical
+meaning; it saves the last verifying iteration of most problems."""
+
+_LAMBDA0 = 1e-3
+"""Initial LM damping (relative to the Jacobi-scaled normal matrix, whose diagonal is 1)."""
+
+
 def _singular(A: Array) -> Array:
     """Singularity test of :func:`jaxpose.dop.dop_from_information` (Jacobi-scaled pivots)."""
     eps = float(jnp.finfo(A.dtype).eps)
@@ -441,10 +456,11 @@ def _native_solve(pose0: Pose, prob: _Problem, cfg: _Config):
             jnp.linalg.norm(dw) <= cfg.atol + cfg.rtol
         )
         # Converged: a small step, or a Gauss-Newton model that predicts a decrease at the
-        # round-off level of the cost (smaller steps cannot be resolved). With LM only while the
-        # damping is light (a heavily damped step is small for another reason).
+        # round-off level of the cost (smaller steps cannot be resolved) or below
+        # _NEGLIGIBLE_DECREASE. With LM only while the damping is light (a heavily damped step
+        # is small for another reason).
         pred = -jnp.dot(st.g, delta) - 0.5 * jnp.dot(delta, st.A @ delta)
-        flat = pred <= 1e3 * float(jnp.finfo(dtype).eps) * st.cost
+        flat = pred <= 1e3 * float(jnp.finfo(dtype).eps) * st.cost + _NEGLIGIBLE_DECREASE
         light = (st.lam <= 1.0) if lm else jnp.asarray(True)
         converged = ((small & (accept | light)) | (flat & light)) & ~first
         bad = ~finite | (jnp.asarray(False) if lm else singular & ~first) | ~ok
@@ -470,7 +486,7 @@ def _native_solve(pose0: Pose, prob: _Problem, cfg: _Config):
         jnp.zeros((6, 6), dtype),
         jnp.zeros(6, dtype),
         inf,
-        jnp.asarray(1e-3, dtype),
+        jnp.asarray(_LAMBDA0, dtype),
         jnp.asarray(0, jnp.int32),
         jnp.asarray(False),
         jnp.asarray(False),
