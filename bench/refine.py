@@ -131,11 +131,10 @@ def main(argv=None):
                     if "compile_wall_s" in r
                     else "-"
                 )
-                print(
-                    f"{name:<12} {B:>6} {n:>4} {r['per_s']:>11.0f} {r['wall_s']:>8.4f} {r['cpu_s']:>8.4f} "
-                    f"{comp:>16} {ratio:>7.2f} {r['errors'][0]:>12.5f} {r['errors'][1]:>12.6f}",
-                    flush=True,
-                )
+                timing = f"{r['per_s']:>11.0f} {r['wall_s']:>8.4f} {r['cpu_s']:>8.4f}"
+                errs = f"{r['errors'][0]:>12.5f} {r['errors'][1]:>12.6f}"
+                line = f"{name:<12} {B:>6} {n:>4} {timing} {comp:>16} {ratio:>7.2f} {errs}"
+                print(line, flush=True)
                 rows.append({"solver": name, "B": B, "n": n, "speedup_vs_cv2": ratio, **r})
     print(json.dumps({"bench": "refine", "noise_px": args.noise, "rows": rows}))
 

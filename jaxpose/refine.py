@@ -81,7 +81,22 @@ MIN_FEATURES = 3
 """At least three valid features (points + lines, two equations each) for six pose unknowns
 (seed 002: "at least three matches ... are required")."""
 
-BACKEND_MEASUREMENT = """(filled in from bench/refine.py; see the README's solvers section)"""
+BACKEND_MEASUREMENT = """\
+Why two back-ends: ``python bench/refine.py`` (2-core CPU, float64, n = 20 points, 0.5 px noise,
+start 2 deg / 2 % of range off; wall time, same scenes and starts for every solver):
+
+    solver              B = 1 (latency)   B = 100          B = 10 000         compile
+    cv2.solvePnPRefineLM loop  0.54 ms    6 700 /s         11 600 /s          -
+    native  (this module)      0.25 ms    32 800 /s (4.9x) 54 100 /s (4.7x)   1.9 s
+    optimistix LM              0.82 ms    2 800 /s (0.4x)  3 600 /s (0.3x)    5.9 s
+
+Same median errors for all three (0.330 deg, 15.9 mm at B = 10 000). Under ``vmap``,
+optimistix's LM runs its ``while_loop`` for the slowest lane (up to 35 steps; its trust-region
+updates need more steps than the native LM's 4-6) and materialises dense Jacobians through
+lineax's QR; the native loop is element-wise over the batch. The optimistix back-end is kept
+for generality (other optimistix solvers, its ``ImplicitAdjoint``) and as an independent check
+in the tests.
+"""
 
 
 class RefineResult(eqx.Module):
