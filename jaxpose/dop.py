@@ -35,7 +35,7 @@ from jaxtyping import Array, Float, Int
 
 from .camera import PinholeCamera, as_camera
 from .geometry import DEFAULT_EULER_SEQUENCE, Pose, dcm_to_euler, euler_to_dcm, so3_exp
-from .status import Status, raise_for_status, status_message
+from .status import Status, throw_for_status
 
 __all__ = [
     "DOPResult",
@@ -61,10 +61,10 @@ class DOPResult(eqx.Module):
         status: ``int32`` :class:`~jaxpose.status.Status` code, 0 when fine.
     """
 
-    pdop: Float[Array, "..."]
-    adop: Float[Array, "..."]
+    pdop: Float[Array, ...]
+    adop: Float[Array, ...]
     Q: Float[Array, "... 6 6"]
-    status: Int[Array, "..."]
+    status: Int[Array, ...]
 
 
 def _validate(points_body, pose: Pose) -> Array:
@@ -143,7 +143,7 @@ def information_blocks(
     pose: Pose,
     camera: PinholeCamera | Array,
     *,
-    sigma: Float[Array, "n"] | float | None = None,
+    sigma: Float[Array, " n"] | float | None = None,
     mask: Array | None = None,
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
@@ -218,7 +218,7 @@ def dop(
     pose: Pose,
     camera: PinholeCamera | Array,
     *,
-    sigma: Float[Array, "n"] | float | None = None,
+    sigma: Float[Array, " n"] | float | None = None,
     mask: Array | None = None,
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
@@ -287,16 +287,7 @@ def dop(
         status=status,
     )
     if throw:
-        res = _throw(res, "DOP")
+        res = throw_for_status(res, "DOP", "pdop")
     return res
 
 
-def _throw(res, what: str):
-    """Raise for a bad status: ``ValueError`` when eager, an Equinox runtime error under jit."""
-    status = res.status
-    if not isinstance(status, jax.core.Tracer):
-        raise_for_status(status, what)
-        return res
-    messages = [f"{what}: {status_message(code)}" for code in range(len(Status))]
-    pdop = eqx.branched_error_if(res.pdop, status != Status.OK, status, messages)
-    return eqx.tree_at(lambda r: r.pdop, res, pdop)

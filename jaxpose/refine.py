@@ -62,7 +62,7 @@ from . import residuals as _res
 from .camera import PinholeCamera, as_camera
 from .dop import dop_from_information, point_jacobians
 from .geometry import DEFAULT_EULER_SEQUENCE, Pose, dcm_to_euler, euler_to_dcm, hat, so3_exp
-from .status import Status, raise_for_status, status_message
+from .status import Status, throw_for_status
 
 __all__ = [
     "BACKEND_MEASUREMENT",
@@ -743,18 +743,10 @@ def refine_pose(
     )
     res = _refine(pose0, prob, valid, lvalid, finite_input, cfg, backend)
     if throw:
-        res = _throw(res)
+        res = throw_for_status(res, "refine_pose", "cost")
     return res
 
 
-def _throw(res: RefineResult) -> RefineResult:
-    status = res.status
-    if not isinstance(status, jax.core.Tracer):
-        raise_for_status(status, "refine_pose")
-        return res
-    messages = [f"refine_pose: {status_message(code)}" for code in range(len(Status))]
-    cost = eqx.branched_error_if(res.cost, status != Status.OK, status, messages)
-    return eqx.tree_at(lambda r: r.cost, res, cost)
 
 
 # ----------------------------------------------------------------------------- covariance

@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import enum
 
+import equinox as eqx
+import jax
 import numpy as np
 
-__all__ = ["MESSAGES", "Status", "raise_for_status", "status_message"]
+__all__ = ["MESSAGES", "Status", "raise_for_status", "status_message", "throw_for_status"]
 
 
 class Status(enum.IntEnum):
@@ -60,3 +62,19 @@ def raise_for_status(status, what: str = "problem") -> None:
         where = "" if status.ndim == 0 else f" (at {len(idx)} of {status.size}, first {tuple(idx[0])})"
         parts.append(f"{status_message(code)}{where}")
     raise ValueError(f"{what}: " + "; ".join(parts))
+
+
+def throw_for_status(result, what: str, field: str):
+    """The ``throw=True`` path of every solver: fail loudly on a bad ``result.status``.
+
+    Eager (concrete status): :func:`raise_for_status` raises ``ValueError``. Under ``jit`` or
+    ``vmap`` the error is attached to ``result.<field>`` with ``equinox.branched_error_if``, so
+    it is raised at run time with the message of the status that occurred.
+    """
+    status = result.status
+    if not isinstance(status, jax.core.Tracer):
+        raise_for_status(status, what)
+        return result
+    messages = [f"{what}: {status_message(code)}" for code in range(len(Status))]
+    leaf = eqx.branched_error_if(getattr(result, field), status != Status.OK, status, messages)
+    return eqx.tree_at(lambda r: getattr(r, field), result, leaf)

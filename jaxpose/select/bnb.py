@@ -125,7 +125,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from ..dop import MIN_POINTS, dop_from_information
-from ..status import Status, raise_for_status, status_message
+from ..status import Status, status_message, throw_for_status
 
 __all__ = ["BnBResult", "branch_and_bound"]
 
@@ -484,7 +484,7 @@ def branch_and_bound(
         status=status,
     )
     if throw:
-        out = _throw(out)
+        out = throw_for_status(out, "branch and bound", "value")
     return out
 
 
@@ -503,14 +503,6 @@ def _finish(blocks, mask, is_pdop, heuristic_phi, nodes, iters, converged, finit
     return value, status, jnp.sqrt(heuristic_phi)
 
 
-def _throw(res: BnBResult) -> BnBResult:
-    status = res.status
-    if not isinstance(status, jax.core.Tracer):
-        raise_for_status(status, "branch and bound")
-        return res
-    messages = [f"branch and bound: {status_message(code)}" for code in range(len(Status))]
-    value = eqx.branched_error_if(res.value, status != Status.OK, status, messages)
-    return eqx.tree_at(lambda r: r.value, res, value)
 
 
 # ----------------------------------------------------------------------------- NumPy host loop

@@ -40,7 +40,7 @@ import numpy as np
 from jax.custom_batching import custom_vmap
 from jaxtyping import Array, Bool, Float, Int
 
-from ..status import Status, raise_for_status, status_message
+from ..status import Status, throw_for_status
 from ._kernel import (
     block_scales,
     check_blocks,
@@ -292,7 +292,7 @@ def exhaustive_batch(
         mask = jnp.ones((C, n), bool)
     res = _batch_fn(m, use_mask, chunk_size, _dtype_name(kernel_dtype))(blocks, mask)
     if throw:
-        res = _throw(res)
+        res = throw_for_status(res, "exhaustive selection", "pdop")
     return res
 
 
@@ -346,14 +346,6 @@ def _exhaustive_batch(blocks, m, mask, chunk_size, kernel_dtype):
     )
 
 
-def _throw(res: ExhaustiveResult) -> ExhaustiveResult:
-    status = res.status
-    if not isinstance(status, jax.core.Tracer):
-        raise_for_status(status, "exhaustive selection")
-        return res
-    messages = [f"exhaustive selection: {status_message(code)}" for code in range(len(Status))]
-    pdop = eqx.branched_error_if(res.pdop, status != Status.OK, status, messages)
-    return eqx.tree_at(lambda r: r.pdop, res, pdop)
 
 
 @functools.cache
@@ -415,5 +407,5 @@ def exhaustive(
         mask_arr = jnp.ones((n,), bool)
     res = _single(m, mask is not None, chunk_size, _dtype_name(kernel_dtype))(blocks, mask_arr)
     if throw:
-        res = _throw(res)
+        res = throw_for_status(res, "exhaustive selection", "pdop")
     return res
