@@ -1,0 +1,217 @@
+"""jaxpose.solve_pnp: the batched, OpenCV-like entry point (EPnP/DLT/RANSAC + refinement).
+
+OpenCV is the live oracle of the refined poses. Compilation dominates the run time, so most
+tests share one configuration: batches of 12 problems of 20 points, refined by LM.
+"""
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxpose
+from jaxpose import PinholeCamera, Pose, Status, solve_pnp
+from jaxpose.geometry import quat_to_dcm, rotation_angle, so3_exp
+
+K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
+CAM_DIST = PinholeCamera(800.0, 790.0, 322.0, 238.0, jnp.array([-0.08, 0.02, 1e-3, -1e-3, 0.0]))
+BATCH, N = 12, 20
+
+
+def scenes(rng, count=BATCH, n=N, planar=False, depth=5.0, noise=0.0, K=K):
+    """A 1 m object (cube, or square for ``planar``) at ``depth`` metres, random attitudes."""
+    P = rng.uniform(-0.5, 0.5, (count, n, 3))
+    if planar:
+        P[..., 2] = 0.0
+    R = np.asarray(quat_to_dcm(rng.normal(size=(count, 4))))
+    t = np.stack(
+        [rng.uniform(-0.2, 0.2, count), rng.uniform(-0.2, 0.2, count), np.full(count, depth)], -1
+    )
+    cam = np.einsum("bij,bnj->bni", R, P) + t[:, None]
+    pix = cam[..., :2] / cam[..., 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
+    return P, pix + noise * rng.normal(size=pix.shape), R, t
+
+
+def angle(Ra, Rb):
+    return np.asarray(rotation_angle(jnp.asarray(Ra), jnp.asarray(Rb)))
+
+
+def cv_refined(P, pix, K):
+    """OpenCV's EPnP + solvePnPRefineLM, and its RMS reprojection error."""
+    _, rvec, tvec = cv2.solvePnP(P, pix, K, None, flags=cv2.SOLVEPNP_EPNP)
+    rvec, tvec = cv2.solvePnPRefineLM(P, pix, K, None, rvec, tvec)
+    proj, _ = cv2.projectPoints(P, rvec, tvec, K, None)
+    return (
+        cv2.Rodrigues(rvec)[0],
+        tvec.ravel(),
+        float(np.sqrt(np.mean(np.sum((proj[:, 0] - pix) ** 2, -1)))),
+    )
+
+
+# ----------------------------------------------------------------------------- accuracy
+
+
+@pytest.mark.parametrize("planar", [False, True], ids=["general", "planar"])
+def test_refined_error_no_larger_than_opencv_refine_lm(rng, planar):
+    P, pix, R, t = scenes(rng, planar=planar, depth=8.0, noise=0.5)
+    res = solve_pnp(P, pix, K)
+    assert res.R.shape == (BATCH, 3, 3) and res.status.shape == (BATCH,)
+    assert np.all(np.asarray(res.status) == Status.OK)
+    ours = np.asarray(res.reprojection_error)
+    for b in range(BATCH):
+        _, _, cv_rms = cv_refined(P[b], pix[b], K)
+        assert ours[b] <= cv_rms + 1e-9
+    assert np.all(angle(np.asarray(res.R), R) < np.radians(2.0))
+
+
+def test_single_problem_noise_free_with_K_and_with_a_distorted_camera(rng):
+    P, pix, R, t = scenes(rng, count=1)
+    res = solve_pnp(P[0], pix[0], K)
+    assert res.R.shape == (3, 3) and res.status.shape == ()
+    assert angle(np.asarray(res.R), R[0]) < 1e-10
+    np.testing.assert_allclose(np.asarray(res.t), t[0], atol=1e-9)
+    assert float(res.reprojection_error) < 1e-8
+    pix_d = CAM_DIST.project_body(Pose(jnp.asarray(R[0]), jnp.asarray(t[0])), jnp.asarray(P[0]))
+    res = solve_pnp(P[0], pix_d, CAM_DIST)
+    assert angle(np.asarray(res.R), R[0]) < 1e-10
+    assert float(res.reprojection_error) < 1e-8
+
+
+def test_leading_axes_broadcast(rng):
+    """One model seen in a (3, 4) grid of images: points (n, 3), pixels (3, 4, n, 2)."""
+    P, _, _, _ = scenes(rng, count=1)
+    R = np.asarray(so3_exp(rng.normal(size=(BATCH, 3)) * 0.5))
+    t = np.stack([np.zeros(BATCH), np.zeros(BATCH), np.linspace(3.0, 9.0, BATCH)], -1)
+    cam = np.einsum("bij,nj->bni", R, P[0]) + t[:, None]
+    pix = cam[..., :2] / cam[..., 2:] * 800.0 + [320.0, 240.0]
+    res = solve_pnp(P[0], pix.reshape(3, 4, N, 2), K)
+    assert res.R.shape == (3, 4, 3, 3) and res.inliers.shape == (3, 4, N)
+    assert np.all(angle(np.asarray(res.R).reshape(BATCH, 3, 3), R) < 1e-9)
+
+
+def test_planar_long_range_as_often_right_as_opencv_ippe(rng):
+    """The two-fold ambiguity of a far plane: EPnP's pose and its mirror are both refined."""
+    Kf = np.array([[3000.0, 0.0, 1023.5], [0.0, 3000.0, 1023.5], [0.0, 0.0, 1.0]])
+    P, pix, R, _ = scenes(rng, planar=True, depth=15.0, noise=0.5, K=Kf)
+    res = solve_pnp(P, pix, Kf)
+    ours = angle(np.asarray(res.R), R) < np.radians(5.0)
+    ippe = []
+    for b in range(BATCH):
+        _, rvec, _ = cv2.solvePnP(P[b], pix[b], Kf, None, flags=cv2.SOLVEPNP_IPPE)
+        ippe.append(angle(cv2.Rodrigues(rvec)[0], R[b]) < np.radians(5.0))
+    assert ours.sum() >= np.sum(ippe)
+    assert np.all(np.asarray(res.planar))
+
+
+# ----------------------------------------------------------------------------- methods
+
+
+def test_dlt_and_closed_form_only(rng):
+    P, pix, R, _ = scenes(rng, depth=4.0, noise=0.3)
+    for method, refine in (("dlt", "lm"), ("epnp", None)):
+        res = solve_pnp(P, pix, K, method=method, refine=refine)
+        assert np.all(np.asarray(res.status) == Status.OK), method
+        assert np.all(angle(np.asarray(res.R), R) < np.radians(2.0)), method
+
+
+@pytest.mark.slow
+def test_ransac_with_robust_refinement(rng):
+    P, pix, R, _ = scenes(rng, depth=5.0, noise=0.3)
+    bad = np.argsort(rng.random((BATCH, N)), axis=1) < int(0.4 * N)  # 40% outliers in each
+    pix = np.where(bad[..., None], pix + rng.uniform(30, 150, pix.shape), pix)
+    res = solve_pnp(P, pix, K, method="ransac", robust="huber", ransac_threshold_px=3.0)
+    assert np.all(np.asarray(res.status) == Status.OK)
+    assert np.all(angle(np.asarray(res.R), R) < np.radians(1.0))
+    np.testing.assert_array_equal(np.asarray(res.inliers), ~bad)
+
+
+def test_large_batches_run_in_chunks_and_refine_planar_problems_twice(rng):
+    """Above FUSED_MAX problems: closed form, a planarity check, then refinement, by chunks."""
+    count = 70
+    Pg, pixg, Rg, _ = scenes(rng, count=count // 2, depth=6.0, noise=0.3)
+    Pp, pixp, Rp, _ = scenes(rng, count=count // 2, planar=True, depth=6.0, noise=0.3)
+    P, pix, R = (np.concatenate(a) for a in ((Pg, Pp), (pixg, pixp), (Rg, Rp)))
+    res = solve_pnp(P, pix, K, chunk=32)
+    assert res.R.shape == (count, 3, 3)
+    assert np.all(np.asarray(res.status) == Status.OK)
+    assert np.all(angle(np.asarray(res.R), R) < np.radians(2.0))
+    np.testing.assert_array_equal(np.asarray(res.planar), np.arange(count) >= count // 2)
+
+
+# ----------------------------------------------------------------------------- bad inputs
+
+
+def test_bad_input_raises_clear_value_errors(rng):
+    P, pix, _, _ = scenes(rng, count=1)
+    P, pix = P[0], pix[0]
+    with pytest.raises(ValueError, match="same number of points"):
+        solve_pnp(P, pix[:-1], K)
+    with pytest.raises(ValueError, match="at least 4 points"):
+        solve_pnp(P[:3], pix[:3], K)
+    with pytest.raises(ValueError, match=r"\(\.\.\., n, 3\)"):
+        solve_pnp(P[:, :2], pix, K)
+    with pytest.raises(ValueError, match="do not broadcast"):
+        solve_pnp(np.stack([P, P]), np.stack([pix, pix, pix]), K)
+    with pytest.raises(ValueError, match="method"):
+        solve_pnp(P, pix, K, method="p3p")
+    with pytest.raises(ValueError, match="robust"):
+        solve_pnp(P, pix, K, refine=None, robust="huber")
+    with pytest.raises(ValueError, match="camera"):
+        solve_pnp(P, pix, np.eye(4))
+    nan = P.copy()
+    nan[3, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        solve_pnp(nan, pix, K)
+    line = np.stack([np.linspace(-1, 1, N), np.linspace(0, 2, N), np.zeros(N)], -1)
+    with pytest.raises(ValueError, match="degenerate"):
+        solve_pnp(line, pix, K)
+    straddle = rng.uniform(-1.0, 1.0, (N, 3))
+    cam = straddle + [0.0, 0.0, 0.2]
+    with pytest.raises(ValueError, match="behind the camera"):
+        solve_pnp(straddle, cam[:, :2] / cam[:, 2:] * 800.0 + [320.0, 240.0], K)
+
+
+def test_bad_problems_in_a_batch_get_a_status(rng):
+    P, pix, R, _ = scenes(rng, depth=5.0, noise=0.3)
+    P[1, 4] = np.nan  # NaN
+    mask = np.ones((BATCH, N), bool)
+    mask[2, 3:] = False  # three valid points
+    P[3] = np.stack([np.linspace(-1, 1, N), np.linspace(0, 2, N), np.zeros(N)], -1)  # collinear
+    res = solve_pnp(P, pix, K, mask=mask, throw=False)
+    status = np.asarray(res.status)
+    assert status[1] == Status.NONFINITE_INPUT
+    assert status[2] == Status.TOO_FEW_POINTS
+    assert status[3] == Status.DEGENERATE
+    good = np.arange(BATCH) >= 4
+    assert np.all(status[good] == Status.OK)
+    assert np.all(angle(np.asarray(res.R)[good], R[good]) < np.radians(2.0))
+    assert np.all(np.isinf(np.asarray(res.reprojection_error)[1:4]))
+    assert np.all(np.isfinite(np.asarray(res.R))) and np.all(np.isfinite(np.asarray(res.t)))
+    with pytest.raises(ValueError, match=r"at 1 of 12"):
+        solve_pnp(P, pix, K, mask=mask)
+
+
+def test_public_names():
+    for name in ("solve_pnp", "epnp", "dlt", "ransac_pnp", "PnPResult"):
+        assert hasattr(jaxpose, name)
+
+
+def test_inside_jit_and_gradient_through_the_refinement(rng):
+    """Traced inputs: solve_pnp runs inside the caller's jit (bad input -> Equinox runtime error
+    with throw=True), and the refined pose is differentiable (implicit function theorem)."""
+    P, pix, _, _ = scenes(rng, count=1, noise=0.3)
+    P, pix = P[0], pix[0]
+
+    def depth(x):
+        return solve_pnp(P, x, K, throw=False).t[2]
+
+    grad = jax.jit(jax.grad(depth))(jnp.asarray(pix))
+    assert np.all(np.isfinite(np.asarray(grad)))
+    eps = 1e-6
+    step = np.zeros_like(pix)
+    step[5, 1] = eps
+    fd = (float(solve_pnp(P, pix + step, K).t[2]) - float(solve_pnp(P, pix - step, K).t[2])) / (
+        2 * eps
+    )
+    np.testing.assert_allclose(float(grad[5, 1]), fd, rtol=1e-4, atol=1e-10)
