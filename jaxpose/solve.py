@@ -31,7 +31,7 @@ from jaxtyping import Array, Bool, Float
 from . import pnp
 from .camera import PinholeCamera
 from .geometry import Pose
-from .status import Status, raise_for_status, status_message
+from .status import Status, throw_for_status
 
 __all__ = ["METHODS", "REFINE_METHODS", "ROBUST_KERNELS", "solve_pnp"]
 
@@ -326,14 +326,7 @@ def solve_pnp(
     if len(batch) > 1:
         res = jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), res)
     if throw:
-        if traced:
-            messages = [f"solve_pnp: {status_message(code)}" for code in range(len(Status))]
-            err = eqx.branched_error_if(
-                res.reprojection_error, res.status != Status.OK, res.status, messages
-            )
-            res = eqx.tree_at(lambda r: r.reprojection_error, res, err)
-        else:
-            raise_for_status(np.asarray(res.status), f"solve_pnp(method={method!r})")
+        res = throw_for_status(res, f"solve_pnp(method={method!r})", "reprojection_error")
     return res
 
 
