@@ -108,7 +108,7 @@ class _Static:
     method: str
     planar_tol: float
     ransac: tuple | None  # sorted (name, value) pairs of pnp._ransac_options
-    refine: tuple | None  # (method, robust, max_steps)
+    refine: tuple | None  # (method, robust, max_steps, rtol, atol)
     undistort: bool
     chunk: int
 
@@ -124,8 +124,10 @@ def _cast(points_body, pixels, mask, intrinsics):
     return points_body.astype(dtype), pixels.astype(dtype), mask.astype(bool), camera
 
 
-def _initial(points_body, pixels, mask, key, camera, cfg: _Static) -> _Initial:
-    """The closed-form (or RANSAC) solution of every problem, with the plane for a mirror pose."""
+def _initial(points_body, pixels, mask, keys, camera, cfg: _Static) -> _Initial:
+    """The closed-form (or RANSAC) solution of every problem, with the plane for a mirror pose.
+
+    ``keys``: RANSAC's PRNG key per problem (``None`` for the other methods)."""
     ransac = None if cfg.ransac is None else dict(cfg.ransac)
 
     def one(p, x, m, k=None):
@@ -133,9 +135,7 @@ def _initial(points_body, pixels, mask, key, camera, cfg: _Static) -> _Initial:
         res, out = pnp._solve(prob, cfg.method, cfg.planar_tol, key=k, ransac=ransac)
         return _Initial(res, out.centroid, out.normal)
 
-    args = (points_body, pixels, mask)
-    if ransac is not None:
-        args = args + (key if pixels.ndim == 2 else jax.random.split(key, pixels.shape[0]),)
+    args = (points_body, pixels, mask) + (() if keys is None else (keys,))
     return _map(one, args, cfg.chunk, pixels.ndim == 2)
 
 
@@ -143,7 +143,7 @@ def _refined(init: _Initial, points_body, pixels, camera, cfg: _Static, two: boo
     """Refine every problem from its closed-form pose (and, if ``two``, from its mirror)."""
     from .refine import refine_pose
 
-    method, robust, max_steps = cfg.refine
+    method, robust, max_steps, rtol, atol = cfg.refine
 
     def one(init, p, x):
         # The refined pose's derivatives come from implicit differentiation at the optimum;
@@ -162,6 +162,8 @@ def _refined(init: _Initial, points_body, pixels, camera, cfg: _Static, two: boo
                 robust=robust,
                 method=method,
                 max_steps=max_steps,
+                rtol=rtol,
+                atol=atol,
             )
 
         ref = run(res.pose)
@@ -184,23 +186,22 @@ def _refined(init: _Initial, points_body, pixels, camera, cfg: _Static, two: boo
     return _map(one, (init, points_body, pixels), cfg.chunk, pixels.ndim == 2)
 
 
-def _solve_fused(points_body, pixels, mask, key, intrinsics, cfg: _Static, two: bool):
-    """Small batches: closed form and refinement in one call (both candidates when ``two``)."""
+def _solve_fused(points_body, pixels, mask, keys, intrinsics, *, cfg: _Static, two: bool):
+    """Closed form and refinement in one call (from both candidates of planar problems when
+    ``two``)."""
     points_body, pixels, mask, camera = _cast(points_body, pixels, mask, intrinsics)
-    init = _initial(points_body, pixels, mask, key, camera, cfg)
+    init = _initial(points_body, pixels, mask, keys, camera, cfg)
     if cfg.refine is None:
         return init.result
     return _refined(init, points_body, pixels, camera, cfg, two)
 
 
-def _solve_stage1(points_body, pixels, mask, key, intrinsics, cfg: _Static):
+def _solve_stage1(points_body, pixels, mask, keys, intrinsics, *, cfg: _Static):
     points_body, pixels, mask, camera = _cast(points_body, pixels, mask, intrinsics)
-    init = _initial(points_body, pixels, mask, key, camera, cfg)
-    any_planar = jnp.any(init.result.planar & (init.result.status == Status.OK))
-    return init, any_planar
+    return _initial(points_body, pixels, mask, keys, camera, cfg)
 
 
-def _solve_stage2(init, points_body, pixels, mask, intrinsics, cfg: _Static, two: bool):
+def _solve_stage2(init, points_body, pixels, mask, intrinsics, *, cfg: _Static, two: bool):
     points_body, pixels, mask, camera = _cast(points_body, pixels, mask, intrinsics)
     return _refined(init, points_body, pixels, camera, cfg, two)
 
@@ -208,19 +209,35 @@ def _solve_stage2(init, points_body, pixels, mask, intrinsics, cfg: _Static, two
 COMPILER_OPTIONS_CPU = {"xla_cpu_use_fusion_emitters": False}
 """XLA options of the compiled solvers on a CPU. XLA's older element-wise emitters compile this
 code (hundreds of small fused kernels) about 1.6x faster than its MLIR fusion emitters for the
-same run time (measured with ``bench/pnp.py``'s compile figure: EPnP alone 4.5 s -> 2.8 s CPU)."""
+same run time (EPnP alone: 4.5 s -> 2.8 s of CPU time)."""
 
 
 @functools.cache
-def _jitted(name: str):
-    """The jitted stages, built on first use (so that importing jaxpose picks no backend)."""
-    fn, static = {
-        "fused": (_solve_fused, ("cfg", "two")),
-        "stage1": (_solve_stage1, ("cfg",)),
-        "stage2": (_solve_stage2, ("cfg", "two")),
-    }[name]
+def _compiled(name: str, cfg: _Static, two: bool, devices: int):
+    """A jitted stage for one configuration, built on first use (importing jaxpose picks no
+    backend). With several devices the batch axis is split over them (``shard_map``), the
+    convention of :mod:`jaxpose.studies.selection`: on a CPU, run with
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>`` to use every core."""
+    if name == "stage1":
+        fn = functools.partial(_solve_stage1, cfg=cfg)
+    else:
+        fn = functools.partial(
+            {"fused": _solve_fused, "stage2": _solve_stage2}[name], cfg=cfg, two=two
+        )
+    if devices > 1:
+        from jax.sharding import Mesh, PartitionSpec
+
+        mesh = Mesh(np.asarray(jax.local_devices()[:devices]), ("batch",))
+        split, whole = PartitionSpec("batch"), PartitionSpec()
+        fn = jax.shard_map(
+            fn,
+            mesh=mesh,
+            in_specs=(split, split, split, split, whole),
+            out_specs=split,
+            check_vma=False,  # the problems are independent; nothing is reduced over devices
+        )
     options = COMPILER_OPTIONS_CPU if jax.default_backend() == "cpu" else None
-    return jax.jit(fn, static_argnames=static, compiler_options=options)
+    return jax.jit(fn, compiler_options=options)
 
 
 FUSED_MAX = 64
@@ -245,6 +262,8 @@ def solve_pnp(
     max_outlier_fraction: float = 0.5,
     num_hypotheses: int | None = None,
     max_steps: int = 50,
+    rtol: float = 1e-6,
+    atol: float = 1e-9,
     planar_tol: float = pnp.PLANAR_TOL,
     chunk: int = CHUNK,
 ) -> pnp.PnPResult:
@@ -269,6 +288,10 @@ def solve_pnp(
         ransac_confidence, max_outlier_fraction: fix the number of hypotheses through Sharma et
             al. eq. 35 (:func:`jaxpose.pnp.ransac_iterations`), or give ``num_hypotheses``.
         max_steps: iteration budget of the refinement.
+        rtol, atol: the refinement stops after an accepted step with ``|dt| <= atol + rtol |t|``
+            (metres) and ``|dw| <= atol + rtol`` (radians). Convergence is quadratic, so the
+            pose is then much closer than that to the optimum: the defaults give the same errors
+            as ``refine_pose``'s tighter ones to 1e-12 relative, with one step fewer on average.
         planar_tol: planarity threshold of EPnP (:data:`jaxpose.pnp.PLANAR_TOL`).
         chunk: batches larger than this run as a loop over chunks of this size.
 
@@ -300,7 +323,9 @@ def solve_pnp(
         method=method,
         planar_tol=float(planar_tol),
         ransac=ransac,
-        refine=None if refine is None else (refine, robust, int(max_steps)),
+        refine=None
+        if refine is None
+        else (refine, robust, int(max_steps), float(rtol), float(atol)),
         undistort=undistort,
         chunk=int(chunk),
     )
@@ -309,25 +334,44 @@ def solve_pnp(
     points_body = _flat(points_body, batch, flat, (n, 3))
     pixels = _flat(pixels, batch, flat, (n, 2))
     mask = np.ones(flat + (n,), bool) if mask is None else _flat(mask, batch, flat, (n,))
-    if method == "ransac" and key is None:
-        key = jax.random.key(0)
     traced = any(isinstance(a, jax.core.Tracer) for a in (points_body, pixels, mask, intrinsics))
+    keys = None
+    if method == "ransac":
+        key = jax.random.key(0) if key is None else key
+        keys = key if batch == () else jax.random.split(key, size)
+    two = refine is not None
     if traced:  # inside the caller's jit: trace the stages into it
-        res = _solve_fused(points_body, pixels, mask, key, intrinsics, cfg, two=refine is not None)
-    elif refine is None or size <= FUSED_MAX:
-        res = _jitted("fused")(
-            points_body, pixels, mask, key, intrinsics, cfg, two=refine is not None
-        )
+        res = _solve_fused(points_body, pixels, mask, keys, intrinsics, cfg=cfg, two=two)
     else:
-        init, any_planar = _jitted("stage1")(points_body, pixels, mask, key, intrinsics, cfg)
-        res = _jitted("stage2")(
-            init, points_body, pixels, mask, intrinsics, cfg, two=bool(any_planar)
-        )
+        devices = jax.local_device_count() if size >= 2 * jax.local_device_count() else 1
+        args = _pad((points_body, pixels, mask, keys), size, devices)
+        if refine is None or size <= FUSED_MAX:
+            res = _compiled("fused", cfg, two, devices)(*args, intrinsics)
+        else:
+            init = _compiled("stage1", cfg, False, devices)(*args, intrinsics)
+            planar = np.asarray(init.result.planar) & (np.asarray(init.result.status) == 0)
+            stage2 = _compiled("stage2", cfg, bool(planar.any()), devices)
+            res = stage2(init, *args[:3], intrinsics)
+        if devices > 1 and res.status.shape[0] != size:
+            res = jax.tree.map(lambda a: a[:size], res)
     if len(batch) > 1:
         res = jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), res)
     if throw:
         res = throw_for_status(res, f"solve_pnp(method={method!r})", "reprojection_error")
     return res
+
+
+def _pad(args, size: int, devices: int):
+    """Repeat the first problem so that the batch splits evenly over ``devices``."""
+    pad = -size % devices
+    if devices == 1 or pad == 0:
+        return args
+
+    def one(a):
+        xp = jnp if isinstance(a, jax.Array) else np
+        return xp.concatenate([a, xp.repeat(a[:1], pad, axis=0)])
+
+    return tuple(None if a is None else one(a) for a in args)
 
 
 def _flat(x, batch, flat, tail):
