@@ -171,11 +171,15 @@ def _run_chunk(kernels, points, angles, sharding):
     # Compile outside the timed region (AOT), then time one run of each method.
     q_fn = quasi.lower(points_cam).compile()
     e_fn = exhaustive.lower(blocks).compile()
-    t0 = time.perf_counter()
-    q_idx = jax.block_until_ready(q_fn(points_cam))
+    # The quasi-optimal call takes microseconds, so dispatch noise dominates one timing: best of 5.
+    t_quasi = np.inf
+    for _ in range(5):
+        t0 = time.perf_counter()
+        q_idx = jax.block_until_ready(q_fn(points_cam))
+        t_quasi = min(t_quasi, time.perf_counter() - t0)
     t1 = time.perf_counter()
     opt = jax.block_until_ready(e_fn(blocks))
-    t2 = time.perf_counter()
+    t_opt = time.perf_counter() - t1
     pdop_q, adop_q = subset(blocks, q_idx)
     out = {
         "points_body": points,
@@ -192,7 +196,7 @@ def _run_chunk(kernels, points, angles, sharding):
         "angles": angles,
     }
     out = {k: np.asarray(v) for k, v in out.items()}
-    return out, t1 - t0, t2 - t1
+    return out, t_quasi, t_opt
 
 
 @dataclasses.dataclass
@@ -451,21 +455,24 @@ def _figures(result: StudyResult, out_dir: Path) -> list[Path]:
         paths.append(out_dir / "fig8_dop_vs_m.png")
         fig.savefig(paths[-1], dpi=110)
         plt.close(fig)
-    # Figs. 9-10: time per case
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, key, title in zip(axes, ("optimal_per_case", "quasi_per_case"), ("optimal (exhaustive)", "quasi-optimal")):
-        for m in sorted({g["m"] for g in groups}):
-            gs = sorted((g for g in groups if g["m"] == m), key=lambda g: g["n"])
-            if len(gs) > 1:
-                ax.plot([g["n"] for g in gs], [g["time_s"][key] for g in gs], "o-", label=f"m = {m}")
-        if not ax.lines:
-            ax.plot([g["m"] for g in n18], [g["time_s"][key] for g in n18], "o-", label="n = 18 (x: m)")
+    # Figs. 9-10: time per case of both methods on shared log axes (the paper's point is the gap)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
+    panels = [
+        (axes[0], sorted((g for g in groups if g["m"] == 8), key=lambda g: g["n"]), "n", "total points n (m = 8)"),
+        (axes[1], n18, "m", "selected points m (n = 18)"),
+    ]
+    for ax, gs, x, label in panels:
+        if not gs:
+            ax.set_visible(False)
+            continue
+        xs = [g[x] for g in gs]
+        ax.plot(xs, [g["time_s"]["optimal_per_case"] for g in gs], "o-", label="optimal (exhaustive)")
+        ax.plot(xs, [g["time_s"]["quasi_per_case"] for g in gs], "s--", label="quasi-optimal")
         ax.set_yscale("log")
-        ax.set_xlabel("total points n")
-        ax.set_ylabel("time per case (s)")
-        ax.set_title(title)
+        ax.set_xlabel(label)
         ax.legend(fontsize=8)
-    fig.suptitle("Time per case, batched on this machine (Ning et al. Figs. 9-10)")
+    axes[0].set_ylabel("time per case (s), batched")
+    fig.suptitle("Time per case on this machine, after compilation (Ning et al. Figs. 9-10)")
     fig.tight_layout()
     paths.append(out_dir / "fig9_10_timing.png")
     fig.savefig(paths[-1], dpi=110)
