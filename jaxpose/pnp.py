@@ -393,6 +393,15 @@ def _horn_rotation(points_a, points_b, weights):
     return R, mb - _mv(R, ma)
 
 
+def _det3(A):
+    """Determinant of ``(..., 3, 3)`` matrices (cofactor expansion)."""
+    return (
+        A[..., 0, 0] * (A[..., 1, 1] * A[..., 2, 2] - A[..., 1, 2] * A[..., 2, 1])
+        - A[..., 0, 1] * (A[..., 1, 0] * A[..., 2, 2] - A[..., 1, 2] * A[..., 2, 0])
+        + A[..., 0, 2] * (A[..., 1, 0] * A[..., 2, 1] - A[..., 1, 1] * A[..., 2, 0])
+    )
+
+
 def _rms_px(points_cam, xy, weights, fxy):
     """RMS reprojection error (pixels, in the undistorted image) of camera-frame points."""
     z = points_cam[..., 2]
@@ -471,6 +480,8 @@ def _epnp_core(points_body, xy, weights, fxy, planar_tol=PLANAR_TOL) -> _EPnPOut
     _, Z = _eigh_small(S)  # columns: kernel vectors, smallest eigenvalue first
     # v[k, j] = camera-frame (X, Y, Z) of control point j in kernel vector k
     v = jnp.stack([_mm(Kx, Z), _mm(Ky, Z), Z], axis=-1).transpose(1, 0, 2)  # (4, 4, 3)
+    # unit 12-vectors, as OpenCV's eigenvectors of M^T M (its beta approximations depend on it)
+    v = v / jnp.sqrt(jnp.sum(v * v, axis=(1, 2), keepdims=True))
 
     # Distance constraints (OpenCV compute_L_6x10 / compute_rho).
     dv = jnp.stack([v[:, a] - v[:, b] for a, b in _PAIRS], axis=1)  # (4 vectors, 6 pairs, 3)
@@ -516,18 +527,29 @@ def _epnp_core(points_body, xy, weights, fxy, planar_tol=PLANAR_TOL) -> _EPnPOut
 
     betas = lax.fori_loop(0, _GAUSS_NEWTON_STEPS, gauss_newton, betas)
 
-    # Camera-frame points of each candidate (eq. 17), made to lie in front; the candidate with the
-    # lowest reprojection error is fitted with a rigid pose (absolute orientation).
+    # Camera-frame points of each candidate (eq. 17), made to lie in front, a rigid pose fitted
+    # to each (absolute orientation), and the candidate of lowest reprojection error kept
+    # (OpenCV's compute_R_and_t; choosing before the rigid fit fails with few points, where a
+    # non-rigid candidate can fit the image well).
     ctrl_cam = sum(betas[:, k, None, None] * v[None, k] for k in range(4))  # (3, 4, 3)
     pc = _mm(alphas, ctrl_cam)  # (3, n, 3)
     sign = jnp.where(jnp.sum(pc[..., 2] * weights, axis=1) < 0, -1.0, 1.0)
     pc = pc * sign[:, None, None]
-    rms3 = _rms_px(pc, xy, weights, fxy)
+    # A mirror image of the body (det of the cross-covariance < 0; few points, far away) is the
+    # depth reversal about the centroid's fronto-parallel plane, which projects almost alike:
+    # undo that reversal before the rigid fit (OpenCV negates the third row of R instead).
+    mc = jnp.sum(pc * weights[:, None], axis=1) / jnp.maximum(count, 1.0)  # (3, 3)
+    H = _mtm((points_body - c0) * weights[:, None], pc - mc[:, None, :])  # (3, 3, 3)
+    mirror = (_det3(H) < 0) & ~planar
+    flip = jnp.where(mirror[:, None], 2.0 * mc[:, 2:] - pc[..., 2], pc[..., 2])
+    pc = jnp.concatenate([pc[..., :2], flip[..., None]], axis=-1)
+    R3, t3 = jax.vmap(lambda q: _horn_rotation(points_body, q, weights))(pc)
+    rms3 = _rms_px(_mm(points_body, jnp.swapaxes(R3, -1, -2)) + t3[:, None, :], xy, weights, fxy)
     rms3 = jnp.where(jnp.isfinite(rms3), rms3, jnp.inf)
     pick = _argmin_onehot(rms3)
-    pc = sum(pick[c] * pc[c] for c in range(3))
-    R, t = _horn_rotation(points_body, pc, weights)
-    rms = _rms_px(_mm(points_body, R.T) + t, xy, weights, fxy)
+    R = sum(pick[c] * R3[c] for c in range(3))
+    t = sum(pick[c] * t3[c] for c in range(3))
+    rms = sum(jnp.where(pick[c] > 0, rms3[c], 0.0) for c in range(3))
 
     return _EPnPOut(
         R,

@@ -171,8 +171,10 @@ def test_two_devices_give_the_same_poses(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     two = np.load(tmp_path / "out.npz")
     np.testing.assert_array_equal(two["status"], np.asarray(one.status))
-    np.testing.assert_allclose(two["R"], np.asarray(one.R), atol=1e-12)
-    np.testing.assert_allclose(two["t"], np.asarray(one.t), atol=1e-11)
+    # other compiled programs round differently, and the refinement may then stop one step
+    # earlier or later (its tolerance is 1e-6 relative, convergence quadratic)
+    np.testing.assert_allclose(two["R"], np.asarray(one.R), atol=1e-8)
+    np.testing.assert_allclose(two["t"], np.asarray(one.t), atol=1e-8)
 
 
 # ----------------------------------------------------------------------------- bad inputs
