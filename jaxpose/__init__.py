@@ -8,6 +8,7 @@ Float64 is recommended for navigation work: ``jax.config.update("jax_enable_x64"
 """
 
 from . import geometry as geometry
+from . import select as select
 from .camera import PinholeCamera as PinholeCamera
 from .camera import StereoCamera as StereoCamera
 from .camera import as_camera as as_camera
