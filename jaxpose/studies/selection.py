@@ -155,7 +155,8 @@ def _kernels(scenario: Scenario, m: int):
     def subset(blocks, idx):
         return jax.vmap(sel.subset_dop)(blocks, idx)
 
-    return prepare, quasi, exhaustive, subset
+    compiled: dict = {}  # AOT executables per input shape: compiled once, outside the timings
+    return prepare, quasi, exhaustive, subset, compiled
 
 
 def _shard(x, sharding):
@@ -164,13 +165,15 @@ def _shard(x, sharding):
 
 def _run_chunk(kernels, points, angles, sharding):
     """One chunk: returns per-case arrays and the run times of the two selection methods."""
-    prepare, quasi, exhaustive, subset = kernels
+    prepare, quasi, exhaustive, subset, compiled = kernels
     points, angles = _shard(points, sharding), _shard(angles, sharding)
     blocks, points_cam, pdop_all, adop_all = prepare(points, angles)
     jax.block_until_ready(blocks)
-    # Compile outside the timed region (AOT), then time one run of each method.
-    q_fn = quasi.lower(points_cam).compile()
-    e_fn = exhaustive.lower(blocks).compile()
+    # Compile outside the timed region (AOT, once per shape), then time each method.
+    key = blocks.shape
+    if key not in compiled:
+        compiled[key] = (quasi.lower(points_cam).compile(), exhaustive.lower(blocks).compile())
+    q_fn, e_fn = compiled[key]
     # The quasi-optimal call takes microseconds, so dispatch noise dominates one timing: best of 5.
     t_quasi = np.inf
     for _ in range(5):
