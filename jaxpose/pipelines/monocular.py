@@ -183,16 +183,22 @@ def _point_segment_distance(p, a, b):
     return jnp.sqrt(jnp.sum(d * d, -1) + 1e-12)
 
 
+def _visible_edges(R, t, geom):
+    """Edges on at least one front-facing face at ``(R, t)`` (edges of no face always count)."""
+    _, _, edge_faces, normals, centres = geom
+    n_cam = normals @ R.T
+    c_cam = centres @ R.T + t
+    front = jnp.sum(n_cam * c_cam, -1) < 0
+    has_face = jnp.any(edge_faces, axis=1)
+    return jnp.where(has_face, jnp.any(edge_faces & front[None], axis=1), True)
+
+
 def _quick_score(R, t, geom, dt, tau, cam4, roi):
     """Cheap ranking score of many hypotheses: the model side of :func:`_chamfer` plus a penalty
     when the projected model's box does not match the ROI in size (a small, far-away projection
     otherwise fits any dense patch of edges)."""
     edges, samples, edge_faces, normals, centres = geom
-    n_cam = normals @ R.T
-    c_cam = centres @ R.T + t
-    front = jnp.sum(n_cam * c_cam, -1) < 0
-    has_face = jnp.any(edge_faces, axis=1)
-    vis = jnp.where(has_face, jnp.any(edge_faces & front[None], axis=1), True)
+    vis = _visible_edges(R, t, geom)
     pc = samples @ R.T + t
     pix = _project(pc, cam4)
     H, W = dt.shape
@@ -218,11 +224,7 @@ def _chamfer(R, t, geom, img_pts, img_mask, dt, tau, cam4):
     Returns ``(score, share of model samples within tau / 4 of a detected segment)``.
     """
     edges, samples, edge_faces, normals, centres = geom
-    n_cam = normals @ R.T
-    c_cam = centres @ R.T + t
-    front = jnp.sum(n_cam * c_cam, -1) < 0
-    has_face = jnp.any(edge_faces, axis=1)
-    vis = jnp.where(has_face, jnp.any(edge_faces & front[None], axis=1), True)
+    vis = _visible_edges(R, t, geom)
     pc = samples @ R.T + t  # (E, S, 3)
     pix = _project(pc, cam4)
     H, W = dt.shape
