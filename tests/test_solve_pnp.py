@@ -130,6 +130,24 @@ def test_large_batches_run_in_chunks_and_refine_planar_problems_twice():
     np.testing.assert_array_equal(np.asarray(res.planar), np.arange(len(P)) >= len(P) // 2)
 
 
+def test_host_threads_give_the_same_poses_and_statuses():
+    """A batch split over host threads (padded to equal parts) gives the one-thread answer, with
+    each bad problem's status in its place."""
+    P, pix, _ = mixed_batch(70)
+    pix = pix.copy()
+    pix[5, 3] = np.nan  # one bad problem in the first part, none in the others
+    one = solve_pnp(P, pix, K, chunk=32, throw=False, workers=1)
+    three = solve_pnp(P, pix, K, chunk=32, throw=False, workers=3)
+    assert len(P) % 3 != 0  # the parts are padded
+    status = np.asarray(three.status)
+    assert status.shape == (len(P),) and status[5] == Status.NONFINITE_INPUT
+    np.testing.assert_array_equal(status, np.asarray(one.status))
+    np.testing.assert_allclose(np.asarray(three.R), np.asarray(one.R), atol=1e-8)
+    np.testing.assert_allclose(np.asarray(three.t), np.asarray(one.t), atol=1e-8)
+    with pytest.raises(ValueError, match="workers"):
+        solve_pnp(P, pix, K, workers=0)
+
+
 @pytest.mark.slow
 def test_two_devices_give_the_same_poses(tmp_path):
     """With two (forced host) devices the batch is split over them, padded to an even size."""
