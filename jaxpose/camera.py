@@ -53,7 +53,8 @@ class PinholeCamera(eqx.Module):
         dist = _scalar(dist)
         if dist.shape[-1:] != (5,):
             raise ValueError(
-                f"dist must hold OpenCV's 5 coefficients (k1, k2, p1, p2, k3); got shape {dist.shape}"
+                "dist must hold OpenCV's 5 coefficients (k1, k2, p1, p2, k3); "
+                f"got shape {dist.shape}"
             )
         self.dist = dist
         self.width, self.height = int(width), int(height)
@@ -65,11 +66,14 @@ class PinholeCamera(eqx.Module):
         K = jnp.asarray(K)
         if K.shape != (3, 3):
             raise ValueError(f"K must be 3x3; got shape {K.shape}")
-        if isinstance(K, np.ndarray) or not isinstance(K, jax.core.Tracer):
+        if not isinstance(K, jax.core.Tracer):  # values can be checked
             Kn = np.asarray(K, dtype=float)
             if not np.all(np.isfinite(Kn)) or Kn[0, 0] <= 0 or Kn[1, 1] <= 0:
                 raise ValueError(f"K must be finite with positive fx, fy; got {Kn.tolist()}")
-        if dist is not None:
+        if isinstance(dist, jax.core.Tracer):  # traced coefficients: shape checks only
+            if dist.shape != (5,):
+                raise ValueError(f"traced dist must have shape (5,); got {dist.shape}")
+        elif dist is not None:
             dist = np.asarray(dist, dtype=float).ravel()
             if dist.size not in (4, 5, 8, 12, 14):
                 raise ValueError(f"dist must have 4 or 5 coefficients; got {dist.size}")
@@ -95,13 +99,20 @@ class PinholeCamera(eqx.Module):
         px, py = (pixel_size_m, pixel_size_m) if np.isscalar(pixel_size_m) else pixel_size_m
         if focal_length_m <= 0 or px <= 0 or py <= 0:
             raise ValueError(
-                f"focal length and pixel size must be positive; got {focal_length_m}, {pixel_size_m}"
+                "focal length and pixel size must be positive; "
+                f"got {focal_length_m}, {pixel_size_m}"
             )
         w, h = (int(v) for v in image_size)
         if w <= 0 or h <= 0:
             raise ValueError(f"image_size must be positive (width, height); got {image_size}")
         return cls(
-            focal_length_m / px, focal_length_m / py, (w - 1) / 2.0, (h - 1) / 2.0, dist, width=w, height=h
+            focal_length_m / px,
+            focal_length_m / py,
+            (w - 1) / 2.0,
+            (h - 1) / 2.0,
+            dist,
+            width=w,
+            height=h,
         )
 
     # ------------------------------------------------------------------ properties
@@ -127,7 +138,13 @@ class PinholeCamera(eqx.Module):
 
     def without_distortion(self) -> PinholeCamera:
         return PinholeCamera(
-            self.fx, self.fy, self.cx, self.cy, jnp.zeros_like(self.dist), width=self.width, height=self.height
+            self.fx,
+            self.fy,
+            self.cx,
+            self.cy,
+            jnp.zeros_like(self.dist),
+            width=self.width,
+            height=self.height,
         )
 
     # ------------------------------------------------------------------ distortion
@@ -141,7 +158,9 @@ class PinholeCamera(eqx.Module):
         yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
         return jnp.stack([xd, yd], axis=-1)
 
-    def undistort(self, xy_distorted: Float[Array, "... 2"], iterations: int = 8) -> Float[Array, "... 2"]:
+    def undistort(
+        self, xy_distorted: Float[Array, "... 2"], iterations: int = 8
+    ) -> Float[Array, "... 2"]:
         """Invert :meth:`distort` by Newton's method (fixed iteration count, jit-friendly)."""
 
         def one(xd):
@@ -169,7 +188,9 @@ class PinholeCamera(eqx.Module):
         xy = self.distort(xy)
         return jnp.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], axis=-1)
 
-    def project_body(self, pose: Pose, points_body: Float[Array, "... n 3"]) -> Float[Array, "... n 2"]:
+    def project_body(
+        self, pose: Pose, points_body: Float[Array, "... n 3"]
+    ) -> Float[Array, "... n 2"]:
         """Pixels of body-frame points seen at ``pose``."""
         return self.project(pose.apply(points_body))
 
@@ -177,9 +198,13 @@ class PinholeCamera(eqx.Module):
     def in_front(points_cam: Float[Array, "... 3"], min_depth: float = 1e-9) -> Bool[Array, "..."]:
         return points_cam[..., 2] > min_depth
 
-    def normalize(self, pixels: Float[Array, "... 2"], undistort: bool = True) -> Float[Array, "... 2"]:
+    def normalize(
+        self, pixels: Float[Array, "... 2"], undistort: bool = True
+    ) -> Float[Array, "... 2"]:
         """Pixels to normalised coordinates ``(X/Z, Y/Z)`` (undistorted unless told not to)."""
-        xy = jnp.stack([(pixels[..., 0] - self.cx) / self.fx, (pixels[..., 1] - self.cy) / self.fy], -1)
+        xy = jnp.stack(
+            [(pixels[..., 0] - self.cx) / self.fx, (pixels[..., 1] - self.cy) / self.fy], -1
+        )
         return self.undistort(xy) if undistort else xy
 
     def undistort_pixels(self, pixels: Float[Array, "... 2"]) -> Float[Array, "... 2"]:
@@ -201,7 +226,9 @@ def as_camera(camera) -> PinholeCamera:
     K = np.asarray(camera) if not isinstance(camera, jax.Array) else camera
     if getattr(K, "shape", None) == (3, 3):
         return PinholeCamera.from_K(K)
-    raise ValueError(f"camera must be a PinholeCamera or a 3x3 K matrix; got {type(camera).__name__}")
+    raise ValueError(
+        f"camera must be a PinholeCamera or a 3x3 K matrix; got {type(camera).__name__}"
+    )
 
 
 # ============================================================================ stereo rig
@@ -238,19 +265,28 @@ class StereoCamera(eqx.Module):
             raise ValueError("t_rl (left camera origin in the right frame, metres) is required")
         t_rl = _scalar(t_rl)
         if R_rl.shape != (3, 3) or t_rl.shape != (3,):
-            raise ValueError(f"R_rl must be 3x3 and t_rl of shape (3,); got {R_rl.shape}, {t_rl.shape}")
+            raise ValueError(
+                f"R_rl must be 3x3 and t_rl of shape (3,); got {R_rl.shape}, {t_rl.shape}"
+            )
         if not isinstance(t_rl, jax.core.Tracer) and float(jnp.linalg.norm(t_rl)) <= 0.0:
             raise ValueError("the stereo baseline |t_rl| must be positive")
         self.left, self.right, self.R_rl, self.t_rl = left, right, R_rl, t_rl
 
     @classmethod
-    def from_baseline(cls, camera: PinholeCamera, baseline_m: float, right: PinholeCamera | None = None):
+    def from_baseline(
+        cls, camera: PinholeCamera, baseline_m: float, right: PinholeCamera | None = None
+    ):
         """A rectified side-by-side rig: identical cameras (unless ``right`` is given), the right
         camera ``baseline_m`` metres along the left camera's +x axis."""
         if not baseline_m > 0:
             raise ValueError(f"baseline_m must be positive; got {baseline_m}")
         zero = jnp.zeros_like(camera.fx)
-        return cls(camera, camera if right is None else right, None, jnp.stack([-baseline_m + zero, zero, zero]))
+        return cls(
+            camera,
+            camera if right is None else right,
+            None,
+            jnp.stack([-baseline_m + zero, zero, zero]),
+        )
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -267,7 +303,9 @@ class StereoCamera(eqx.Module):
         """Left-camera-frame points expressed in the right camera frame."""
         return jnp.einsum("ij,...j->...i", self.R_rl, points_left) + self.t_rl
 
-    def project(self, points_left: Float[Array, "... 3"]) -> tuple[Float[Array, "... 2"], Float[Array, "... 2"]]:
+    def project(
+        self, points_left: Float[Array, "... 3"]
+    ) -> tuple[Float[Array, "... 2"], Float[Array, "... 2"]]:
         """Pixels ``(left, right)`` of points given in the left camera frame (with distortion)."""
         return self.left.project(points_left), self.right.project(self.to_right(points_left))
 
@@ -346,7 +384,7 @@ class StereoCamera(eqx.Module):
 
 
 def _maybe_distorted(camera: PinholeCamera) -> bool:
-    """False only when the distortion is known (concrete) to be zero: Newton undistortion skipped."""
+    """False only when the distortion is known (concrete) to be zero: no Newton undistortion."""
     if isinstance(camera.dist, jax.core.Tracer):
         return True
     return camera.has_distortion()

@@ -4,10 +4,11 @@ import json
 
 import cv2
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxpose import Pose, PinholeCamera
+from jaxpose import PinholeCamera, Pose
 from jaxpose.camera import as_camera
 from jaxpose.io import load_camera, load_speed_labels, save_camera
 
@@ -32,11 +33,16 @@ def test_undistort_matches_opencv_and_inverts_distort(rng):
     cam, K = _camera()
     pixels = np.c_[rng.uniform(0, 1919, 200), rng.uniform(0, 1199, 200)]
     ref = cv2.undistortPoints(
-        pixels[:, None], K, SPEED_DIST, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+        pixels[:, None],
+        K,
+        SPEED_DIST,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
     )[:, 0]
     xy = np.asarray(cam.normalize(pixels))
     np.testing.assert_allclose(xy, ref, atol=1e-9)
-    np.testing.assert_allclose(cam.distort(xy), (pixels - [960, 600]) / [2988.58, 2988.34], atol=1e-11)
+    np.testing.assert_allclose(
+        cam.distort(xy), (pixels - [960, 600]) / [2988.58, 2988.34], atol=1e-11
+    )
 
 
 def test_from_focal_length():
@@ -99,12 +105,29 @@ def test_camera_file_round_trip_and_errors(tmp_path):
 
 @pytest.mark.speedplus
 def test_speedplus_keypoints_project_inside_image(speedplus_dir):
-    """The documented convention puts the Tango keypoints in front of the camera and on the image."""
+    """The documented convention puts the Tango keypoints in front of the camera, on the image."""
     cam = load_camera(speedplus_dir / "camera.json")
     assert (cam.width, cam.height) == (1920, 1200)
-    kp = np.loadtxt(speedplus_dir / "tango_keypoints.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3))
+    kp = np.loadtxt(
+        speedplus_dir / "tango_keypoints.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3)
+    )
     for label in load_speed_labels(speedplus_dir):
         px = np.asarray(cam.project_body(label.pose, kp))
         assert np.all(np.asarray(label.pose.apply(kp))[:, 2] > 0)
         inside = np.all((px >= 0) & (px < [1920, 1200]), axis=1)
         assert inside.sum() >= 8, label.image  # lightbox_img000001 has an antenna cut by the frame
+
+
+def test_from_K_accepts_traced_distortion_for_gradients():
+    """d(u + v)/d k1 = (fx x_n + fy y_n) r^2 (OpenCV's radial model, first order)."""
+    K = jnp.array([[800.0, 0.0, 320.0], [0.0, 900.0, 240.0], [0.0, 0.0, 1.0]])
+    X = jnp.array([[0.1, 0.2, 2.0]])
+
+    def total(dist):
+        return PinholeCamera.from_K(K, dist).project(X).sum()
+
+    xn, yn = 0.05, 0.1
+    grad = jax.grad(total)(jnp.zeros(5))
+    np.testing.assert_allclose(grad[0], (800.0 * xn + 900.0 * yn) * (xn**2 + yn**2), rtol=1e-9)
+    with pytest.raises(ValueError, match="shape"):
+        jax.jit(lambda d: PinholeCamera.from_K(K, d).fx)(jnp.zeros(4))
