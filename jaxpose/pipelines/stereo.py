@@ -2,30 +2,31 @@
 
 Per stereo pair (rectified, see :mod:`jaxpose.vision.stereo_match`):
 
-1. features of the left image (:mod:`jaxpose.vision.stereo_features`): ORB points, LSD lines
-   (eq. 1) with LBD descriptors;
-2. frame-to-keyframe matching: ORB searched around the keyframe points' predicted pixels
-   (constant-velocity prediction, ratio test) then RANSAC on the fundamental matrix; LBD by KNN +
-   ratio test (eqs. 2-3) gated by the predicted segment midpoints;
-3. pose: the keyframe's 3-D features are the "body" of :func:`jaxpose.refine.refine_pose`, which
+1. features of the left image (:mod:`jaxpose.vision.stereo_features`): ORB points (sub-pixel
+   corners), LSD lines (eq. 1) with LBD descriptors;
+2. search by projection against a body-frame landmark map
+   (:class:`~jaxpose.pipelines.stereo_map.LandmarkMap`): the landmarks visible from the predicted
+   pose (constant-velocity prediction) are projected, ORB matched by ratio test among the
+   keypoints within ``search_radius_px``, LBD (eqs. 2-3) among the segments parallel to and
+   overlapping a projected landmark segment;
+3. pose: the matched landmarks are the "body" of :func:`jaxpose.refine.refine_pose`, which
    minimises the point+line reprojection cost (eqs. 8-10) with a robust kernel by LM on se(3)
-   (eqs. 11-13), in ``passes`` rounds that drop features left beyond ``reject_px``; the result
-   ``T_cur_kf`` composed with the keyframe's pose gives the target pose
-   ``T_cur_target = T_cur_kf T_kf_target``: the trajectory is the chain of these increments;
-4. keyframe re-anchoring: when the inliers fall below ``keyframe_ratio`` times those of the first
-   frame tracked against the keyframe (or below ``keyframe_min``), the current frame becomes the
-   keyframe: its features get stereo correspondences by epipolar ZNCC search (eqs. 4-5) and are
-   triangulated with the rig (:meth:`jaxpose.camera.StereoCamera.triangulate`) into 3-D points
-   and segments in its left camera frame. Only keyframes need 3-D features, so the stereo stages
-   run on keyframes only; ``keyframe_every=1`` is the paper's pure frame-to-frame scheme;
+   (eqs. 11-13), in ``passes`` rounds that drop features left beyond ``reject_px``. The result
+   is the target pose itself (body to left camera): nothing is chained from frame to frame;
+4. map update on keyframes (every ``keyframe_every`` tracked frames): the frame's features get
+   stereo correspondences by epipolar ZNCC search (eqs. 4-5) and are triangulated with the rig
+   (:meth:`jaxpose.camera.StereoCamera.triangulate`); those matched to a landmark refine its
+   body-frame running mean, the others become new landmarks. When the target turns back to a
+   face seen before, the landmarks of that face are found again, so the error stays bounded
+   instead of accumulating as a chain of frame-to-keyframe increments does (the paper's scheme);
 5. an explicit :data:`~jaxpose.status.Status.LOST` (pose NaN) when too few features match, the
    solver fails, the fit error is large, or the step from the prediction is implausible; the
-   tracker keeps the last good keyframe and a constant-velocity prediction and tries again on the
-   next frame.
+   tracker keeps the map and a constant-velocity prediction and tries again on the next frame
+   with a doubled search radius.
 
 Points-only mode (``use_lines=False``) is the paper's comparison. The first pose is given (the
-ground truth of a rendered sequence, or the identity: the target frame is then the first left
-camera frame, as in the paper, which has no model of the target).
+ground truth of a rendered sequence, as the paper initialises, or the identity: the target frame is
+then the first left camera frame); it places the first landmarks in the body frame.
 """
 
 from __future__ import annotations
@@ -36,17 +37,17 @@ from dataclasses import dataclass, field
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..camera import StereoCamera
-from ..geometry import Pose, rotation_angle
+from ..geometry import Pose
 from ..refine import refine_pose
 from ..status import Status
 from ..vision.stereo_features import (
     FeatureOptions,
     extract,
+    knn_ratio_match_pairs,
     match_lines,
-    match_points_guided,
-    ransac_filter,
 )
 from ..vision.stereo_match import (
     StereoMatchOptions,
@@ -54,6 +55,7 @@ from ..vision.stereo_match import (
     match_lines_stereo,
     match_points_stereo,
 )
+from .stereo_map import LandmarkMap
 
 __all__ = ["FrameResult", "StereoTracker", "TrackerOptions", "target_roi"]
 
@@ -71,18 +73,28 @@ class TrackerOptions:
             target's half size plus a margin; ``None`` searches the whole range every frame).
         robust: kernel of eq. 10 (``"huber"``, ``"cauchy"``, ``"tukey"`` or ``None``).
         sigma_px, line_sigma_px: pixel noise of points and line distances (information matrices).
-        max_points, max_lines: padding sizes of the solver (one compiled function for a sequence).
+        max_points, max_lines: padding sizes of the solver (one compiled function for a
+            sequence); beyond ``max_points`` matches the most observed landmarks are kept.
         min_features: fewer matched features (points + lines) than this is LOST.
         max_rms_px: a post-fit RMS reprojection error above this is LOST.
         max_jump_deg, max_jump_m: a pose further than this from the prediction is LOST.
-        keyframe_ratio, keyframe_min: re-anchor when inliers fall below ``ratio`` times the
-            inliers of the first frame tracked against the keyframe, or below ``keyframe_min``.
-        search_radius_px: guided matching radius around the keyframe features' predicted pixels
-            (constant-velocity prediction); lines use twice this radius on their midpoints.
-        keyframe_every: re-anchor at least every this many frames (1: frame to frame).
+        search_radius_px: search-by-projection radius around the landmarks' predicted pixels
+            (constant-velocity prediction); doubled on the frame after a lost one.
+        line_angle_deg: a current segment is a candidate for a landmark segment when their
+            directions differ by less than this (and they overlap, within the radius).
+        keyframe_every, keyframe_min: the map is updated (stereo triangulation of the frame's
+            features) every ``keyframe_every`` tracked frames, or when fewer than
+            ``keyframe_min`` inliers remain.
         inlier_px: post-fit residual below which a feature counts as an inlier.
         passes, reject_px: LM passes; features with a residual above ``reject_px`` after a pass
             are left out of the next.
+        max_view_deg, max_obs, cull_after, cull_ratio, keep_obs: visibility cone, running-mean
+            cap and culling of the :class:`~jaxpose.pipelines.stereo_map.LandmarkMap`.
+        refine_disparity_px: a landmark's new triangulation is averaged in only when its
+            disparity is within this of the landmark's predicted disparity (stereo mismatches
+            are left out).
+        duplicate_px: an unmatched feature within this of an unmatched landmark's projection
+            does not become a new landmark.
     """
 
     use_lines: bool = True
@@ -91,19 +103,26 @@ class TrackerOptions:
     robust: str | None = "huber"
     sigma_px: float = 1.0
     line_sigma_px: float = 1.0
-    max_points: int = 768
+    max_points: int = 1024
     max_lines: int = 96
     min_features: int = 12
     max_rms_px: float = 4.0
     max_jump_deg: float = 10.0
     max_jump_m: float = 0.25
-    keyframe_ratio: float = 0.6
+    search_radius_px: float = 12.0
+    line_angle_deg: float = 10.0
+    keyframe_every: int = 3
     keyframe_min: int = 50
-    search_radius_px: float = 20.0
-    keyframe_every: int = 1000
     inlier_px: float = 2.0
     passes: int = 3
     reject_px: float = 1.5
+    max_view_deg: float = 60.0
+    max_obs: int = 10
+    cull_after: int = 8
+    cull_ratio: float = 0.25
+    keep_obs: int = 3
+    refine_disparity_px: float = 1.0
+    duplicate_px: float = 2.0
     features: FeatureOptions = field(default_factory=FeatureOptions)
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
 
@@ -128,18 +147,6 @@ class FrameResult:
     rms_px: float = float("nan")
     keyframe: bool = False
     timings: dict = field(default_factory=dict)
-
-
-@dataclass
-class _Keyframe:
-    index: int
-    R: np.ndarray  # target pose in this keyframe's left camera
-    t: np.ndarray
-    points3d: np.ndarray  # (P, 3) in the keyframe camera
-    pixels: np.ndarray  # (P, 2)
-    point_desc: np.ndarray
-    segments3d: np.ndarray  # (L, 2, 3)
-    line_desc: np.ndarray
 
 
 def target_roi(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> np.ndarray | None:
@@ -200,7 +207,7 @@ def _triangulate(rig: StereoCamera, left, right):
 
 
 class StereoTracker:
-    """Frame-to-keyframe stereo point-line tracker (module docstring).
+    """Map-based stereo point-line tracker (module docstring).
 
     Args:
         rig: rectified rig (``R_rl = I``, ``t_rl = (-b, 0, 0)``, identical ideal cameras), e.g.
@@ -228,26 +235,35 @@ class StereoTracker:
         ):
             raise ValueError(
                 "StereoTracker needs a rectified rig (R_rl = I, t_rl = (-b, 0, 0)); rectify the "
-                "images "
-                "with rig.rectify() and use its rectified_camera()"
+                "images with rig.rectify() and use its rectified_camera()"
             )
         if rig.left.has_distortion() or rig.right.has_distortion():
             raise ValueError("StereoTracker needs undistorted (rectified) images and cameras")
         self.rig = rig
         self.options = options
         pose = Pose.identity() if initial_pose is None else initial_pose
-        self._R0, self._t0 = np.asarray(pose.R, float), np.asarray(pose.t, float)
+        self._T0 = _T(np.asarray(pose.R, float), np.asarray(pose.t, float))
         disparity_range(rig, *options.depth_range_m)  # validates the range
-        self._last_depth = float(self._t0[2]) if initial_pose is not None else None
-        self.keyframe: _Keyframe | None = None
-        self._T_prev_kf = np.eye(4)  # previous frame's pose relative to the keyframe camera
+        self._last_depth = float(self._T0[2, 3]) if initial_pose is not None else None
+        self.map = LandmarkMap(
+            max_view_deg=options.max_view_deg,
+            max_obs=options.max_obs,
+            cull_after=options.cull_after,
+            cull_ratio=options.cull_ratio,
+            keep_obs=options.keep_obs,
+        )
+        self._T_prev = self._T0.copy()  # last good pose (body to left camera)
         self._delta = np.eye(4)  # last inter-frame increment (constant-velocity prediction)
+        self._misses = 0  # frames lost since the last good one
         self._since_kf = 0
-        self._kf_reference = None
         self.index = 0
+        fb = float(rig.left.fx) * float(rig.baseline)
+        self._fb = fb
 
     # ------------------------------------------------------------------ stages
     def _stereo(self, left, right, feats, timings):
+        """Stereo correspondence (eqs. 4-5) and triangulation of the frame's features: indices
+        and left-camera 3-D points / segments of those with a valid depth."""
         o = self.options
         t0 = time.perf_counter()
         disp = self._disparities()
@@ -258,9 +274,10 @@ class StereoTracker:
         else:
             lm, line_ok = None, np.zeros(len(feats.segments), bool)
         t1 = time.perf_counter()
-        ip = np.nonzero(pm.ok)[0][: o.max_points]
+        ip = np.nonzero(pm.ok)[0]
         il = np.nonzero(line_ok)[0][: o.max_lines]
-        n_tri = o.max_points + 2 * o.max_lines
+        n_tri = o.features.n_points + 2 * o.max_lines
+        ip = ip[: n_tri - 2 * len(il)]
         pl = np.concatenate(
             [feats.points[ip], feats.segments[il].reshape(-1, 2) if len(il) else np.zeros((0, 2))]
         )
@@ -280,16 +297,44 @@ class StereoTracker:
         timings["triangulate"] = time.perf_counter() - t1
         return (ip[okp], P[okp]), (il[oks], S[oks])
 
-    def _make_keyframe(self, R, t, left, right, feats, timings):
-        """Make the current frame the keyframe: stereo correspondence and triangulation of its
-        features (only keyframes need 3-D features, so the stereo stages run only here)."""
+    def _update_map(self, T, left, right, feats, assoc_p, assoc_l, timings):
+        """Keyframe: triangulate the frame's features; fold those matched to a landmark into its
+        running mean (when the new depth agrees with the landmark's to ``refine_disparity_px``),
+        add the others as new landmarks (unless an unmatched landmark projects within
+        ``duplicate_px``), then cull. ``assoc_*``: current feature index -> landmark index."""
+        o = self.options
+        R, t = T[:3, :3], T[:3, 3]
         (ip, P), (il, S) = self._stereo(left, right, feats, timings)
-        self.keyframe = _Keyframe(
-            self.index, R, t, P, feats.points[ip], feats.point_desc[ip], S, feats.line_desc[il]
-        )
-        self._T_prev_kf = np.eye(4)
+        k = self.index - 1
+        Pb = (P - t) @ R  # body frame
+        m = self.map.points
+        has = np.array([i in assoc_p for i in ip], bool)
+        if has.any():
+            idx = np.array([assoc_p[i] for i in ip[has]])
+            z_map = m.X[idx] @ R[2] + t[2]
+            agree = np.abs(self._fb / P[has, 2] - self._fb / z_map) < o.refine_disparity_px
+            self.map.refine(
+                "points", idx[agree], Pb[has][agree], feats.point_desc[ip[has][agree]], R, t, k
+            )
+        new = ~has & ~np.isin(ip, list(self._rejected_p))
+        if new.any() and len(m):
+            cand = self.map.candidates("points", R, t)
+            cand = cand[~np.isin(cand, list(assoc_p.values()))]
+            if len(cand):
+                tree = cKDTree(self._project(m.X[cand], T))
+                d, _ = tree.query(feats.points[ip[new]], distance_upper_bound=o.duplicate_px)
+                new[np.nonzero(new)[0][np.isfinite(d)]] = False
+        self.map.add("points", Pb[new], feats.point_desc[ip[new]], R, t, k)
+        if o.use_lines and len(il):
+            Sb = (S - t) @ R
+            has_l = np.array([i in assoc_l for i in il], bool)
+            if has_l.any():
+                idx = np.array([assoc_l[i] for i in il[has_l]])
+                self.map.refine("lines", idx, None, feats.line_desc[il[has_l]], R, t, k)
+            new_l = ~has_l & ~np.isin(il, list(self._rejected_l))
+            self.map.add("lines", Sb[new_l], feats.line_desc[il[new_l]], R, t, k)
+        self.map.cull()
         self._since_kf = 0
-        self._kf_reference = None  # inliers of the first frame tracked against this keyframe
 
     def _disparities(self) -> tuple[int, int]:
         """Disparities searched: around the last known target depth (``+- depth_margin_m``) when
@@ -304,13 +349,56 @@ class StereoTracker:
         return disparity_range(self.rig, lo, hi)
 
     def _project(self, points: np.ndarray, T: np.ndarray) -> np.ndarray:
-        """Pixels (ideal pinhole, NumPy) of keyframe-frame points moved by ``T`` (4x4)."""
+        """Pixels (ideal pinhole, NumPy) of body points moved by ``T`` (4x4)."""
         X = points @ T[:3, :3].T + T[:3, 3]
-        z = np.where(X[:, 2] > 1e-6, X[:, 2], 1e-6)
+        z = np.where(X[..., 2] > 1e-6, X[..., 2], 1e-6)
         c = self.rig.left
         return np.stack(
-            [float(c.fx) * X[:, 0] / z + float(c.cx), float(c.fy) * X[:, 1] / z + float(c.cy)], 1
+            [float(c.fx) * X[..., 0] / z + float(c.cx), float(c.fy) * X[..., 1] / z + float(c.cy)],
+            -1,
         )
+
+    def _match(self, feats, T_pred, radius):
+        """Search by projection: the visible landmarks projected with the predicted pose, ORB
+        (ratio test) among the current keypoints within ``radius`` of each; LBD (eqs. 2-3) among
+        the current segments parallel to (``line_angle_deg``) and overlapping a projected
+        landmark segment. Returns the landmark / feature index pairs and the searched sets."""
+        o = self.options
+        R, t = T_pred[:3, :3], T_pred[:3, 3]
+        H, W = self.rig.left.height, self.rig.left.width
+        cand = self.map.candidates("points", R, t)
+        pred = self._project(self.map.points.X[cand], T_pred)
+        inside = (pred[:, 0] >= 0) & (pred[:, 0] < W) & (pred[:, 1] >= 0) & (pred[:, 1] < H)
+        cand, pred = cand[inside], pred[inside]
+        i_m, i_cur = _guided(pred, self.map.points.desc[cand], feats, radius, o.features)
+        i_m = cand[i_m]
+        l_m = l_cur = lcand = np.zeros(0, int)
+        if o.use_lines and len(self.map.lines) and len(feats.line_desc):
+            lcand = self.map.candidates("lines", R, t)
+            seg = self._project(self.map.lines.X[lcand], T_pred)  # (K, 2, 2)
+            mid = seg.mean(1)
+            inside = (mid[:, 0] >= 0) & (mid[:, 0] < W) & (mid[:, 1] >= 0) & (mid[:, 1] < H)
+            lcand, seg, mid = lcand[inside], seg[inside], mid[inside]
+            cur = feats.segments
+            dp = seg[:, 1] - seg[:, 0]
+            dc = cur[:, 1] - cur[:, 0]
+            lp = np.linalg.norm(dp, axis=1)
+            lc = np.linalg.norm(dc, axis=1)
+            cosang = np.abs(dp @ dc.T) / np.maximum(lp[:, None] * lc[None], 1e-9)
+            # perpendicular distance of the projected midpoint to the current line
+            nrm = np.stack([-dc[:, 1], dc[:, 0]], 1) / np.maximum(lc[:, None], 1e-9)
+            perp = np.abs(np.einsum("kj,mj->km", mid, nrm) - (cur[:, 0] * nrm).sum(1)[None])
+            along = np.linalg.norm(mid[:, None] - cur.mean(1)[None], axis=-1)
+            allowed = (
+                (cosang > np.cos(np.radians(o.line_angle_deg)))
+                & (perp < radius)
+                & (along < 0.5 * (lp[:, None] + lc[None]) + radius)
+            )
+            l_m, l_cur = match_lines(
+                self.map.lines.desc[lcand], feats.line_desc, options=o.features, allowed=allowed
+            )
+            l_m = lcand[l_m]
+        return (i_m, i_cur, cand), (l_m, l_cur, lcand)
 
     # ------------------------------------------------------------------ main entry
     def process(self, left: np.ndarray, right: np.ndarray, *, roi=None) -> FrameResult:
@@ -329,50 +417,33 @@ class StereoTracker:
         timings["features"] = time.perf_counter() - t0
         k = self.index
         self.index += 1
-        if self.keyframe is None:
-            self._make_keyframe(self._R0, self._t0, left, right, feats, timings)
-            kf = self.keyframe
+        if k == 0:
+            self._rejected_p, self._rejected_l = set(), set()
+            self._update_map(self._T0, left, right, feats, {}, {}, timings)
+            R0, t0_ = self._T0[:3, :3], self._T0[:3, 3]
             return FrameResult(
                 k,
-                self._R0,
-                self._t0,
+                R0,
+                t0_,
                 int(Status.OK),
-                len(kf.points3d),
-                len(kf.segments3d),
+                len(self.map.points),
+                len(self.map.lines),
                 keyframe=True,
                 timings=timings,
             )
 
-        kf = self.keyframe
         t1 = time.perf_counter()
-        T_pred = self._delta @ self._T_prev_kf
-        pred = self._project(kf.points3d, T_pred)
-        i_kf, i_cur = match_points_guided(
-            pred,
-            kf.point_desc,
-            feats.points,
-            feats.point_desc,
-            radius_px=o.search_radius_px,
-            options=o.features,
-        )
-        i_kf, i_cur = ransac_filter(kf.pixels, feats.points, i_kf, i_cur, options=o.features)
-        if o.use_lines and len(kf.line_desc) and len(feats.line_desc):
-            mid = self._project(kf.segments3d.mean(1), T_pred)
-            near = ((mid[:, None] - feats.segments.mean(1)[None]) ** 2).sum(-1) < (
-                2 * o.search_radius_px
-            ) ** 2
-            l_kf, l_cur = match_lines(
-                kf.line_desc, feats.line_desc, options=o.features, allowed=near
-            )
-        else:
-            l_kf, l_cur = np.zeros(0, int), np.zeros(0, int)
-        i_kf, i_cur = i_kf[: o.max_points], i_cur[: o.max_points]
-        l_kf, l_cur = l_kf[: o.max_lines], l_cur[: o.max_lines]
+        T_pred = self._delta @ self._T_prev
+        radius = o.search_radius_px * (2.0 if self._misses else 1.0)
+        (i_m, i_cur, cand), (l_m, l_cur, lcand) = self._match(feats, T_pred, radius)
+        if len(i_m) > o.max_points:  # keep the best-observed landmarks
+            keep = np.argsort(-self.map.points.n_obs[i_m], kind="stable")[: o.max_points]
+            i_m, i_cur = i_m[keep], i_cur[keep]
+        l_m, l_cur = l_m[: o.max_lines], l_cur[: o.max_lines]
         timings["match"] = time.perf_counter() - t1
 
         t2 = time.perf_counter()
-        make_keyframe = False
-        n_p, n_l = len(i_kf), len(l_kf)
+        n_p, n_l = len(i_m), len(l_m)
         result = FrameResult(
             k,
             np.full((3, 3), np.nan),
@@ -382,17 +453,17 @@ class StereoTracker:
             n_l,
             timings=timings,
         )
+        update = None
         if n_p + n_l >= o.min_features:
             mask = np.arange(o.max_points) < n_p
             lmask = np.arange(o.max_lines) < n_l
-            seg_cur = feats.segments[l_cur]
-            L = _lines_np(seg_cur) if n_l else np.zeros((0, 3))
+            L = _lines_np(feats.segments[l_cur]) if n_l else np.zeros((0, 3))
             args = (
-                jnp.asarray(_pad(kf.points3d[i_kf], o.max_points)),
+                jnp.asarray(_pad(self.map.points.X[i_m], o.max_points)),
                 jnp.asarray(_pad(feats.points[i_cur], o.max_points)),
             )
             line_args = (
-                jnp.asarray(_pad(kf.segments3d[l_kf], o.max_lines)),
+                jnp.asarray(_pad(self.map.lines.X[l_m], o.max_lines)),
                 jnp.asarray(_pad(L, o.max_lines)),
             )
             statics = (self.rig.left, o.robust, o.sigma_px, o.line_sigma_px)
@@ -400,7 +471,7 @@ class StereoTracker:
             for _ in range(o.passes):
                 # each pass restarts from the last pose without the features it left beyond
                 # reject_px (ORB-SLAM's outlier passes): the robust kernel alone still lets
-                # mismatches along the epipolar lines, which RANSAC cannot see, pull the pose
+                # mismatches on the repetitive texture pull the pose
                 res, e_p, e_l = _solve(
                     pose0,
                     args[0],
@@ -414,47 +485,84 @@ class StereoTracker:
                 pose0 = res.pose
                 mask = mask & (np.asarray(e_p) < o.reject_px)
                 lmask = lmask & (np.asarray(e_l) < o.reject_px)
-            R_ck, t_ck = np.asarray(res.pose.R), np.asarray(res.pose.t)
+            T_est = _T(np.asarray(res.pose.R), np.asarray(res.pose.t))
             e_p, e_l = np.asarray(e_p)[:n_p], np.asarray(e_l)[:n_l]
-            inliers = int(np.sum(e_p < o.inlier_px) + np.sum(e_l < o.inlier_px))
-            inl_err = np.concatenate([e_p[e_p < o.inlier_px], e_l[e_l < o.inlier_px]])
+            in_p, in_l = e_p < o.inlier_px, e_l < o.inlier_px
+            inliers = int(in_p.sum() + in_l.sum())
+            inl_err = np.concatenate([e_p[in_p], e_l[in_l]])
             rms = float(np.sqrt(np.mean(inl_err**2))) if len(inl_err) else float("inf")
-            jump_deg = float(
-                np.degrees(rotation_angle(jnp.asarray(R_ck), jnp.asarray(T_pred[:3, :3])))
-            )
-            jump_m = float(np.linalg.norm(t_ck - T_pred[:3, 3]))
+            D = T_est @ np.linalg.inv(T_pred)
+            jump_deg = float(np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1))))
+            jump_m = float(np.linalg.norm(T_est[:3, 3] - T_pred[:3, 3]))
             good = (
                 int(res.status) in (Status.OK, Status.NOT_CONVERGED)
-                and np.all(np.isfinite(R_ck))
+                and np.all(np.isfinite(T_est))
                 and inliers >= o.min_features
                 and rms <= o.max_rms_px
-                and jump_deg <= o.max_jump_deg
-                and jump_m <= o.max_jump_m
+                and jump_deg <= o.max_jump_deg * (1 + self._misses)
+                and jump_m <= o.max_jump_m * (1 + self._misses)
             )
             result.inliers, result.rms_px = inliers, rms
             if good:
-                T_ck = np.eye(4)
-                T_ck[:3, :3], T_ck[:3, 3] = R_ck, t_ck
-                self._delta = T_ck @ np.linalg.inv(self._T_prev_kf)
-                self._T_prev_kf = T_ck
-                self._since_kf += 1
-                result.R = R_ck @ kf.R
-                result.t = R_ck @ kf.t + t_ck
+                steps = self._misses + 1
+                self._delta = _fractional_step(T_est @ np.linalg.inv(self._T_prev), steps)
+                self._T_prev = T_est
+                self._misses = 0
+                result.R, result.t = T_est[:3, :3], T_est[:3, 3]
                 result.status = int(Status.OK)
                 self._last_depth = float(result.t[2])
-                if self._kf_reference is None:
-                    self._kf_reference = inliers
-                if (
-                    inliers < o.keyframe_ratio * self._kf_reference
-                    or inliers < o.keyframe_min
-                    or self._since_kf >= o.keyframe_every
-                ):
-                    make_keyframe = True
+                self.map.record("points", cand, i_m[in_p], k)
+                self.map.record("lines", lcand, l_m[in_l], k)
+                self._since_kf += 1
+                update = (
+                    dict(zip(i_cur[in_p].tolist(), i_m[in_p].tolist(), strict=True)),
+                    dict(zip(l_cur[in_l].tolist(), l_m[in_l].tolist(), strict=True)),
+                )
+                self._rejected_p = set(i_cur[~in_p].tolist())
+                self._rejected_l = set(l_cur[~in_l].tolist())
         if result.status != Status.OK:
-            # keep the keyframe; predict one more step of constant motion for the next try
-            self._T_prev_kf = T_pred
+            self._misses += 1
+            self._T_prev = T_pred  # predict one more step of constant motion for the next try
         timings["pose"] = time.perf_counter() - t2
-        if make_keyframe:
-            self._make_keyframe(result.R, result.t, left, right, feats, timings)
+        if update is not None and (
+            self._since_kf >= o.keyframe_every or result.inliers < o.keyframe_min
+        ):
+            self._update_map(T_est, left, right, feats, *update, timings)
             result.keyframe = True
         return result
+
+
+def _T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    M = np.eye(4)
+    M[:3, :3], M[:3, 3] = R, t
+    return M
+
+
+def _fractional_step(D: np.ndarray, steps: int) -> np.ndarray:
+    """The per-frame increment of a motion ``D`` (4x4) spread over ``steps`` frames (rotation
+    vector and translation divided by ``steps``)."""
+    if steps <= 1:
+        return D
+    import cv2
+
+    rvec, _ = cv2.Rodrigues(D[:3, :3])
+    R, _ = cv2.Rodrigues(rvec / steps)
+    return _T(R, D[:3, 3] / steps)
+
+
+def _guided(pred, desc, feats, radius, options):
+    """:func:`match_points_guided` with a k-d tree: only pairs within ``radius`` are scored."""
+    if len(pred) == 0 or len(feats.points) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    tree = cKDTree(feats.points)
+    pairs = tree.query_ball_point(pred, radius)
+    rows = np.repeat(np.arange(len(pred)), [len(p) for p in pairs])
+    cols = np.fromiter((c for p in pairs for c in p), int, count=len(rows))
+    return knn_ratio_match_pairs(
+        desc,
+        feats.point_desc,
+        rows,
+        cols,
+        ratio=options.point_ratio,
+        max_distance=options.max_hamming_point,
+    )
