@@ -443,54 +443,64 @@ class _State(eqx.Module):
     g: Array
     cost: Array
     lam: Array
+    delta: Array  # the next step, solved from (A, g, lam)
     step: Array
     done: Array
     bad: Array
+    final: Array  # converged on a negligible next step, which is then taken unverified
 
 
 def _native_solve(pose0: Pose, prob: _Problem, cfg: _Config):
-    """One linearisation per iteration: the candidate's normal equations are kept if accepted."""
+    """One linearisation per iteration: the candidate's normal equations are kept if accepted,
+    and the next step is solved from them at once, so that convergence is seen one
+    linearisation earlier (a negligible next step is taken without evaluating the cost there:
+    with quadratic convergence it moves the pose by less than the tolerance)."""
     dtype = prob.points.dtype
     lm = cfg.method == "lm"
+    eps = float(jnp.finfo(dtype).eps)
 
     def cond(st: _State):
         return (~st.done) & (st.step <= cfg.max_steps)
 
     def body(st: _State):
         first = st.step == 0
-        delta, singular = _scaled_cholesky_solve(st.A, -st.g, st.lam if lm else None)
-        finite = jnp.all(jnp.isfinite(delta))
-        delta = jnp.where(finite, delta, 0.0)
-        cand = _retract(st.pose, delta, cfg)
+        cand = _retract(st.pose, st.delta, cfg)
         A, g, cost = _linearize(cand, prob, cfg)
         ok = jnp.isfinite(cost) & jnp.all(jnp.isfinite(A)) & jnp.all(jnp.isfinite(g))
         accept = ok & (cost <= st.cost) if lm else ok
         keep = lambda new, old: jnp.where(accept, new, old)  # noqa: E731
+        pose = jax.tree.map(keep, cand, st.pose)
+        A, g, cost = keep(A, st.A), keep(g, st.g), keep(cost, st.cost)
+        lam = jnp.where(
+            first, st.lam, jnp.where(accept, jnp.maximum(st.lam * 0.1, 1e-12), st.lam * 10.0)
+        )
+        delta, singular = _scaled_cholesky_solve(A, -g, lam if lm else None)
+        finite = jnp.all(jnp.isfinite(delta))
+        delta = jnp.where(finite, delta, 0.0)
         dt, dw = delta[:3], delta[3:]
-        small = (jnp.linalg.norm(dt) <= cfg.atol + cfg.rtol * jnp.linalg.norm(st.pose.t)) & (
+        small = (jnp.linalg.norm(dt) <= cfg.atol + cfg.rtol * jnp.linalg.norm(pose.t)) & (
             jnp.linalg.norm(dw) <= cfg.atol + cfg.rtol
         )
-        # Converged: a small step, or a Gauss-Newton model that predicts a decrease at the
-        # round-off level of the cost (smaller steps cannot be resolved) or below
-        # _NEGLIGIBLE_DECREASE. With LM only while the damping is light (a heavily damped step
-        # is small for another reason).
-        pred = -jnp.dot(st.g, delta) - 0.5 * jnp.dot(delta, st.A @ delta)
-        flat = pred <= 1e3 * float(jnp.finfo(dtype).eps) * st.cost + _NEGLIGIBLE_DECREASE
-        light = (st.lam <= 1.0) if lm else jnp.asarray(True)
-        converged = ((small & (accept | light)) | (flat & light)) & ~first
-        bad = ~finite | (jnp.asarray(False) if lm else singular & ~first) | ~ok
-        new_cost = keep(cost, st.cost)
+        # Converged: after an accepted linearisation, the lightly damped next step is small, or
+        # the model predicts a decrease at the round-off level of the cost (smaller steps
+        # cannot be resolved) or below _NEGLIGIBLE_DECREASE. (A heavily damped step is small
+        # for another reason.)
+        pred = -jnp.dot(g, delta) - 0.5 * jnp.dot(delta, A @ delta)
+        flat = pred <= 1e3 * eps * cost + _NEGLIGIBLE_DECREASE
+        light = (lam <= 1.0) if lm else jnp.asarray(True)
+        converged = (small | flat) & light & accept
+        bad = ~finite | (jnp.asarray(False) if lm else singular) | ~ok
         return _State(
-            pose=jax.tree.map(keep, cand, st.pose),
-            A=keep(A, st.A),
-            g=keep(g, st.g),
-            cost=new_cost,
-            lam=jnp.where(
-                first, st.lam, jnp.where(accept, jnp.maximum(st.lam * 0.1, 1e-12), st.lam * 10.0)
-            ),
+            pose=pose,
+            A=A,
+            g=g,
+            cost=cost,
+            lam=lam,
+            delta=delta,
             step=st.step + 1,
-            done=converged | bad | (new_cost <= jnp.finfo(dtype).tiny) | (st.lam > 1e12),
+            done=converged | bad | (cost <= jnp.finfo(dtype).tiny) | (lam > 1e12),
             bad=bad & ~accept,
+            final=converged & ~bad,
         )
 
     # The first iteration takes a zero step from pose0 and linearises there (one copy of the
@@ -502,13 +512,19 @@ def _native_solve(pose0: Pose, prob: _Problem, cfg: _Config):
         jnp.zeros(6, dtype),
         inf,
         jnp.asarray(_LAMBDA0, dtype),
+        jnp.zeros(6, dtype),
         jnp.asarray(0, jnp.int32),
+        jnp.asarray(False),
         jnp.asarray(False),
         jnp.asarray(False),
     )
     st = jax.lax.while_loop(cond, body, st0)
+    pose = jax.tree.map(
+        lambda a, b: jnp.where(st.final, a, b), _retract(st.pose, st.delta, cfg), st.pose
+    )
     converged = st.done & ~st.bad
-    return st.pose, jnp.maximum(st.step - 1, 0), converged, _singular(st.A) | st.bad
+    steps = jnp.maximum(st.step - 1, 0) + st.final.astype(jnp.int32)
+    return pose, steps, converged, _singular(st.A) | st.bad
 
 
 # ----------------------------------------------------------------------------- implicit gradient
@@ -745,8 +761,6 @@ def refine_pose(
     if throw:
         res = throw_for_status(res, "refine_pose", "cost")
     return res
-
-
 
 
 # ----------------------------------------------------------------------------- covariance
