@@ -111,7 +111,7 @@ class TrackerOptions:
     max_jump_m: float = 0.25
     search_radius_px: float = 12.0
     line_angle_deg: float = 10.0
-    keyframe_every: int = 3
+    keyframe_every: int = 1
     keyframe_min: int = 50
     inlier_px: float = 2.0
     passes: int = 3
@@ -295,7 +295,7 @@ class StereoTracker:
         oks = np.isfinite(S).all((1, 2)) & (S[..., 2] > lo).all(1) & (S[..., 2] < hi).all(1)
         timings["stereo"] = t1 - t0
         timings["triangulate"] = time.perf_counter() - t1
-        return (ip[okp], P[okp]), (il[oks], S[oks])
+        return (ip[okp], P[okp], pm.pixels_right[ip[okp]]), (il[oks], S[oks])
 
     def _update_map(self, T, left, right, feats, assoc_p, assoc_l, timings):
         """Keyframe: triangulate the frame's features; fold those matched to a landmark into its
@@ -304,7 +304,7 @@ class StereoTracker:
         ``duplicate_px``), then cull. ``assoc_*``: current feature index -> landmark index."""
         o = self.options
         R, t = T[:3, :3], T[:3, 3]
-        (ip, P), (il, S) = self._stereo(left, right, feats, timings)
+        (ip, P, pr), (il, S) = self._stereo(left, right, feats, timings)
         k = self.index - 1
         Pb = (P - t) @ R  # body frame
         m = self.map.points
@@ -313,9 +313,9 @@ class StereoTracker:
             idx = np.array([assoc_p[i] for i in ip[has]])
             z_map = m.X[idx] @ R[2] + t[2]
             agree = np.abs(self._fb / P[has, 2] - self._fb / z_map) < o.refine_disparity_px
-            self.map.refine(
-                "points", idx[agree], Pb[has][agree], feats.point_desc[ip[has][agree]], R, t, k
-            )
+            self.map.refine("points", idx[agree], None, feats.point_desc[ip[has][agree]], R, t, k)
+            # the left rays were added by process(); the right rays of the stereo matches here
+            self._observe(idx[agree], pr[has][agree], T, right=True)
         new = ~has & ~np.isin(ip, list(self._rejected_p))
         if new.any() and len(m):
             cand = self.map.candidates("points", R, t)
@@ -324,7 +324,9 @@ class StereoTracker:
                 tree = cKDTree(self._project(m.X[cand], T))
                 d, _ = tree.query(feats.points[ip[new]], distance_upper_bound=o.duplicate_px)
                 new[np.nonzero(new)[0][np.isfinite(d)]] = False
-        self.map.add("points", Pb[new], feats.point_desc[ip[new]], R, t, k)
+        ids = self.map.add("points", Pb[new], feats.point_desc[ip[new]], R, t, k)
+        self._observe(ids, feats.points[ip[new]], T, right=False)
+        self._observe(ids, pr[new], T, right=True)
         if o.use_lines and len(il):
             Sb = (S - t) @ R
             has_l = np.array([i in assoc_l for i in il], bool)
@@ -335,6 +337,28 @@ class StereoTracker:
             self.map.add("lines", Sb[new_l], feats.line_desc[il[new_l]], R, t, k)
         self.map.cull()
         self._since_kf = 0
+
+    def _observe(self, idx, pixels, T, *, right: bool) -> None:
+        """Observation rays (body frame) of points ``idx`` seen at ``pixels`` of the left (or
+        right) image of the pose ``T``, weighted by ``1 / depth^2`` (pixel-error weighting), into
+        the landmarks' multi-view triangulation."""
+        if len(idx) == 0:
+            return
+        cam = self.rig.right if right else self.rig.left
+        R, t = T[:3, :3], T[:3, 3]
+        pixels = np.asarray(pixels, float)
+        d = np.stack(
+            [
+                (pixels[:, 0] - float(cam.cx)) / float(cam.fx),
+                (pixels[:, 1] - float(cam.cy)) / float(cam.fy),
+                np.ones(len(pixels)),
+            ],
+            1,
+        )
+        centre = -np.asarray(self.rig.t_rl, float) if right else np.zeros(3)
+        z = self.map.points.X[idx] @ R[2] + t[2]
+        w = 1.0 / np.maximum(z, 1e-3) ** 2
+        self.map.observe(idx, np.broadcast_to((centre - t) @ R, d.shape), d @ R, w)
 
     def _disparities(self) -> tuple[int, int]:
         """Disparities searched: around the last known target depth (``+- depth_margin_m``) when
@@ -512,6 +536,8 @@ class StereoTracker:
                 result.status = int(Status.OK)
                 self._last_depth = float(result.t[2])
                 self.map.record("points", cand, i_m[in_p], k)
+                kept = mask[:n_p]  # left in the last pass: residual below reject_px
+                self._observe(i_m[kept], feats.points[i_cur[kept]], T_est, right=False)
                 self.map.record("lines", lcand, l_m[in_l], k)
                 self._since_kf += 1
                 update = (

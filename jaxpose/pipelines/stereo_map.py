@@ -35,7 +35,9 @@ class LandmarkSet:
         desc: ``(M, 32)`` uint8 binary descriptors (ORB or LBD), the latest observation's.
         view: ``(M, 3)`` unit mean viewing direction (from the landmark towards the camera, body
             frame).
-        n_obs: triangulations averaged into ``X``.
+        n_obs: keyframe observations (stereo pairs) of the landmark.
+        M, b: normal equations of the multi-view triangulation of a point (``X = M^-1 b``, the
+            point nearest to all its observation rays in the weighted least-squares sense).
         visible, found: times predicted visible / matched as an inlier (culling).
         last_seen: frame index of the last inlier match.
     """
@@ -47,6 +49,8 @@ class LandmarkSet:
     visible: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     found: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     last_seen: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    M: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    b: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def __len__(self) -> int:
         return len(self.X)
@@ -56,7 +60,7 @@ class LandmarkSet:
         return self.X if self.X.ndim == 2 else self.X.mean(axis=1)
 
     def _keep(self, keep: np.ndarray) -> None:
-        for name in ("X", "desc", "view", "n_obs", "visible", "found", "last_seen"):
+        for name in ("X", "desc", "view", "n_obs", "visible", "found", "last_seen", "M", "b"):
             setattr(self, name, getattr(self, name)[keep])
 
 
@@ -141,12 +145,40 @@ class LandmarkMap:
         s.visible = np.concatenate([s.visible, np.zeros(n, np.int64)])
         s.found = np.concatenate([s.found, np.zeros(n, np.int64)])
         s.last_seen = np.concatenate([s.last_seen, np.full(n, frame, np.int64)])
+        s.M = np.concatenate([s.M, np.zeros((n, 3, 3))])
+        s.b = np.concatenate([s.b, np.zeros((n, 3))])
         return np.arange(start, start + n)
+
+    def observe(self, idx, origins, directions, weights=None) -> None:
+        """Add observation rays of points ``idx`` (body frame: camera centres ``origins`` and
+        directions, ``(n, 3)`` each) to their triangulations and re-solve them: ``X`` becomes the
+        weighted least-squares point nearest to all the rays seen so far, ``sum w (I - d d^T)
+        (X - c) = 0``. The rays of a stereo pair alone give the stereo triangulation; the rays of
+        later frames add the parallax of the target's rotation, far wider than the stereo
+        baseline. A point whose rays are still too close to parallel keeps its position.
+        ``weights``: ``(n,)``, e.g. ``1 / depth^2`` to weight by the pixel error."""
+        s = self.points
+        idx = np.asarray(idx, int)
+        if len(idx) == 0:
+            return
+        d = _unit(np.asarray(directions, float))
+        c = np.asarray(origins, float)
+        w = np.ones(len(idx)) if weights is None else np.asarray(weights, float)
+        P = w[:, None, None] * (np.eye(3)[None] - d[:, :, None] * d[:, None, :])
+        np.add.at(s.M, idx, P)
+        np.add.at(s.b, idx, np.einsum("nij,nj->ni", P, c))
+        u = np.unique(idx)
+        ev = np.linalg.eigvalsh(s.M[u])
+        ok = ev[:, 0] > 1e-4 * ev[:, 2]
+        u = u[ok]
+        if len(u):
+            s.X[u] = np.linalg.solve(s.M[u], s.b[u][..., None])[..., 0]
 
     def refine(self, kind: str, idx, X_body, desc, R, t, frame: int) -> None:
         """Fold new body-frame triangulations ``X_body`` of landmarks ``idx`` into their running
         means (``X_body=None``: keep the positions, update descriptor and viewing direction; the
-        tracker does so for segments, whose endpoints differ from one detection to the next)."""
+        tracker does so for segments, whose endpoints differ from one detection to the next, and
+        for points, whose positions come from :meth:`observe`)."""
         s = self.sets[kind]
         idx = np.asarray(idx, int)
         if len(idx) == 0:
