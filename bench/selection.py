@@ -447,7 +447,9 @@ def report_table4(t: dict) -> None:
 def report_bnb(b: dict) -> None:
     print(f"(c) branch and bound, m = {b['m']}, {b['cases']} cases per n (median / max over cases)")
     for g in b["groups"]:
-        print(f"  n = {g['n']} ({g['subsets'] / 1e6:.1f} M subsets), compile {g['compile_s']:.1f} s")
+        print(
+            f"  n = {g['n']} ({g['subsets'] / 1e6:.1f} M subsets), compile {g['compile_s']:.1f} s"
+        )
         for key, v in g.items():
             if not isinstance(v, dict) or "time_s" not in v:
                 continue

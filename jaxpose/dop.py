@@ -48,7 +48,7 @@ __all__ = [
 ]
 
 MIN_POINTS = 4
-"""At least four coplanar points are needed for a non-singular ``H^T H`` (Ning et al., Sec. 5.1.2)."""
+"""At least four coplanar points make ``H^T H`` non-singular (Ning et al., Sec. 5.1.2)."""
 
 
 class DOPResult(eqx.Module):
@@ -131,7 +131,7 @@ def observation_jacobian(
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
 ) -> Float[Array, "2n 6"]:
-    """The ``2n x 6`` observation matrix ``H`` of Ning et al. eq. 7, rows ``(u_1, v_1, u_2, ...)``."""
+    """The ``2n x 6`` observation matrix ``H`` of Ning et al. eq. 7, rows ``(u_1, v_1, ...)``."""
     H = point_jacobians(
         points_body, pose, camera, sequence=sequence, parameterization=parameterization
     )
@@ -153,7 +153,9 @@ def information_blocks(
     ``sigma`` is the pixel noise per axis, one per point or shared; ``None`` means unit weights
     (the plain DOP). ``mask`` (``(n,)`` bool) marks valid points of a padded set.
     """
-    H = point_jacobians(points_body, pose, camera, sequence=sequence, parameterization=parameterization)
+    H = point_jacobians(
+        points_body, pose, camera, sequence=sequence, parameterization=parameterization
+    )
     w = _weights(points_body.shape[0], H.dtype, sigma, mask)
     return jnp.einsum("nki,nkj,n->nij", H, H, w)
 
@@ -289,5 +291,3 @@ def dop(
     if throw:
         res = throw_for_status(res, "DOP", "pdop")
     return res
-
-

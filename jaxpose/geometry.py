@@ -236,7 +236,9 @@ def dcm_to_quat(R: Float[Array, "... 3 3"]) -> Float[Array, "... 4"]:
 
 
 def quat_multiply(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
-    """Hamilton product ``p * q`` (scalar-first); ``quat_to_dcm(p*q) == quat_to_dcm(p) @ quat_to_dcm(q)``."""
+    """Hamilton product ``p * q`` (scalar-first).
+
+    ``quat_to_dcm(p * q) == quat_to_dcm(p) @ quat_to_dcm(q)``."""
     p = _check_last(p, 4, "p")
     q = _check_last(q, 4, "q")
     pw, pv = p[..., :1], p[..., 1:]
@@ -306,7 +308,9 @@ def dcm_to_euler(
     return jnp.stack([a, b, c], axis=-1)
 
 
-def rotation_angle(R_a: Float[Array, "... 3 3"], R_b: Float[Array, "... 3 3"]) -> Float[Array, "..."]:
+def rotation_angle(
+    R_a: Float[Array, "... 3 3"], R_b: Float[Array, "... 3 3"]
+) -> Float[Array, "..."]:
     """Geodesic angle (radians, in ``[0, pi]``) of ``R_a @ R_b.T``."""
     R_a = _check_matrix(R_a, "R_a")
     R_b = _check_matrix(R_b, "R_b")
@@ -345,7 +349,10 @@ class Pose(eqx.Module):
 
     @classmethod
     def from_euler(
-        cls, angles: Float[Array, "... 3"], t: Float[Array, "... 3"], sequence: str = DEFAULT_EULER_SEQUENCE
+        cls,
+        angles: Float[Array, "... 3"],
+        t: Float[Array, "... 3"],
+        sequence: str = DEFAULT_EULER_SEQUENCE,
     ) -> Pose:
         return cls(euler_to_dcm(angles, sequence), jnp.asarray(t))
 
@@ -383,4 +390,3 @@ class Pose(eqx.Module):
         """Left perturbation ``exp(xi) @ self`` with ``xi = (rho, omega)`` in the camera frame."""
         dR, dt = se3_exp(xi)
         return Pose(dR, dt).compose(self)
-

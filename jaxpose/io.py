@@ -22,7 +22,8 @@ __all__ = ["SpeedLabel", "load_camera", "load_speed_labels", "save_camera", "spe
 
 
 def load_camera(path: str | Path) -> PinholeCamera:
-    """Read a camera file: SPEED's ``camera.json`` (``cameraMatrix``, ``distCoeffs``, ``Nu``, ``Nv``).
+    """Read a camera file: SPEED's ``camera.json`` (``cameraMatrix``, ``distCoeffs``, ``Nu``,
+    ``Nv``).
 
     Raises ``ValueError`` naming the file and the missing or malformed field.
     """

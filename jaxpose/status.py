@@ -59,7 +59,9 @@ def raise_for_status(status, what: str = "problem") -> None:
     parts = []
     for code in np.unique(status[bad]):
         idx = np.argwhere(status == code)
-        where = "" if status.ndim == 0 else f" (at {len(idx)} of {status.size}, first {tuple(idx[0])})"
+        where = (
+            "" if status.ndim == 0 else f" (at {len(idx)} of {status.size}, first {tuple(idx[0])})"
+        )
         parts.append(f"{status_message(code)}{where}")
     raise ValueError(f"{what}: " + "; ".join(parts))
 

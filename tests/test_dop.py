@@ -12,9 +12,11 @@ from jaxpose.dop import dop_from_information, information_blocks
 from jaxpose.geometry import elementary_rotation
 
 AXIS = {"x": 0, "y": 1, "z": 2}
-GEN = [np.array([[0, 0, 0], [0, 0, -1], [0, 1, 0.0]]),
-       np.array([[0, 0, 1], [0, 0, 0], [-1, 0, 0.0]]),
-       np.array([[0, -1, 0], [1, 0, 0], [0, 0, 0.0]])]
+GEN = [
+    np.array([[0, 0, 0], [0, 0, -1], [0, 1, 0.0]]),
+    np.array([[0, 0, 1], [0, 0, 0], [-1, 0, 0.0]]),
+    np.array([[0, -1, 0], [1, 0, 0], [0, 0, 0.0]]),
+]
 
 
 def scene(rng, n=10, deg=20.0, z=10.0):
@@ -26,11 +28,13 @@ def scene(rng, n=10, deg=20.0, z=10.0):
 
 def closed_form_H(points, angles, t, fx, fy, seq):
     """H of Ning et al. eq. 7 written out by hand: d(u,v)/d(rho) @ d(rho)/d(T, eps)."""
-    Rs = [np.asarray(elementary_rotation(AXIS[c], a)) for c, a in zip(seq, angles)]
+    Rs = [np.asarray(elementary_rotation(AXIS[c], a)) for c, a in zip(seq, angles, strict=True)]
     R = Rs[0] @ Rs[1] @ Rs[2]
-    dR = [GEN[AXIS[seq[0]]] @ R,
-          Rs[0] @ GEN[AXIS[seq[1]]] @ Rs[1] @ Rs[2],
-          Rs[0] @ Rs[1] @ GEN[AXIS[seq[2]]] @ Rs[2]]
+    dR = [
+        GEN[AXIS[seq[0]]] @ R,
+        Rs[0] @ GEN[AXIS[seq[1]]] @ Rs[1] @ Rs[2],
+        Rs[0] @ Rs[1] @ GEN[AXIS[seq[2]]] @ Rs[2],
+    ]
     rows = []
     for p in points:
         X, Y, Z = R @ p + t
@@ -47,8 +51,12 @@ def test_autodiff_H_matches_closed_form_and_finite_differences(rng, seq):
     angles, t = np.array([0.3, -0.2, 0.5]), np.array([0.1, -0.2, 8.0])
     pose = Pose.from_euler(angles, t, seq)
     H = np.asarray(observation_jacobian(points, pose, cam, sequence=seq))
-    np.testing.assert_allclose(H, closed_form_H(points, angles, t, float(cam.fx), float(cam.fy), seq),
-                               rtol=1e-10, atol=1e-6)
+    np.testing.assert_allclose(
+        H,
+        closed_form_H(points, angles, t, float(cam.fx), float(cam.fy), seq),
+        rtol=1e-10,
+        atol=1e-6,
+    )
 
     def pixels(x):
         return cam.project_body(Pose.from_euler(x[3:], x[:3], seq), points).reshape(-1)
@@ -71,7 +79,9 @@ def test_dop_equals_direct_inverse_and_sigma_weighting(rng):
     sigma = rng.uniform(0.5, 2.0, len(points))
     W = np.repeat(1 / sigma**2, 2)
     Qw = np.linalg.inv(H.T @ (W[:, None] * H))
-    np.testing.assert_allclose(dop(points, pose, cam, sigma=sigma).pdop, np.sqrt(np.trace(Qw[:3, :3])), rtol=1e-9)
+    np.testing.assert_allclose(
+        dop(points, pose, cam, sigma=sigma).pdop, np.sqrt(np.trace(Qw[:3, :3])), rtol=1e-9
+    )
     np.testing.assert_allclose(dop(points, pose, cam, sigma=2.0).pdop, 2 * res.pdop, rtol=1e-12)
 
 
@@ -136,14 +146,24 @@ def test_jit_vmap_and_mask_padding(rng):
         np.testing.assert_allclose(res.pdop[b], dop(batch[b], pose, cam).pdop, rtol=1e-12)
     padded = np.r_[points, np.full((4, 3), 123.0)]
     mask = np.r_[np.ones(8, bool), np.zeros(4, bool)]
-    np.testing.assert_allclose(dop(padded, pose, cam, mask=mask).pdop, dop(points, pose, cam).pdop, rtol=1e-12)
+    np.testing.assert_allclose(
+        dop(padded, pose, cam, mask=mask).pdop, dop(points, pose, cam).pdop, rtol=1e-12
+    )
 
 
 BAD = {
     "too few": (lambda p: p[:3], Status.TOO_FEW_POINTS, "too few"),
-    "collinear": (lambda p: np.c_[p[:, 0], np.zeros(len(p)), np.zeros(len(p))], Status.SINGULAR, "singular"),
+    "collinear": (
+        lambda p: np.c_[p[:, 0], np.zeros(len(p)), np.zeros(len(p))],
+        Status.SINGULAR,
+        "singular",
+    ),
     "behind": (lambda p: p + np.array([0, 0, -20.0]), Status.BEHIND_CAMERA, "behind the camera"),
-    "nan": (lambda p: np.where(np.arange(len(p))[:, None] == 2, np.nan, p), Status.NONFINITE_INPUT, "NaN"),
+    "nan": (
+        lambda p: np.where(np.arange(len(p))[:, None] == 2, np.nan, p),
+        Status.NONFINITE_INPUT,
+        "NaN",
+    ),
 }
 
 
@@ -159,7 +179,11 @@ def test_bad_geometry_raises_eagerly_and_gives_status_in_batches(rng, case):
         assert int(res.status[0]) == Status.OK and np.isfinite(res.pdop[0])
         assert int(res.status[1]) == status
         assert np.isinf(res.pdop[1]) and np.isinf(res.adop[1]) and not np.any(np.isnan(res.Q[1]))
-        grad = jax.grad(lambda p: jnp.sum(jnp.where(jnp.isfinite(r := dop(p, pose, cam, throw=False).pdop), r, 0.0)))(bad)
+        grad = jax.grad(
+            lambda p: jnp.sum(
+                jnp.where(jnp.isfinite(r := dop(p, pose, cam, throw=False).pdop), r, 0.0)
+            )
+        )(bad)
         assert not np.any(np.isnan(np.asarray(grad)))
 
 

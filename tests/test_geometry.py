@@ -35,7 +35,9 @@ def test_bad_euler_sequence_and_shapes():
 
 
 @settings(max_examples=40, deadline=None)
-@given(q=st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda v: np.linalg.norm(v) > 0.1))
+@given(
+    q=st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda v: np.linalg.norm(v) > 0.1)
+)
 def test_quaternion_matches_scipy_and_round_trips(q):
     q = np.asarray(q) / np.linalg.norm(q)
     R = np.asarray(g.quat_to_dcm(q))
@@ -67,7 +69,9 @@ def test_so3_exp_log_against_scipy(rng, angle):
     np.testing.assert_allclose(np.linalg.norm(w_back), angle, atol=1e-8)
 
 
-@pytest.mark.parametrize("w0", [np.zeros(3), np.array([np.pi - 1e-7, 0.0, 0.0]), np.array([0, 0, 1e-12])])
+@pytest.mark.parametrize(
+    "w0", [np.zeros(3), np.array([np.pi - 1e-7, 0.0, 0.0]), np.array([0, 0, 1e-12])]
+)
 def test_jit_grad_finite_at_singular_points(w0):
     f = jax.jit(jax.grad(lambda w: jnp.sum(g.so3_log(g.so3_exp(w)) ** 2)))
     grad = np.asarray(f(jnp.asarray(w0)))
@@ -109,7 +113,9 @@ def test_pose_apply_inverse_compose(rng):
     xi = rng.normal(size=6) * 0.1
     p3 = p1.retract(xi)
     dR, dt = g.se3_exp(xi)
-    np.testing.assert_allclose(p3.apply(x), p1.apply(x) @ np.asarray(dR).T + np.asarray(dt), atol=1e-12)
+    np.testing.assert_allclose(
+        p3.apply(x), p1.apply(x) @ np.asarray(dR).T + np.asarray(dt), atol=1e-12
+    )
     with pytest.raises(ValueError, match="Pose needs"):
         g.Pose(np.eye(3), np.zeros(2))
 

@@ -1,6 +1,5 @@
 """Every notebook in notebooks/ runs top to bottom at small size (JAXPOSE_NB_SMALL=1)."""
 
-import os
 from pathlib import Path
 
 import pytest
@@ -17,7 +16,15 @@ def test_notebook_executes(path, monkeypatch, tmp_path):
     monkeypatch.setenv("JAXPOSE_NB_SMALL", "1")
     monkeypatch.setenv("MPLBACKEND", "Agg")
     nb = nbformat.read(path, as_version=4)
-    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}})
+    client = nbclient.NotebookClient(
+        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    )
     client.execute()
-    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.get("output_type") == "error"]
+    errors = [
+        o
+        for c in nb.cells
+        if c.cell_type == "code"
+        for o in c.get("outputs", [])
+        if o.get("output_type") == "error"
+    ]
     assert not errors

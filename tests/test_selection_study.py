@@ -34,7 +34,9 @@ def test_results_schema_and_ratios(small_run):
             assert g[key]["mean"] >= 1 - 1e-12 and g[key]["max"] >= g[key]["mean"]
         for key in ("pdop", "adop"):
             assert set(g[key]) == {"optimal_mean", "quasi_mean", "all_mean"}
-            assert g[key]["all_mean"] <= g[key]["optimal_mean"] <= g[key]["quasi_mean"] * (1 + 1e-12)
+            assert (
+                g[key]["all_mean"] <= g[key]["optimal_mean"] <= g[key]["quasi_mean"] * (1 + 1e-12)
+            )
         assert set(g["time_s"]) == {"optimal_per_case", "quasi_per_case"}
     assert res.results["scenario"]["range_m"] == study.Scenario().range_m
 
@@ -62,7 +64,9 @@ def test_optimum_against_independent_brute_force(small_run, tmp_path):
             assert np.all(np.diff(idx) > 0)
             rows = np.ravel([[2 * i, 2 * i + 1] for i in idx])
             Q = np.linalg.inv(H[rows].T @ H[rows])
-            np.testing.assert_allclose(z[pre + "pdop_quasi"][c], np.sqrt(np.trace(Q[:3, :3])), rtol=1e-7)
+            np.testing.assert_allclose(
+                z[pre + "pdop_quasi"][c], np.sqrt(np.trace(Q[:3, :3])), rtol=1e-7
+            )
 
 
 def _numpy_H(P, R, t, K, h=1e-6):
@@ -74,7 +78,9 @@ def _numpy_H(P, R, t, K, h=1e-6):
     def pix(x):
         Rx = Rotation.from_euler("XYZ", x[3:]).as_matrix()
         c = P @ Rx.T + x[:3]
-        return np.c_[K[0, 0] * c[:, 0] / c[:, 2] + K[0, 2], K[1, 1] * c[:, 1] / c[:, 2] + K[1, 2]].ravel()
+        return np.c_[
+            K[0, 0] * c[:, 0] / c[:, 2] + K[0, 2], K[1, 1] * c[:, 1] / c[:, 2] + K[1, 2]
+        ].ravel()
 
     x0 = np.r_[t, ang]
     return np.stack([(pix(x0 + h * e) - pix(x0 - h * e)) / (2 * h) for e in np.eye(6)], axis=1)
@@ -107,11 +113,16 @@ def test_two_devices_give_the_same_numbers(small_run, tmp_path):
         "from jaxpose.studies import selection as s;"
         "assert len(jax.devices()) == 2, jax.devices();"
         f"r = s.run_study(s.Scenario(), {GROUPS!r}, cases=6, seed=3, chunk_size=4, progress=False);"
-        "print(json.dumps({f'{n}_{m}': [c['pdop_opt'].tolist(), c['adop_opt'].tolist(), c['quasi_idx'].tolist()]"
+        "print(json.dumps({f'{n}_{m}': [c['pdop_opt'].tolist(), c['adop_opt'].tolist(),"
+        " c['quasi_idx'].tolist()]"
         " for (n, m), c in r.cases.items()}))"
     )
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
-    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    env = dict(
+        os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     two = json.loads(proc.stdout.strip().splitlines()[-1])
     for n, m in GROUPS:
@@ -122,8 +133,26 @@ def test_two_devices_give_the_same_numbers(small_run, tmp_path):
 
 
 def test_cli_select_study(tmp_path, capsys):
-    rc = main(["select-study", "--n", "9", "--m", "5", "--cases", "3", "--out", str(tmp_path), "--no-progress",
-               "--range-m", "8", "--attitude-deg", "10", "10", "10"])
+    rc = main(
+        [
+            "select-study",
+            "--n",
+            "9",
+            "--m",
+            "5",
+            "--cases",
+            "3",
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+            "--range-m",
+            "8",
+            "--attitude-deg",
+            "10",
+            "10",
+            "10",
+        ]
+    )
     assert rc == 0
     data = json.loads((tmp_path / "results.json").read_text())
     assert data["scenario"]["range_m"] == 8 and data["scenario"]["attitude_deg"] == [10, 10, 10]

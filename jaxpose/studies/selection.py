@@ -61,11 +61,11 @@ class Scenario:
 
     Features are uniform in a ``plane_size_m`` square of the body ``z = 0`` plane centred at
     ``plane_centre_m`` (the body origin by default; ``(0.5, 0.5)`` puts the origin at a corner, as
-    MATLAB's ``rand`` would), seen by a ``focal_length_m`` lens with ``pixel_size_m`` pixels on an ``image_size``
-    sensor. The target origin sits at ``(offset_x_m, offset_y_m, range_m)`` in the camera frame and
-    the relative attitude is ``attitude_deg`` (Euler angles of ``sequence`` in degrees, the same for
-    every case; with ``random_attitude`` each case draws each angle uniformly in
-    ``[-attitude_deg, +attitude_deg]``).
+    MATLAB's ``rand`` would), seen by a ``focal_length_m`` lens with ``pixel_size_m`` pixels on an
+    ``image_size`` sensor. The target origin sits at ``(offset_x_m, offset_y_m, range_m)`` in the
+    camera frame and the relative attitude is ``attitude_deg`` (Euler angles of ``sequence`` in
+    degrees, the same for every case; with ``random_attitude`` each case draws each angle
+    uniformly in ``[-attitude_deg, +attitude_deg]``).
 
     The selection and the DOP *ratios* do not depend on focal length or pixel size (DOP scales as
     pixel size / focal length); they depend on range, offset and attitude (README table).
@@ -86,7 +86,9 @@ class Scenario:
     sigma_px: float = 1.0
 
     def camera(self) -> PinholeCamera:
-        return PinholeCamera.from_focal_length(self.focal_length_m, self.pixel_size_m, self.image_size)
+        return PinholeCamera.from_focal_length(
+            self.focal_length_m, self.pixel_size_m, self.image_size
+        )
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -101,7 +103,7 @@ class Scenario:
 
 
 def make_cases(scenario: Scenario, n: int, cases: range | list[int], seed: int):
-    """Points ``(C, n, 3)`` (body frame, m) and attitudes ``(C, 3)`` (rad) of the given case numbers."""
+    """Points ``(C, n, 3)`` (body frame, m) and attitudes ``(C, 3)`` (rad) of the given cases."""
     half = scenario.plane_size_m / 2.0
     pts, att = [], []
     for c in cases:
@@ -204,7 +206,7 @@ def _run_chunk(kernels, points, angles, sharding):
 
 @dataclasses.dataclass
 class StudyResult:
-    """In-memory result: ``results`` is what ``results.json`` holds; ``cases`` the per-case arrays."""
+    """In-memory result: ``results`` is what ``results.json`` holds, ``cases`` the case arrays."""
 
     results: dict
     cases: dict[tuple[int, int], dict[str, np.ndarray]]
@@ -255,7 +257,9 @@ def run_study(
     from tqdm.auto import tqdm
 
     if not jax.config.jax_enable_x64:
-        raise ValueError("the selection study needs float64: jax.config.update('jax_enable_x64', True)")
+        raise ValueError(
+            "the selection study needs float64: jax.config.update('jax_enable_x64', True)"
+        )
     groups = list(groups or PAPER_GROUPS)
     if cases < 1:
         raise ValueError(f"cases must be >= 1; got {cases}")
@@ -270,7 +274,9 @@ def run_study(
         chunk_dir.mkdir(parents=True, exist_ok=True)
 
     starts = list(range(0, cases, chunk_size))
-    bar = tqdm(total=len(groups) * len(starts), desc="select-study", unit="chunk", disable=not progress)
+    bar = tqdm(
+        total=len(groups) * len(starts), desc="select-study", unit="chunk", disable=not progress
+    )
     per_group: dict[tuple[int, int], dict[str, np.ndarray]] = {}
     timings: dict[tuple[int, int], list[float]] = {}
     kernel_cache: dict[int, tuple] = {}
@@ -282,7 +288,9 @@ def run_study(
             if path is not None and path.is_file():
                 with np.load(path) as z:
                     if str(z["fingerprint"]) == fp:
-                        parts.append({k: z[k] for k in z.files if k not in ("fingerprint", "times")})
+                        parts.append(
+                            {k: z[k] for k in z.files if k not in ("fingerprint", "times")}
+                        )
                         t_quasi += float(z["times"][0])
                         t_opt += float(z["times"][1])
                         bar.update(1)
@@ -337,13 +345,24 @@ def _summarise(scenario, seed, per_group, timings, ndev) -> dict:
                     "quasi_mean": float(np.mean(g["adop_quasi"])),
                     "all_mean": float(np.mean(g["adop_all"])),
                 },
-                "time_s": {"optimal_per_case": timings[(n, m)][1], "quasi_per_case": timings[(n, m)][0]},
+                "time_s": {
+                    "optimal_per_case": timings[(n, m)][1],
+                    "quasi_per_case": timings[(n, m)][0],
+                },
                 "failed_cases": int(np.sum(g["status"] != 0)),
             }
         )
     return {
-        "scenario": {**scenario.to_dict(), "seed": seed, "devices": ndev, "units": {
-            "pdop": "m per px", "adop": "rad per px", "time": "s per case, batched, after compilation"}},
+        "scenario": {
+            **scenario.to_dict(),
+            "seed": seed,
+            "devices": ndev,
+            "units": {
+                "pdop": "m per px",
+                "adop": "rad per px",
+                "time": "s per case, batched, after compilation",
+            },
+        },
         "groups": groups,
         "tables_5_6": _tables_5_6(groups),
     }
@@ -362,10 +381,14 @@ def _tables_5_6(groups: list[dict]) -> dict:
                 {
                     "m": g["m"],
                     "optimal_mean": opt,
-                    "optimal_decrease_pct": None if prev is None else 100 * (prev[0] - opt) / prev[0],
+                    "optimal_decrease_pct": None
+                    if prev is None
+                    else 100 * (prev[0] - opt) / prev[0],
                     "optimal_ratio_to_all": opt / all_,
                     "quasi_mean": quasi,
-                    "quasi_decrease_pct": None if prev is None else 100 * (prev[1] - quasi) / prev[1],
+                    "quasi_decrease_pct": None
+                    if prev is None
+                    else 100 * (prev[1] - quasi) / prev[1],
                     "quasi_ratio_to_all": quasi / all_,
                     "all_mean": all_,
                 }
@@ -378,7 +401,9 @@ def _tables_5_6(groups: list[dict]) -> dict:
 # ----------------------------------------------------------------------------- outputs
 
 
-def write_outputs(result: StudyResult, out_dir: str | Path, *, dump_cases: bool = False) -> list[Path]:
+def write_outputs(
+    result: StudyResult, out_dir: str | Path, *, dump_cases: bool = False
+) -> list[Path]:
     """Write ``results.json``, the figures and (optionally) ``cases.npz``; return the paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -392,7 +417,9 @@ def write_outputs(result: StudyResult, out_dir: str | Path, *, dump_cases: bool 
         seq = result.results["scenario"]["sequence"]
         for (n, m), g in result.cases.items():
             pre = f"n{n}_m{m}/"
-            R = np.asarray(jax.vmap(lambda a: Pose.from_euler(a, jnp.asarray(t), seq).R)(g["angles"]))
+            R = np.asarray(
+                jax.vmap(lambda a: Pose.from_euler(a, jnp.asarray(t), seq).R)(g["angles"])
+            )
             arrays[pre + "points_body"] = g["points_body"]
             arrays[pre + "R"] = R
             arrays[pre + "t"] = np.broadcast_to(t, (len(R), 3)).copy()
@@ -426,12 +453,16 @@ def _figures(result: StudyResult, out_dir: Path) -> list[Path]:
     groups = result.results["groups"]
     m8 = sorted((g for g in groups if g["m"] == 8), key=lambda g: g["n"])
     if m8:  # Fig. 6: ratio histograms
-        fig, axes = plt.subplots(2, len(m8), figsize=(3.2 * len(m8), 5.2), squeeze=False, sharey="row")
+        fig, axes = plt.subplots(
+            2, len(m8), figsize=(3.2 * len(m8), 5.2), squeeze=False, sharey="row"
+        )
         for j, g in enumerate(m8):
             c = result.cases[(g["n"], 8)]
             for i, key in enumerate(("pdop", "adop")):
                 ratio = c[f"{key}_quasi"] / c[f"{key}_opt"]
-                axes[i, j].hist(ratio, bins=np.arange(1.0, max(2.6, ratio.max() + 0.05), 0.05), color="C%d" % i)
+                axes[i, j].hist(
+                    ratio, bins=np.arange(1.0, max(2.6, ratio.max() + 0.05), 0.05), color=f"C{i}"
+                )
                 axes[i, j].set_title(f"n = {g['n']}, m = 8: {key.upper()} ratio", fontsize=9)
                 axes[i, j].set_xlabel(f"{key.upper()}_quasi / {key.upper()}_opt")
         axes[0, 0].set_ylabel("cases")
@@ -445,7 +476,7 @@ def _figures(result: StudyResult, out_dir: Path) -> list[Path]:
     if len(n18) > 1:  # Fig. 8: mean DOP against m
         fig, axes = plt.subplots(1, 2, figsize=(10, 4))
         ms = [g["m"] for g in n18]
-        for ax, key, unit in zip(axes, ("pdop", "adop"), ("m/px", "rad/px")):
+        for ax, key, unit in zip(axes, ("pdop", "adop"), ("m/px", "rad/px"), strict=True):
             ax.plot(ms, [g[key]["optimal_mean"] for g in n18], "o-", label="optimal")
             ax.plot(ms, [g[key]["quasi_mean"] for g in n18], "s--", label="quasi-optimal")
             ax.axhline(n18[0][key]["all_mean"], color="k", lw=0.8, label="all 18 points")
@@ -461,7 +492,12 @@ def _figures(result: StudyResult, out_dir: Path) -> list[Path]:
     # Figs. 9-10: time per case of both methods on shared log axes (the paper's point is the gap)
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
     panels = [
-        (axes[0], sorted((g for g in groups if g["m"] == 8), key=lambda g: g["n"]), "n", "total points n (m = 8)"),
+        (
+            axes[0],
+            sorted((g for g in groups if g["m"] == 8), key=lambda g: g["n"]),
+            "n",
+            "total points n (m = 8)",
+        ),
         (axes[1], n18, "m", "selected points m (n = 18)"),
     ]
     for ax, gs, x, label in panels:
@@ -469,7 +505,9 @@ def _figures(result: StudyResult, out_dir: Path) -> list[Path]:
             ax.set_visible(False)
             continue
         xs = [g[x] for g in gs]
-        ax.plot(xs, [g["time_s"]["optimal_per_case"] for g in gs], "o-", label="optimal (exhaustive)")
+        ax.plot(
+            xs, [g["time_s"]["optimal_per_case"] for g in gs], "o-", label="optimal (exhaustive)"
+        )
         ax.plot(xs, [g["time_s"]["quasi_per_case"] for g in gs], "s--", label="quasi-optimal")
         ax.set_yscale("log")
         ax.set_xlabel(label)
@@ -485,25 +523,38 @@ def _figures(result: StudyResult, out_dir: Path) -> list[Path]:
 
 def format_report(results: dict) -> str:
     """Plain-text Table 4, Tables 5-6 and timings."""
-    lines = ["Table 4: DOP ratios quasi-optimal / optimal", f"{'n':>4} {'m':>3} {'cases':>6} "
-             f"{'PDOP avg':>9} {'PDOP max':>9} {'ADOP avg':>9} {'ADOP max':>9} {'t_opt/case':>11} {'t_quasi/case':>12}"]
+    lines = [
+        "Table 4: DOP ratios quasi-optimal / optimal",
+        f"{'n':>4} {'m':>3} {'cases':>6} "
+        f"{'PDOP avg':>9} {'PDOP max':>9} {'ADOP avg':>9} {'ADOP max':>9} "
+        f"{'t_opt/case':>11} {'t_quasi/case':>12}",
+    ]
     for g in sorted(results["groups"], key=lambda g: (g["m"] != 8, g["n"], g["m"])):
         lines.append(
-            f"{g['n']:>4} {g['m']:>3} {g['cases']:>6} {g['pdop_ratio']['mean']:9.4f} {g['pdop_ratio']['max']:9.4f} "
-            f"{g['adop_ratio']['mean']:9.4f} {g['adop_ratio']['max']:9.4f} {g['time_s']['optimal_per_case']:11.3e} "
-            f"{g['time_s']['quasi_per_case']:12.3e}"
+            f"{g['n']:>4} {g['m']:>3} {g['cases']:>6} "
+            f"{g['pdop_ratio']['mean']:9.4f} {g['pdop_ratio']['max']:9.4f} "
+            f"{g['adop_ratio']['mean']:9.4f} {g['adop_ratio']['max']:9.4f} "
+            f"{g['time_s']['optimal_per_case']:11.3e} {g['time_s']['quasi_per_case']:12.3e}"
         )
     for key, name in (("pdop", "Table 5: PDOP (m/px)"), ("adop", "Table 6: ADOP (rad/px)")):
         rows = results.get("tables_5_6", {}).get(key, [])
         if len(rows) < 2:
             continue
-        lines += ["", f"{name}, n = 18", f"{'m':>3} {'opt mean':>10} {'% dec':>7} {'/all':>6} {'quasi mean':>11} {'% dec':>7} {'/all':>6}"]
+        lines += [
+            "",
+            f"{name}, n = 18",
+            f"{'m':>3} {'opt mean':>10} {'% dec':>7} {'/all':>6} "
+            f"{'quasi mean':>11} {'% dec':>7} {'/all':>6}",
+        ]
         for r in rows:
+
             def pct(x):
                 return "      -" if x is None else f"{x:7.1f}"
+
             lines.append(
-                f"{r['m']:>3} {r['optimal_mean']:10.3e} {pct(r['optimal_decrease_pct'])} {r['optimal_ratio_to_all']:6.3f} "
-                f"{r['quasi_mean']:11.3e} {pct(r['quasi_decrease_pct'])} {r['quasi_ratio_to_all']:6.3f}"
+                f"{r['m']:>3} {r['optimal_mean']:10.3e} {pct(r['optimal_decrease_pct'])} "
+                f"{r['optimal_ratio_to_all']:6.3f} {r['quasi_mean']:11.3e} "
+                f"{pct(r['quasi_decrease_pct'])} {r['quasi_ratio_to_all']:6.3f}"
             )
     return "\n".join(lines)
 
@@ -513,18 +564,40 @@ def format_report(results: dict) -> str:
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     d = Scenario()
-    g = parser.add_argument_group("scenario (Ning et al. Table 3 is lost; defaults documented in the README)")
+    g = parser.add_argument_group(
+        "scenario (Ning et al. Table 3 is lost; defaults documented in the README)"
+    )
     g.add_argument("--focal-length-mm", type=float, default=d.focal_length_m * 1e3)
     g.add_argument("--pixel-size-um", type=float, default=d.pixel_size_m * 1e6)
-    g.add_argument("--image-size", type=int, nargs=2, default=list(d.image_size), metavar=("W", "H"))
-    g.add_argument("--range-m", type=float, default=d.range_m, help="target range along the boresight")
-    g.add_argument("--offset-m", type=float, nargs=2, default=[d.offset_x_m, d.offset_y_m], metavar=("X", "Y"))
-    g.add_argument("--attitude-deg", type=float, nargs=3, default=list(d.attitude_deg), metavar=("A1", "A2", "A3"))
-    g.add_argument("--random-attitude", action="store_true", help="draw each angle in [-A, A] per case")
+    g.add_argument(
+        "--image-size", type=int, nargs=2, default=list(d.image_size), metavar=("W", "H")
+    )
+    g.add_argument(
+        "--range-m", type=float, default=d.range_m, help="target range along the boresight"
+    )
+    g.add_argument(
+        "--offset-m", type=float, nargs=2, default=[d.offset_x_m, d.offset_y_m], metavar=("X", "Y")
+    )
+    g.add_argument(
+        "--attitude-deg",
+        type=float,
+        nargs=3,
+        default=list(d.attitude_deg),
+        metavar=("A1", "A2", "A3"),
+    )
+    g.add_argument(
+        "--random-attitude", action="store_true", help="draw each angle in [-A, A] per case"
+    )
     g.add_argument("--sequence", default=d.sequence, help="Euler sequence of the attitude state")
     g.add_argument("--plane-size-m", type=float, default=d.plane_size_m)
-    g.add_argument("--plane-centre-m", type=float, nargs=2, default=list(d.plane_centre_m), metavar=("X", "Y"),
-                   help="centre of the feature square in the body frame (0.5 0.5: origin at a corner)")
+    g.add_argument(
+        "--plane-centre-m",
+        type=float,
+        nargs=2,
+        default=list(d.plane_centre_m),
+        metavar=("X", "Y"),
+        help="centre of the feature square in the body frame (0.5 0.5: origin at a corner)",
+    )
 
 
 def scenario_from_args(args) -> Scenario:
@@ -544,13 +617,21 @@ def scenario_from_args(args) -> Scenario:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--n", type=int, nargs="+", help="total points per case (default: the paper's groups)")
-    parser.add_argument("--m", type=int, nargs="+", help="selected points (default: the paper's groups)")
+    parser.add_argument(
+        "--n", type=int, nargs="+", help="total points per case (default: the paper's groups)"
+    )
+    parser.add_argument(
+        "--m", type=int, nargs="+", help="selected points (default: the paper's groups)"
+    )
     parser.add_argument("--cases", type=int, default=1000, help="cases per group (default 1000)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--chunk-size", type=int, default=250, help="cases per resumable chunk")
-    parser.add_argument("--out", default="select-study", help="output folder (default ./select-study)")
-    parser.add_argument("--dump-cases", action="store_true", help="also write cases.npz (methods.md format)")
+    parser.add_argument(
+        "--out", default="select-study", help="output folder (default ./select-study)"
+    )
+    parser.add_argument(
+        "--dump-cases", action="store_true", help="also write cases.npz (methods.md format)"
+    )
     parser.add_argument("--no-progress", action="store_true")
     add_scenario_arguments(parser)
 
@@ -560,8 +641,13 @@ def run(args) -> int:
     groups = default_groups(args.n, args.m)
     t0 = time.perf_counter()
     result = run_study(
-        scenario, groups, cases=args.cases, seed=args.seed, chunk_size=args.chunk_size,
-        out_dir=args.out, progress=not args.no_progress,
+        scenario,
+        groups,
+        cases=args.cases,
+        seed=args.seed,
+        chunk_size=args.chunk_size,
+        out_dir=args.out,
+        progress=not args.no_progress,
     )
     paths = write_outputs(result, args.out, dump_cases=args.dump_cases)
     print(format_report(result.results))
