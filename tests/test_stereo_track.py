@@ -136,3 +136,17 @@ def test_stereo_track_command_json(tmp_path, capsys):
     ):
         assert (tmp_path / name).is_file()
     assert main(["stereo-track", "--blur", "2", "--out", str(tmp_path)]) == 2
+
+
+def test_tracker_map_lies_on_the_target(frames):
+    """The landmarks are in the body frame: after a few frames they lie on the model's faces
+    (independent reference: the model geometry), and the map has grown from the first frame."""
+    tracker = StereoTracker(RIG, frames[0].pose)
+    for fr in frames:
+        assert tracker.process(fr.left, fr.right).status == Status.OK
+    X = tracker.map.points.X
+    half = np.abs(tumbler_model().vertices[:8]).max(0)
+    on_body = np.all(np.abs(X) < half + 0.01, axis=1)
+    assert on_body.mean() > 0.8
+    assert np.median(np.min(np.abs(np.abs(X[on_body]) - half), axis=1)) < 0.003
+    assert len(tracker.map.lines) > 0

@@ -103,7 +103,7 @@ class TrackerOptions:
     robust: str | None = "huber"
     sigma_px: float = 1.0
     line_sigma_px: float = 1.0
-    max_points: int = 1024
+    max_points: int = 2048
     max_lines: int = 96
     min_features: int = 12
     max_rms_px: float = 4.0
@@ -123,6 +123,8 @@ class TrackerOptions:
     keep_obs: int = 3
     refine_disparity_px: float = 1.0
     duplicate_px: float = 2.0
+    frame_rays: bool = True
+    stereo_residuals: bool = True
     features: FeatureOptions = field(default_factory=FeatureOptions)
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
 
@@ -297,14 +299,16 @@ class StereoTracker:
         timings["triangulate"] = time.perf_counter() - t1
         return (ip[okp], P[okp], pm.pixels_right[ip[okp]]), (il[oks], S[oks])
 
-    def _update_map(self, T, left, right, feats, assoc_p, assoc_l, timings):
+    def _update_map(self, T, left, right, feats, assoc_p, assoc_l, timings, stereo=None):
         """Keyframe: triangulate the frame's features; fold those matched to a landmark into its
         running mean (when the new depth agrees with the landmark's to ``refine_disparity_px``),
         add the others as new landmarks (unless an unmatched landmark projects within
         ``duplicate_px``), then cull. ``assoc_*``: current feature index -> landmark index."""
         o = self.options
         R, t = T[:3, :3], T[:3, 3]
-        (ip, P, pr), (il, S) = self._stereo(left, right, feats, timings)
+        if stereo is None:
+            stereo = self._stereo(left, right, feats, timings)
+        (ip, P, pr), (il, S) = stereo
         k = self.index - 1
         Pb = (P - t) @ R  # body frame
         m = self.map.points
@@ -314,7 +318,8 @@ class StereoTracker:
             z_map = m.X[idx] @ R[2] + t[2]
             agree = np.abs(self._fb / P[has, 2] - self._fb / z_map) < o.refine_disparity_px
             self.map.refine("points", idx[agree], None, feats.point_desc[ip[has][agree]], R, t, k)
-            # the left rays were added by process(); the right rays of the stereo matches here
+            if not o.frame_rays:
+                self._observe(idx[agree], feats.points[ip[has][agree]], T, right=False)
             self._observe(idx[agree], pr[has][agree], T, right=True)
         new = ~has & ~np.isin(ip, list(self._rejected_p))
         if new.any() and len(m):
@@ -456,12 +461,18 @@ class StereoTracker:
                 timings=timings,
             )
 
+        stereo = None
+        if o.stereo_residuals or o.keyframe_every <= 1:
+            stereo = self._stereo(left, right, feats, timings)
         t1 = time.perf_counter()
         T_pred = self._delta @ self._T_prev
         radius = o.search_radius_px * (2.0 if self._misses else 1.0)
         (i_m, i_cur, cand), (l_m, l_cur, lcand) = self._match(feats, T_pred, radius)
         if len(i_m) > o.max_points:  # keep the best-observed landmarks
             keep = np.argsort(-self.map.points.n_obs[i_m], kind="stable")[: o.max_points]
+            i_m, i_cur = i_m[keep], i_cur[keep]
+        if o.stereo_residuals and len(i_m) > o.max_points // 2:
+            keep = np.argsort(-self.map.points.n_obs[i_m], kind="stable")[: o.max_points // 2]
             i_m, i_cur = i_m[keep], i_cur[keep]
         l_m, l_cur = l_m[: o.max_lines], l_cur[: o.max_lines]
         timings["match"] = time.perf_counter() - t1
@@ -479,13 +490,25 @@ class StereoTracker:
         )
         update = None
         if n_p + n_l >= o.min_features:
-            mask = np.arange(o.max_points) < n_p
+            # right-image residuals of the matched landmarks whose feature has a stereo match:
+            # x_right = R X + t + t_rl = R (X + R^T t_rl) + t, the same pose with the body point
+            # shifted by R^T t_rl, re-evaluated at the latest R on every pass (exact at the
+            # fixed point; the shift changes by |t_rl| times the rotation update)
+            q_r, uv_r = np.zeros(0, int), np.zeros((0, 2))
+            if o.stereo_residuals and stereo is not None and len(stereo[0][0]):
+                ip_s, _, pr_s = stereo[0]
+                order = np.argsort(ip_s)
+                pos = np.searchsorted(ip_s[order], i_cur)
+                hit = (pos < len(ip_s)) & (ip_s[order][np.minimum(pos, len(ip_s) - 1)] == i_cur)
+                q_r = np.nonzero(hit)[0][: o.max_points - n_p]
+                uv_r = pr_s[order][pos[q_r]]
+            n_r = len(q_r)
+            t_rl = np.asarray(self.rig.t_rl, float)
+            mask = np.arange(o.max_points) < n_p + n_r
             lmask = np.arange(o.max_lines) < n_l
             L = _lines_np(feats.segments[l_cur]) if n_l else np.zeros((0, 3))
-            args = (
-                jnp.asarray(_pad(self.map.points.X[i_m], o.max_points)),
-                jnp.asarray(_pad(feats.points[i_cur], o.max_points)),
-            )
+            X_m = self.map.points.X[i_m]
+            uv_all = jnp.asarray(_pad(np.concatenate([feats.points[i_cur], uv_r]), o.max_points))
             line_args = (
                 jnp.asarray(_pad(self.map.lines.X[l_m], o.max_lines)),
                 jnp.asarray(_pad(L, o.max_lines)),
@@ -496,10 +519,12 @@ class StereoTracker:
                 # each pass restarts from the last pose without the features it left beyond
                 # reject_px (ORB-SLAM's outlier passes): the robust kernel alone still lets
                 # mismatches on the repetitive texture pull the pose
+                shift = np.asarray(pose0.R).T @ t_rl
+                P_all = np.concatenate([X_m, X_m[q_r] + shift])
                 res, e_p, e_l = _solve(
                     pose0,
-                    args[0],
-                    args[1],
+                    jnp.asarray(_pad(P_all, o.max_points)),
+                    uv_all,
                     jnp.asarray(mask),
                     line_args[0],
                     line_args[1],
@@ -536,8 +561,9 @@ class StereoTracker:
                 result.status = int(Status.OK)
                 self._last_depth = float(result.t[2])
                 self.map.record("points", cand, i_m[in_p], k)
-                kept = mask[:n_p]  # left in the last pass: residual below reject_px
-                self._observe(i_m[kept], feats.points[i_cur[kept]], T_est, right=False)
+                if o.frame_rays:
+                    kept = mask[:n_p]  # left in the last pass: residual below reject_px
+                    self._observe(i_m[kept], feats.points[i_cur[kept]], T_est, right=False)
                 self.map.record("lines", lcand, l_m[in_l], k)
                 self._since_kf += 1
                 update = (
@@ -553,7 +579,7 @@ class StereoTracker:
         if update is not None and (
             self._since_kf >= o.keyframe_every or result.inliers < o.keyframe_min
         ):
-            self._update_map(T_est, left, right, feats, *update, timings)
+            self._update_map(T_est, left, right, feats, *update, timings, stereo=stereo)
             result.keyframe = True
         return result
 

@@ -191,7 +191,7 @@ class LandmarkMap:
         v = _unit((-R.T @ t)[None] - c)
         s.view[idx] = _unit(s.view[idx] + w[:, None] * (v - s.view[idx]))
         s.desc[idx] = np.asarray(desc, np.uint8).reshape(len(idx), -1)
-        s.n_obs[idx] += 1
+        np.add.at(s.n_obs, idx, 1)
         s.last_seen[idx] = frame
 
     def record(self, kind: str, searched, found, frame: int) -> None:

@@ -1,0 +1,114 @@
+"""Body-frame landmark map of the stereo tracker (jaxpose.pipelines.stereo_map) and the sparse
+Hamming KNN it uses; reference values from independent constructions (known geometry, dense
+brute force)."""
+
+import numpy as np
+import pytest
+
+from jaxpose.pipelines.stereo_map import LandmarkMap
+from jaxpose.vision.stereo_features import knn_ratio_match, knn_ratio_match_pairs
+
+
+def _look_at(centre_body):
+    """Pose (R, t) of a camera at ``centre_body`` looking at the body origin (body to camera)."""
+    z = -centre_body
+    z = z / np.linalg.norm(z)
+    x = np.cross([0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    return R, -R @ centre_body
+
+
+def test_observe_triangulates_from_rays_and_keeps_near_parallel_ones():
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(5, 3)) * 0.2
+    m = LandmarkMap()
+    R, t = _look_at(np.array([0.0, 0.0, -2.0]))
+    idx = m.add("points", X + 0.05, np.zeros((5, 32), np.uint8), R, t, 0)
+    # one ray each: underdetermined, the points keep their (wrong) initial positions
+    c0 = np.array([0.0, 0.0, -2.0])
+    m.observe(idx, np.broadcast_to(c0, X.shape), X - c0)
+    np.testing.assert_allclose(m.points.X, X + 0.05)
+    # rays from three more centres around the target: the exact points (noise-free rays)
+    for c in ([1.0, 0.0, -1.7], [-0.5, 0.4, -1.9], [0.3, -0.8, -1.6]):
+        c = np.asarray(c)
+        m.observe(idx, np.broadcast_to(c, X.shape), (X - c) * rng.uniform(0.5, 2.0, (5, 1)))
+    np.testing.assert_allclose(m.points.X, X, atol=1e-9)
+
+
+def test_observe_matches_the_stereo_triangulation():
+    from jaxpose import PinholeCamera, StereoCamera
+
+    cam = PinholeCamera(800.0, 800.0, 319.5, 239.5, width=640, height=480)
+    rig = StereoCamera.from_baseline(cam, 0.3)
+    X = np.array([[0.1, -0.05, 2.0], [-0.2, 0.1, 2.4]])
+    left, right = (np.asarray(p) for p in rig.project(X))
+    m = LandmarkMap()
+    R, t = np.eye(3), np.zeros(3)  # body = left camera
+    idx = m.add("points", np.zeros_like(X), np.zeros((2, 32), np.uint8), R, t, 0)
+    K_inv = np.linalg.inv(np.asarray(cam.K))
+    d_l = np.c_[left, np.ones(2)] @ K_inv.T
+    d_r = np.c_[right, np.ones(2)] @ K_inv.T
+    m.observe(idx, np.zeros((2, 3)), d_l)
+    m.observe(idx, np.broadcast_to([0.3, 0.0, 0.0], (2, 3)), d_r)  # right centre, left frame
+    np.testing.assert_allclose(m.points.X, X, atol=1e-9)
+
+
+def test_candidates_use_the_viewing_cone_and_the_camera_side():
+    m = LandmarkMap(max_view_deg=60.0)
+    R, t = _look_at(np.array([0.0, 0.0, -2.0]))
+    X = np.array([[0.0, 0.0, -0.3], [0.0, 0.0, 0.3]])
+    m.add("points", X, np.zeros((2, 32), np.uint8), R, t, 0)  # both seen from -z
+    assert list(m.candidates("points", R, t)) == [0, 1]
+    # from 45 deg away: inside the cone; from the far side (180 deg): not searched
+    R45, t45 = _look_at(np.array([np.sqrt(2.0), 0.0, -np.sqrt(2.0)]))
+    assert list(m.candidates("points", R45, t45)) == [0, 1]
+    Rb, tb = _look_at(np.array([0.0, 0.0, 2.0]))
+    assert len(m.candidates("points", Rb, tb)) == 0
+    # segments use their midpoints
+    m.add("lines", X[None], np.zeros((1, 32), np.uint8), R, t, 0)
+    assert list(m.candidates("lines", R, t)) == [0]
+    with pytest.raises(ValueError):
+        LandmarkMap(max_view_deg=0.0)
+
+
+def test_refine_running_mean_and_culling():
+    m = LandmarkMap(max_obs=4, cull_after=4, cull_ratio=0.5, keep_obs=3)
+    R, t = np.eye(3), np.array([0.0, 0.0, 2.0])
+    m.add("points", np.zeros((3, 3)), np.zeros((3, 32), np.uint8), R, t, 0)
+    new_desc = np.full((1, 32), 7, np.uint8)
+    m.refine("points", [0], np.array([[0.3, 0.0, 0.0]]), new_desc, R, t, 5)
+    np.testing.assert_allclose(m.points.X[0], [0.15, 0.0, 0.0])  # mean of two observations
+    assert m.points.n_obs[0] == 2 and m.points.last_seen[0] == 5
+    assert (m.points.desc[0] == 7).all()
+    m.refine("points", [2, 2], None, np.zeros((2, 32), np.uint8), R, t, 6)  # X kept
+    np.testing.assert_allclose(m.points.X[2], 0.0)
+    assert m.points.n_obs[2] == 3
+    # all three predicted visible 4 times, never found: landmark 2 (3 observations) is kept
+    for _ in range(4):
+        m.record("points", [0, 1, 2], [], 7)
+    m.cull()
+    assert len(m.points) == 1 and m.points.n_obs[0] == 3
+
+
+def test_pairs_knn_equals_the_dense_allowed_matrix():
+    rng = np.random.default_rng(3)
+    ref = rng.integers(0, 256, (40, 32), dtype=np.uint8)
+    cur = ref[rng.permutation(40)[:30]].copy()
+    cur[:, :3] ^= rng.integers(0, 256, (30, 3), dtype=np.uint8)  # a few flipped bits
+    allowed = rng.random((40, 30)) < 0.3
+    i_ref, i_cur = np.nonzero(allowed)
+    a = knn_ratio_match(ref, cur, ratio=0.8, max_distance=64, allowed=allowed)
+    b = knn_ratio_match_pairs(ref, cur, i_ref[::-1], i_cur[::-1], ratio=0.8, max_distance=64)
+    order_a, order_b = np.argsort(a[0]), np.argsort(b[0])
+    np.testing.assert_array_equal(a[0][order_a], b[0][order_b])
+    np.testing.assert_array_equal(a[1][order_a], b[1][order_b])
+    # brute-force reference of one reference descriptor
+    pop = np.array([bin(i).count("1") for i in range(256)])
+    for r, c in zip(*b, strict=True):
+        cands = np.nonzero(allowed[r])[0]
+        dist = pop[ref[r] ^ cur[cands]].sum(1)
+        assert cands[np.argmin(dist)] == c
+    with pytest.raises(ValueError):
+        knn_ratio_match_pairs(ref, cur, [0, 1], [0], ratio=0.8, max_distance=64)
