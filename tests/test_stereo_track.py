@@ -81,7 +81,7 @@ def test_tracker_follows_a_short_sequence(frames, use_lines):
         angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
         assert angle < 1.0
         assert np.linalg.norm(res.t - t) < 0.02
-        assert set(res.timings) == {"features", "stereo", "triangulate", "match", "pose"}
+        assert set(res.timings) == {"features", "stereo", "triangulate", "match", "pose", "ba"}
     if use_lines:
         assert res.n_lines > 0
 
@@ -150,3 +150,16 @@ def test_tracker_map_lies_on_the_target(frames):
     assert on_body.mean() > 0.8
     assert np.median(np.min(np.abs(np.abs(X[on_body]) - half), axis=1)) < 0.003
     assert len(tracker.map.lines) > 0
+
+
+def test_tracker_with_windowed_bundle_adjustment(frames):
+    tracker = StereoTracker(RIG, frames[0].pose, options=TrackerOptions(ba_every=1, ba_window=4))
+    ran = False
+    for fr in frames:
+        res = tracker.process(fr.left, fr.right)
+        assert res.status == Status.OK
+        R = np.asarray(fr.pose.R)
+        angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
+        assert angle < 1.0
+        ran |= res.timings["ba"] > 0
+    assert ran and len(tracker._ba_frames) == 4

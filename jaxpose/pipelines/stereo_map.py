@@ -36,6 +36,7 @@ class LandmarkSet:
         view: ``(M, 3)`` unit mean viewing direction (from the landmark towards the camera, body
             frame).
         n_obs: keyframe observations (stereo pairs) of the landmark.
+        ids: stable identifiers (increasing; indices change when landmarks are culled).
         M, b: normal equations of the multi-view triangulation of a point (``X = M^-1 b``, the
             point nearest to all its observation rays in the weighted least-squares sense).
         visible, found: times predicted visible / matched as an inlier (culling).
@@ -51,6 +52,7 @@ class LandmarkSet:
     last_seen: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     M: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     b: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def __len__(self) -> int:
         return len(self.X)
@@ -60,7 +62,18 @@ class LandmarkSet:
         return self.X if self.X.ndim == 2 else self.X.mean(axis=1)
 
     def _keep(self, keep: np.ndarray) -> None:
-        for name in ("X", "desc", "view", "n_obs", "visible", "found", "last_seen", "M", "b"):
+        for name in (
+            "X",
+            "desc",
+            "view",
+            "n_obs",
+            "visible",
+            "found",
+            "last_seen",
+            "M",
+            "b",
+            "ids",
+        ):
             setattr(self, name, getattr(self, name)[keep])
 
 
@@ -101,6 +114,7 @@ class LandmarkMap:
         self.max_obs, self.cull_after, self.cull_ratio = int(max_obs), int(cull_after), cull_ratio
         self.keep_obs = int(keep_obs)
         self.max_size = {"points": int(max_points), "lines": int(max_lines)}
+        self._next_id = {"points": 0, "lines": 0}
         self.sets = {
             "points": LandmarkSet(np.zeros((0, 3))),
             "lines": LandmarkSet(np.zeros((0, 2, 3))),
@@ -147,7 +161,25 @@ class LandmarkMap:
         s.last_seen = np.concatenate([s.last_seen, np.full(n, frame, np.int64)])
         s.M = np.concatenate([s.M, np.zeros((n, 3, 3))])
         s.b = np.concatenate([s.b, np.zeros((n, 3))])
+        s.ids = np.concatenate([s.ids, self._next_id[kind] + np.arange(n, dtype=np.int64)])
+        self._next_id[kind] += n
         return np.arange(start, start + n)
+
+    def index_of(self, kind: str, ids) -> np.ndarray:
+        """Current indices of the landmarks with identifiers ``ids`` (-1 for culled ones)."""
+        s = self.sets[kind]
+        ids = np.asarray(ids, np.int64)
+        pos = np.searchsorted(s.ids, ids)
+        ok = (pos < len(s.ids)) & (s.ids[np.minimum(pos, max(len(s.ids) - 1, 0))] == ids)
+        return np.where(ok, pos, -1) if len(s.ids) else np.full(len(ids), -1)
+
+    def set_points(self, idx, X_body) -> None:
+        """Overwrite point positions (e.g. after a bundle adjustment), keeping the information
+        of their triangulations: ``b`` is re-centred so that ``M^-1 b`` is the new position."""
+        s = self.points
+        idx = np.asarray(idx, int)
+        s.X[idx] = X_body
+        s.b[idx] = np.einsum("nij,nj->ni", s.M[idx], s.X[idx])
 
     def observe(self, idx, origins, directions, weights=None) -> None:
         """Add observation rays of points ``idx`` (body frame: camera centres ``origins`` and
