@@ -7,8 +7,8 @@ Pipeline (:func:`initialise_pose`):
    position, two Hough streams (or LSD), merging, feature synthesis;
 2. hypotheses: the most complex image group kind that the model also has (Table 1 ranking) is
    paired with every model group of that kind under the kind's permutations
-   (:data:`jaxpose.vision.synthesis.PERMUTATIONS`); the next kinds are added while fewer than
-   ``min_hypotheses`` exist;
+   (:data:`jaxpose.vision.synthesis.PERMUTATIONS`); every kind with four points or more takes
+   part, sharing ``max_hypotheses`` by water-filling (:func:`_allocate`);
 3. EPnP of every hypothesis in one batched call (``jax.vmap(jaxpose.pnp.epnp)``);
 4. the best ``top_k`` (five) hypotheses are kept. The paper ranks by eq. 22 over each hypothesis's
    own 4-6 correspondences, which EPnP fits almost exactly whatever the hypothesis; here the rank
@@ -88,8 +88,7 @@ class InitOptions:
     method: str = "svd"  # "svd" (the paper's architecture) or "ransac" (its Test 4 baseline)
     rank_by: str = "chamfer"  # or "e2d" (eq. 22 over the hypothesis's own points)
     top_k: int = 5
-    min_hypotheses: int = 64
-    max_hypotheses: int = 2048
+    max_hypotheses: int = 4096
     rematch_rounds: int = 2
     ransac_iterations: int | None = None
     ransac_seed: int = 0
@@ -398,27 +397,52 @@ def _distance_map(segments: np.ndarray, shape) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- hypotheses
+def _allocate(needs, budget) -> np.ndarray:
+    """Water-filling share of ``budget`` among ``needs``: each gets at most its need, and what the
+    small needs leave is split evenly among the larger ones."""
+    needs = np.asarray(needs, dtype=np.int64)
+    out = np.zeros(len(needs), dtype=np.int64)
+    left = int(budget)
+    order = np.argsort(needs, kind="stable")
+    for r, i in enumerate(order):
+        out[i] = min(int(needs[i]), left // (len(order) - r))
+        left -= int(out[i])
+    return out
+
+
 def _hypotheses(det: Detection, model: WireframeModel, opts: InitOptions):
     """Match matrix: ``points_body (H, 6, 3)``, ``pixels (H, 6, 2)``, ``mask (H, 6)`` and the
-    kind and image-group index of every row."""
+    kind and image-group index of every row.
+
+    Every group kind with at least four points that both the image and the model have takes part
+    (the Table 1 order); ``max_hypotheses`` is shared among them by water-filling, so a kind with
+    few hypotheses (closed tetrads) is tried in full and the rest is split evenly. Within a kind
+    the image groups are taken longest first (the order of :func:`synthesize`)."""
     mg = model.groups
-    rows_p, rows_q, rows_m, info, kinds = [], [], [], [], []
-    total = 0
+    kinds_ok, needs, per = [], [], []
     for kind in KINDS:
         ni, nm = det.groups.count(kind), mg.count(kind)
-        if ni == 0 or nm == 0:
+        if ni == 0 or nm == 0 or mg.points[kind].shape[1] < 4:
+            continue  # a proximal pair alone gives 3 points; EPnP needs 4
+        kinds_ok.append(kind)
+        per.append(nm * len(PERMUTATIONS[kind]))
+        needs.append(ni * per[-1])
+    if not kinds_ok:
+        return None
+    share = _allocate(needs, opts.max_hypotheses)
+    rows_p, rows_q, rows_m, info, kinds = [], [], [], [], []
+    for kind, per_image, budget in zip(kinds_ok, per, share, strict=True):
+        # at least one image group whenever the share covers half of one
+        ni = min(
+            det.groups.count(kind), max(int(budget // per_image), int(2 * budget >= per_image))
+        )
+        if ni == 0:
             continue
         k = mg.points[kind].shape[1]
-        if k < 4:
-            continue  # a proximal pair alone gives 3 points; EPnP needs 4
         perms = PERMUTATIONS[kind]
         img = det.groups.points[kind]  # (ni, k, 2)
         mod = mg.points[kind][:, perms]  # (nm, P, k, 3)
-        budget = opts.max_hypotheses - total
-        per_image = nm * len(perms)
-        ni = min(ni, max(budget // max(per_image, 1), 0))
-        if ni == 0:
-            break
+        nm = len(mod)
         q = np.broadcast_to(img[:ni, None, None], (ni, nm, len(perms), k, 2)).reshape(-1, k, 2)
         p = np.broadcast_to(mod[None], (ni, nm, len(perms), k, 3)).reshape(-1, k, 3)
         pad = _PAD_POINTS - k
@@ -433,9 +457,6 @@ def _hypotheses(det: Detection, model: WireframeModel, opts: InitOptions):
             )
         )
         kinds.append(kind)
-        total += len(p)
-        if total >= opts.min_hypotheses:
-            break
     if not rows_p:
         return None
     return (
@@ -512,12 +533,9 @@ def initialise_pose(
     poses = _rematch_refine(poses, det, model, cam, l_roi, options.rematch_rounds)
     timings["refine_rematch_s"] = time.perf_counter() - t1
     t1 = time.perf_counter()
-    R = _pad_to(jnp.stack([p.R for p in poses]), _MAX_CANDIDATES)
-    t = _pad_to(jnp.stack([p.t for p in poses]), _MAX_CANDIDATES)
-    score, near = _batched_chamfer()(R, t, geom, img_pts, img_mask, dt, tau, cam4)
-    score, near = np.asarray(score)[: len(poses)], np.asarray(near)[: len(poses)]
-    t = t[: len(poses)]
-    good = np.isfinite(score) & (np.asarray(t)[:, 2] > 0)
+    score = _score_poses(poses, geom, img_pts, img_mask, dt, tau, cam4)
+    t = np.stack([np.asarray(p.t) for p in poses])
+    good = np.isfinite(score) & (t[:, 2] > 0)
     if not good.any():
         return InitResult(
             confidence="position-only", message="no pose in front of the camera", **base
@@ -557,6 +575,21 @@ def initialise_pose(
         projected=vis.segments,
         used_segments=used,
     )
+
+
+def _score_poses(poses, geom, img_pts, img_mask, dt, tau, cam4) -> np.ndarray:
+    """Symmetric chamfer distance of each pose (batches of ``_MAX_CANDIDATES``); ``inf`` when not
+    finite or behind the camera."""
+    out = []
+    for a in range(0, len(poses), _MAX_CANDIDATES):
+        chunk = poses[a : a + _MAX_CANDIDATES]
+        R = _pad_to(jnp.stack([p.R for p in chunk]), _MAX_CANDIDATES)
+        t = _pad_to(jnp.stack([p.t for p in chunk]), _MAX_CANDIDATES)
+        sc, _ = _batched_chamfer()(R, t, geom, img_pts, img_mask, dt, tau, cam4)
+        out.append(np.asarray(sc)[: len(chunk)])
+    score = np.concatenate(out)
+    z = np.array([float(p.t[2]) for p in poses])
+    return np.where(np.isfinite(score) & (z > 0), score, np.inf)
 
 
 def _svd_candidates(det, model, opts, cam, geom, img_pts, img_mask, dt, tau, cam4):

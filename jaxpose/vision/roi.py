@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["roi_diagonal", "roi_from_gradient"]
+__all__ = ["roi_diagonal", "roi_from_gradient", "roi_from_segments", "segment_distances"]
 
 
 def _quantiles(weights: np.ndarray, lo: float, hi: float) -> tuple[float, float]:
@@ -34,3 +34,189 @@ def roi_diagonal(roi) -> float:
     """``l_ROI``: the ROI's diagonal length in pixels."""
     u0, v0, u1, v1 = roi
     return float(np.hypot(u1 - u0, v1 - v0))
+
+
+def segment_distances(S: np.ndarray, *, crossings: bool = True) -> np.ndarray:
+    """``(N, N)`` smallest distances between the 2-D segments ``S (N, 2, 2)``: the least
+    endpoint-to-segment distance both ways, and 0 where two segments cross (``crossings``)."""
+    S = np.asarray(S, dtype=float)
+    a, d = S[:, 0], S[:, 1] - S[:, 0]
+    L2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-24)
+    P = S.reshape(-1, 2)  # endpoints (2N, 2)
+    r = P[:, None, :] - a[None]  # (2N, N, 2)
+    t = np.clip(np.einsum("pnj,nj->pn", r, d) / L2[None], 0.0, 1.0)
+    e = np.linalg.norm(r - t[..., None] * d[None], axis=-1).reshape(len(S), 2, len(S))
+    D = e.min(1)  # endpoint of i to segment j
+    D = np.minimum(D, D.T)
+    np.fill_diagonal(D, 0.0)
+    if not crossings:
+        return D
+    # crossings: the two endpoints of each segment on opposite sides of the other's line
+    cross = d[:, None, 0] * (P[None, :, 1] - a[:, None, 1]) - d[:, None, 1] * (
+        P[None, :, 0] - a[:, None, 0]
+    )  # (N, 2N): side of endpoint q w.r.t. line i
+    side = cross.reshape(len(S), len(S), 2)
+    opp = side[..., 0] * side[..., 1] < 0
+    D = np.where(opp & opp.T, 0.0, D)
+    np.fill_diagonal(D, 0.0)
+    return D
+
+
+def roi_from_segments(
+    segments: np.ndarray,
+    *,
+    gap_frac: float = 0.15,
+    corner_deg: float = 20.0,
+    outlier_shrink: float = 0.75,
+    absorb_margin: float = 0.05,
+    free_reach: float = 0.25,
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """The target's ROI as the box of its largest cluster of line segments.
+
+    A man-made target is a connected set of straight edges meeting at corners; an Earth
+    background gives short isolated cloud segments and the limb, a long chain of nearly collinear
+    segments. Two segments are linked when an endpoint of one is within ``gap_frac`` times the
+    longer one's length of the other (corners and T-junctions, also across the gaps left by a
+    weak edge broken into short pieces; a crossing alone is no link); a link is
+    a *corner* when the directions differ by more than ``corner_deg``. The cluster with the
+    largest total length of corner segments wins (a cluster without a corner scores nothing).
+
+    A straight chain (segments linked without a corner) longer than the box of the rest of its
+    cluster, that alone makes the cluster's box larger (removing it shrinks the box diagonal below
+    ``outlier_shrink`` times), is a limb or other background line touching the target: it is
+    dropped and the clusters are formed again. Last, the fragments of a target whose weak edges
+    broke into pieces are taken in: every other cluster with a corner, no larger than the winning
+    cluster's box, whose box meets the box so far grown by ``absorb_margin`` times its diagonal
+    (repeated until none is left). The box is that of the *anchored* endpoints (within the link
+    gap of another member segment) and of the free endpoints (antenna tips,
+    truncated edges) that lie within ``free_reach`` times its diagonal of it; a background line
+    touching the target leaves its far end out.
+    Returns ``(roi [u0, v0, u1, v1] or None, member indices)``.
+    """
+    S = np.asarray(segments, dtype=float)
+    if S.ndim != 3 or S.shape[1:] != (2, 2):
+        raise ValueError(f"segments must have shape (N, 2, 2); got {S.shape}")
+    n = len(S)
+    none = (None, np.zeros(0, dtype=int))
+    if n == 0:
+        return none
+    d = S[:, 1] - S[:, 0]
+    length = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(length, 1e-12)[:, None]
+    D = segment_distances(S, crossings=False)
+    link0 = D <= gap_frac * np.maximum(length[:, None], length[None])
+    np.fill_diagonal(link0, False)
+    corner0 = link0 & (np.abs(u @ u.T) < np.cos(np.deg2rad(corner_deg)))
+    keep = np.ones(n, bool)
+    for _ in range(n):
+        link = link0 & keep[:, None] & keep[None]
+        corner = (corner0 & link).any(1)
+        roots = _components(link)
+        score = np.bincount(roots, weights=length * corner, minlength=n)
+        score[~keep] = 0.0
+        best = int(np.argmax(score))
+        if score[best] <= 0:
+            return none
+        idx = np.nonzero((roots == best) & keep)[0]
+        chains = _components(link & ~corner0)  # runs of nearly collinear linked segments
+        drop = _box_outlier(S, idx, chains, length, outlier_shrink)
+        if drop is None:
+            idx = _absorb_fragments(S, idx, roots, keep, corner, absorb_margin)
+            return _anchored_box(S, idx, gap_frac, length, free_reach), idx
+        keep[drop] = False
+    return none
+
+
+def _anchored_box(S, idx, gap_frac, length, reach):
+    """Box of the anchored endpoints of ``idx`` (within the link gap of another member) and of
+    the free ones near it (see :func:`roi_from_segments`); all endpoints when fewer than two are
+    anchored or when that box is less than half the plain one."""
+    ends = S[idx]  # (m, 2, 2)
+    m = len(idx)
+    a, d = ends[:, 0], ends[:, 1] - ends[:, 0]
+    L2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-24)
+    P = ends.reshape(-1, 2)
+    r = P[:, None, :] - a[None]  # (2m, m, 2)
+    t = np.clip(np.einsum("pnj,nj->pn", r, d) / L2[None], 0.0, 1.0)
+    dist = np.linalg.norm(r - t[..., None] * d[None], axis=-1)  # endpoint to member segment
+    own = np.repeat(np.arange(m), 2)
+    dist[np.arange(2 * m), own] = np.inf
+    gap = gap_frac * np.maximum(np.repeat(length[idx], 2)[:, None], length[idx][None])
+    anchored = (dist <= gap).any(1).reshape(m, 2)
+    if anchored.sum() < 2:
+        return _box(ends)
+    box = _box(ends[anchored])
+    g = reach * roi_diagonal(box)
+    lo, hi = box[:2] - g, box[2:] + g
+    free = ends[~anchored]
+    near = np.all((free >= lo) & (free <= hi), axis=1)
+    out = _box(np.concatenate([ends[anchored], free[near]]))
+    full = _box(ends)
+    # a cluster whose anchored ends crowd in one spot: its box is the plain one
+    return out if roi_diagonal(out) >= 0.5 * roi_diagonal(full) else full
+
+
+def _box(P):
+    P = P.reshape(-1, 2)
+    return np.array([*P.min(0), *P.max(0)])
+
+
+def _absorb_fragments(S, idx, roots, keep, corner, margin):
+    """``idx`` plus the other clusters with a corner, no larger than the box of ``idx``, whose
+    boxes meet the box so far grown by ``margin`` times its diagonal (repeated)."""
+    members = set(idx.tolist())
+    size = roi_diagonal(_box(S[idx]))
+    others = {r for r in set(roots[keep & corner].tolist()) if r not in set(roots[idx].tolist())}
+    changed = True
+    while changed and others:
+        changed = False
+        box = _box(S[sorted(members)])
+        g = margin * roi_diagonal(box)
+        grown = box + np.array([-g, -g, g, g])
+        for r in sorted(others):
+            part = np.nonzero((roots == r) & keep)[0]
+            b = _box(S[part])
+            meets = b[0] <= grown[2] and b[2] >= grown[0] and b[1] <= grown[3] and b[3] >= grown[1]
+            if meets and roi_diagonal(b) <= size:
+                members.update(part.tolist())
+                others.discard(r)
+                changed = True
+                break
+    return np.array(sorted(members))
+
+
+def _components(link: np.ndarray) -> np.ndarray:
+    """Connected-component label (a root index) of every node of a boolean adjacency matrix."""
+    n = len(link)
+    parent = np.arange(n)
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, j in zip(*np.nonzero(np.triu(link)), strict=True):
+        parent[find(i)] = find(j)
+    return np.array([find(i) for i in range(n)])
+
+
+def _box_outlier(S, idx, chains, length, shrink):
+    """The longest straight chain of the cluster ``idx`` (a limb is a chain of nearly collinear
+    segments) that is longer than the diagonal of the box of the other members and whose removal
+    shrinks the cluster box diagonal below ``shrink`` times; else ``None``. Returns the chain's
+    indices."""
+    if len(idx) < 3:
+        return None
+    labels = chains[idx]
+    total = {c: float(length[idx[labels == c]].sum()) for c in set(labels.tolist())}
+    full = S[idx].reshape(-1, 2)
+    diag = roi_diagonal([*full.min(0), *full.max(0)])
+    for c in sorted(total, key=total.get, reverse=True):
+        rest = S[idx[labels != c]].reshape(-1, 2)
+        if not len(rest):
+            continue
+        rest_diag = roi_diagonal([*rest.min(0), *rest.max(0)])
+        if total[c] > rest_diag and rest_diag < shrink * diag:
+            return idx[labels == c]
+    return None
