@@ -39,9 +39,13 @@ SCENES = {
 
 
 def run_scene(
-    name: str, frames: int | None, frame_rate_hz: float, modes=("points+lines", "points-only")
+    name: str,
+    frames: int | None,
+    frame_rate_hz: float,
+    modes=("points+lines", "points-only"),
+    seed: int = 0,
 ):
-    scene = StereoScene(frames=frames, frame_rate_hz=frame_rate_hz, **SCENES[name])
+    scene = StereoScene(frames=frames, frame_rate_hz=frame_rate_hz, seed=seed, **SCENES[name])
     rig = default_rig()
     trackers, logs = {}, {m: ([], [], []) for m in modes}
     render_s = 0.0
@@ -66,6 +70,7 @@ def run_scene(
             "frames": scene.n_frames(),
             "frame_rate_hz": frame_rate_hz,
             "rate_deg_s": scene.rate_deg_s,
+            "seed": seed,
         },
         "render_s_per_frame": render_s / scene.n_frames(),
     }
@@ -90,6 +95,7 @@ def main(argv=None) -> int:
     p.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
     p.add_argument("--frames", type=int, default=None, help="frames per scene (default: two turns)")
     p.add_argument("--frame-rate-hz", type=float, default=5.0)
+    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
     p.add_argument("--timing-only", action="store_true", help="points+lines only, one scene")
     p.add_argument("--out", type=Path, default=Path("runs/bench-stereo"))
     args = p.parse_args(argv)
@@ -98,7 +104,7 @@ def main(argv=None) -> int:
     scenes = args.scenes[:1] if args.timing_only else args.scenes
     results = []
     for name in scenes:
-        r = run_scene(name, args.frames, args.frame_rate_hz, modes)
+        r = run_scene(name, args.frames, args.frame_rate_hz, modes, seed=args.seed)
         results.append(r)
         (args.out / "results.json").write_text(json.dumps(results, indent=1))
         print(f"done {name}", file=sys.stderr, flush=True)
