@@ -112,3 +112,21 @@ def test_pairs_knn_equals_the_dense_allowed_matrix():
         assert cands[np.argmin(dist)] == c
     with pytest.raises(ValueError):
         knn_ratio_match_pairs(ref, cur, [0, 1], [0], ratio=0.8, max_distance=64)
+
+
+def test_closed_form_rectified_triangulation_equals_the_rig():
+    from jaxpose import PinholeCamera, StereoCamera
+    from jaxpose.pipelines.stereo import _triangulate_rectified
+
+    cam = PinholeCamera(900.0, 900.0, 511.5, 383.5, width=1024, height=768)
+    rig = StereoCamera.from_baseline(cam, 0.3)
+    X = np.random.default_rng(4).uniform([-0.5, -0.4, 1.5], [0.5, 0.4, 3.5], (20, 3))
+    left, right = (np.asarray(p) for p in rig.project(X))
+    np.testing.assert_allclose(_triangulate_rectified(rig, left, right), X, atol=1e-9)
+    np.testing.assert_allclose(
+        _triangulate_rectified(rig, left, right),
+        np.asarray(rig.triangulate(left, right)),
+        atol=1e-9,
+    )
+    bad = _triangulate_rectified(rig, left[:1], left[:1] + [1.0, 0.0])  # negative disparity
+    assert np.isnan(bad).all()

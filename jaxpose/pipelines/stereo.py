@@ -108,6 +108,9 @@ class TrackerOptions:
             3 m: 62, 43, 24 mm without, 38, 32, 31 mm with).
         ba_max_change_deg: an adjustment that moves the current pose further than this is
             discarded (a safeguard against a wrong local minimum).
+        features: the feature options; 2000 ORB keypoints instead of 1200 (chosen on the clean
+            2 m sequences, noise seeds 0-2: per-axis RMS position errors at most 10.5 mm instead
+            of at most 16.5 mm, at about 2/3 of the frame rate).
         ba_prior: weight of the landmarks' ray information (all their earlier observations) as
             a prior in the adjustment (0: the window's observations alone).
     """
@@ -145,7 +148,7 @@ class TrackerOptions:
     ba_iterations: int = 5
     ba_max_change_deg: float = 1.0
     ba_prior: float = 1.0
-    features: FeatureOptions = field(default_factory=FeatureOptions)
+    features: FeatureOptions = field(default_factory=lambda: FeatureOptions(n_points=2000))
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
 
 
@@ -223,6 +226,19 @@ def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
     return res, e_p, jnp.max(jnp.abs(d), axis=-1)
 
 
+def _triangulate_rectified(rig: StereoCamera, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Closed-form triangulation for a rectified rig with identical cameras (NumPy, no padding):
+    ``Z = fx b / (u_l - u_r)``, the ray of the left pixel at that depth (the row of the right
+    pixel is the left one's by construction). Equal to :meth:`StereoCamera.triangulate` there
+    (tested); non-positive disparities give NaN."""
+    c = rig.left
+    fx, fy, cx, cy = (float(v) for v in (c.fx, c.fy, c.cx, c.cy))
+    d = left[:, 0] - right[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Z = np.where(d > 0, fx * float(rig.baseline) / d, np.nan)
+    return np.stack([(left[:, 0] - cx) * Z / fx, (left[:, 1] - cy) * Z / fy, Z], 1)
+
+
 @eqx.filter_jit
 def _triangulate(rig: StereoCamera, left, right):
     return rig.triangulate(left, right)
@@ -282,6 +298,7 @@ class StereoTracker:
         self._ba_frames: list = []  # (pose, landmark ids, pixels, right flags) per BA keyframe
         self.index = 0
         fb = float(rig.left.fx) * float(rig.baseline)
+        self._same_intrinsics = bool(np.allclose(np.asarray(rig.left.K), np.asarray(rig.right.K)))
         self._fb = fb
 
     # ------------------------------------------------------------------ stages
@@ -311,7 +328,10 @@ class StereoTracker:
                 lm.segments_right[il].reshape(-1, 2) if len(il) else np.zeros((0, 2)),
             ]
         )
-        X = np.asarray(_triangulate(self.rig, _pad(pl, n_tri, 1.0), _pad(pr, n_tri, 0.0)))
+        if self._same_intrinsics:
+            X = _triangulate_rectified(self.rig, pl, pr)
+        else:
+            X = np.asarray(_triangulate(self.rig, _pad(pl, n_tri, 1.0), _pad(pr, n_tri, 0.0)))
         P = X[: len(ip)]
         S = X[len(ip) : len(ip) + 2 * len(il)].reshape(-1, 2, 3)
         lo, hi = o.depth_range_m
