@@ -92,6 +92,7 @@ class InitOptions:
     top_k: int = 5
     max_hypotheses: int = 4096
     rematch_rounds: int = 2
+    shortlist_fit: bool = True  # fit the shortlist to the edges before ranking (_chamfer_fit)
     ransac_iterations: int | None = None
     ransac_seed: int = 0
     confidence: dict = field(default_factory=lambda: dict(CONFIDENCE))
@@ -251,6 +252,114 @@ def _chamfer(R, t, geom, img_pts, img_mask, dt, tau, cam4):
     return model_term + img_term, near
 
 
+def _bilinear(img, uv):
+    """Bilinear lookup of ``img (H, W)`` at pixels ``uv (..., 2)`` (clamped to the image)."""
+    H, W = img.shape
+    u = jnp.clip(uv[..., 0], 0.0, W - 1.001)
+    v = jnp.clip(uv[..., 1], 0.0, H - 1.001)
+    u0, v0 = jnp.floor(u), jnp.floor(v)
+    a, b = u - u0, v - v0
+    i, j = v0.astype(jnp.int32), u0.astype(jnp.int32)
+    return (
+        (1 - a) * (1 - b) * img[i, j]
+        + a * (1 - b) * img[i, j + 1]
+        + (1 - a) * b * img[i + 1, j]
+        + a * b * img[i + 1, j + 1]
+    )
+
+
+def _chamfer_residuals(R, t, vis, geom, img_pts, img_mask, dt, tau, cam4, nearest=None):
+    """Residuals of the two-sided truncated chamfer distance (pixels, each side weighted by one
+    over the square root of its count so that the squared sum is the sum of the two mean squares):
+    model samples to the nearest detected segment (bilinear distance map) and detected samples to
+    the nearest projected model edge (or the edge ``nearest`` of each, fixed as in ICP: far cheaper
+    to differentiate). Truncation at ``tau`` makes far points constant (no pull)."""
+    edges, samples, _, _, _ = geom
+    pc = samples @ R.T + t
+    pix = _project(pc, cam4)
+    H, W = dt.shape
+    inside = (
+        (pix[..., 0] >= 0) & (pix[..., 0] <= W - 1) & (pix[..., 1] >= 0) & (pix[..., 1] <= H - 1)
+    )
+    m = vis[:, None] & (pc[..., 2] > 1e-3)
+    dm = jnp.where(inside, jnp.minimum(_bilinear(dt, pix), tau), tau)
+    dm = jnp.where(m, dm, 0.0).reshape(-1)
+    ends = _project(edges @ R.T + t, cam4)
+    if nearest is None:
+        d = _point_segment_distance(img_pts, ends[:, 0], ends[:, 1])
+        d = jnp.min(jnp.where(vis[None], d, jnp.inf), axis=1)
+    else:
+        a, b = ends[nearest, 0], ends[nearest, 1]
+        ab = b - a
+        ap = img_pts - a
+        s = jnp.clip(jnp.sum(ap * ab, -1) / jnp.maximum(jnp.sum(ab * ab, -1), 1e-12), 0.0, 1.0)
+        e = ap - s[:, None] * ab
+        d = jnp.where(vis[nearest], jnp.sqrt(jnp.sum(e * e, -1) + 1e-12), jnp.inf)
+    di = jnp.where(img_mask, jnp.minimum(d, tau), 0.0)
+    nm = jnp.maximum(jnp.sum(m.astype(dm.dtype)), 1.0)
+    ni = jnp.maximum(jnp.sum(img_mask.astype(di.dtype)), 1.0)
+    return jnp.concatenate([dm / jnp.sqrt(nm), di / jnp.sqrt(ni)])
+
+
+def _chamfer_fit(R0, t0, geom, img_pts, img_mask, dt, tau, cam4, steps=8):
+    """Cheap local fit of a hypothesis to the edges: Levenberg-Marquardt steps on the two-sided
+    truncated chamfer residuals (:func:`_chamfer_residuals`), rotating about the model's centre.
+
+    Fitting both sides keeps a wrong hypothesis from being pulled onto unrelated edges (a one-sided
+    model-to-image fit can shrink or slide the model onto any dense patch); a step is kept only
+    when it lowers the cost, so the fit never makes a hypothesis worse. Visibility is re-evaluated
+    at every step. Returns the fitted ``(R, t)``."""
+    from ..geometry import so3_exp
+
+    centre = jnp.mean(geom[1].reshape(-1, 3), axis=0)
+
+    def apply(R, t, x):
+        E = so3_exp(x[:3])
+        c = R @ centre + t
+        return E @ R, E @ (t - c) + c + x[3:]
+
+    def cost_at(R, t, vis):
+        r = _chamfer_residuals(R, t, vis, geom, img_pts, img_mask, dt, tau, cam4)
+        return jnp.sum(r * r)
+
+    def body(_, state):
+        R, t, lam = state
+        vis = _visible_edges(R, t, geom)
+        ends = _project(geom[0] @ R.T + t, cam4)
+        d = _point_segment_distance(img_pts, ends[:, 0], ends[:, 1])
+        nearest = jnp.argmin(jnp.where(vis[None], d, jnp.inf), axis=1)
+
+        def res(x):
+            Rx, tx = apply(R, t, x)
+            return _chamfer_residuals(
+                Rx, tx, vis, geom, img_pts, img_mask, dt, tau, cam4, nearest=nearest
+            )
+
+        x0 = jnp.zeros(6, R.dtype)
+        r = res(x0)
+        J = jax.jacfwd(res)(x0)
+        A = J.T @ J
+        g = J.T @ r
+        dx = -jnp.linalg.solve(A + lam * (jnp.diag(jnp.diag(A)) + 1e-9 * jnp.eye(6)), g)
+        Rn, tn = apply(R, t, dx)
+        c0 = jnp.sum(r * r)
+        c1 = cost_at(Rn, tn, _visible_edges(Rn, tn, geom))
+        better = jnp.isfinite(c1) & (c1 < c0) & jnp.all(jnp.isfinite(dx))
+        return (
+            jnp.where(better, Rn, R),
+            jnp.where(better, tn, t),
+            jnp.where(better, lam * 0.3, lam * 4.0),
+        )
+
+    R, t, _ = jax.lax.fori_loop(0, steps, body, (R0, t0, jnp.asarray(1e-2, R0.dtype)))
+    return R, t
+
+
+@functools.lru_cache(maxsize=4)
+def _batched_fit():
+    return jax.jit(jax.vmap(_chamfer_fit, in_axes=(0, 0, None, None, None, None, None, None)))
+
+
 @functools.lru_cache(maxsize=4)
 def _batched_epnp():
     from ..pnp import epnp
@@ -305,11 +414,12 @@ _CHUNK = 512  # hypotheses per compiled call (one compilation serves every image
 _SHORTLIST = 64  # hypotheses scored by the full symmetric chamfer distance
 
 
-def _solve_and_score(P, Q, M, cam, geom, img_pts, img_mask, dt, tau, cam4, rank_by, roi):
+def _solve_and_score(P, Q, M, cam, geom, img_pts, img_mask, dt, tau, cam4, rank_by, roi, fit=False):
     """EPnP of every hypothesis (``jax.vmap(epnp)``, fixed-size chunks) and its ranking key.
 
     ``chamfer``: a quick model-side score ranks all hypotheses, the best ``_SHORTLIST`` get the
-    symmetric chamfer distance; ``e2d``: EPnP's own reprojection error (eq. 22)."""
+    symmetric chamfer distance (after :func:`_chamfer_fit` when ``fit``: their poses are then
+    replaced by the fitted ones); ``e2d``: EPnP's own reprojection error (eq. 22)."""
     n = len(P)
     Rs, ts, ok, key = [], [], [], []
     for a in range(0, n, _CHUNK):
@@ -332,9 +442,14 @@ def _solve_and_score(P, Q, M, cam, geom, img_pts, img_mask, dt, tau, cam4, rank_
         short = short[np.isfinite(key[short])]
         if len(short):
             pad = np.concatenate([short, np.repeat(short[:1], _SHORTLIST - len(short))])
+            Rs_, ts_ = jnp.asarray(R_all[pad]), jnp.asarray(t_all[pad])
+            if fit:
+                Rs_, ts_ = _batched_fit()(Rs_, ts_, geom, img_pts, img_mask, dt, tau, cam4)
+                R_all[short] = np.asarray(Rs_)[: len(short)]
+                t_all[short] = np.asarray(ts_)[: len(short)]
             full, _ = _batched_chamfer()(
-                jnp.asarray(R_all[pad]),
-                jnp.asarray(t_all[pad]),
+                Rs_,
+                ts_,
                 geom,
                 img_pts,
                 img_mask,
@@ -601,12 +716,27 @@ def _svd_candidates(det, model, opts, cam, geom, img_pts, img_mask, dt, tau, cam
     P, Q, M, info, kinds = hyp
     n = len(P)
     R_all, t_all, ok, key = _solve_and_score(
-        P, Q, M, cam, geom, img_pts, img_mask, dt, tau, cam4, opts.rank_by, det.roi
+        P,
+        Q,
+        M,
+        cam,
+        geom,
+        img_pts,
+        img_mask,
+        dt,
+        tau,
+        cam4,
+        opts.rank_by,
+        det.roi,
+        fit=opts.shortlist_fit and opts.rank_by == "chamfer",
     )
     if not ok.any():
         return None
-    order = np.argsort(key, kind="stable")[: opts.top_k]
+    fitted = opts.shortlist_fit and opts.rank_by == "chamfer"
+    order = np.argsort(key, kind="stable")
     order = order[np.isfinite(key[order])]
+    # Fitted hypotheses of one pose converge to the same pose: keep distinct ones only.
+    order = _distinct(R_all, t_all, order, opts.top_k) if fitted else order[: opts.top_k]
     # Newton-Raphson on each hypothesis's own correspondences (eqs. 23-29).
     pad = np.concatenate([order, np.repeat(order[:1], opts.top_k - len(order))])
     pose0 = Pose(jnp.asarray(R_all[pad]), jnp.asarray(t_all[pad]))
@@ -617,11 +747,12 @@ def _svd_candidates(det, model, opts, cam, geom, img_pts, img_mask, dt, tau, cam
     from ..pnp import planar_flip
 
     for j in range(len(order)):
-        p = (
-            Pose(ref.pose.R[j], ref.pose.t[j])
-            if int(ref.status[j]) in (0, 5)
-            else Pose(pose0.R[j], pose0.t[j])
-        )
+        if fitted:  # already fitted to the edges; its own 4-6 points would pull it back
+            p = Pose(pose0.R[j], pose0.t[j])
+        elif int(ref.status[j]) in (0, 5):
+            p = Pose(ref.pose.R[j], ref.pose.t[j])
+        else:
+            p = Pose(pose0.R[j], pose0.t[j])
         poses.append(p)
         # The planar mirror of a planar group (tetrads of a face): same image at long range.
         pts = P[order[j]][M[order[j]]]
@@ -632,6 +763,25 @@ def _svd_candidates(det, model, opts, cam, geom, img_pts, img_mask, dt, tau, cam
     kind = KINDS[int(info[order[0], 0])]
     seg_idx = det.groups.segments[kind][int(info[order[0], 1])]
     return poses, n, np.asarray(seg_idx), kind
+
+
+def _distinct(R, t, order, k, angle_deg=5.0, rel_dist=0.05):
+    """The first ``k`` of ``order`` that differ from every earlier pick by more than
+    ``angle_deg`` in attitude or ``rel_dist`` of the range in position."""
+    cos_max = np.cos(np.deg2rad(angle_deg))
+    picked = []
+    for j in order:
+        dup = False
+        for i in picked:
+            c = (np.trace(R[j] @ R[i].T) - 1.0) / 2.0
+            if c > cos_max and np.linalg.norm(t[j] - t[i]) < rel_dist * np.linalg.norm(t[i]):
+                dup = True
+                break
+        if not dup:
+            picked.append(j)
+            if len(picked) == k:
+                break
+    return np.asarray(picked, dtype=np.int64)
 
 
 def _ransac_candidates(det, model, opts, cam, geom, img_pts, img_mask, dt, tau, cam4):
