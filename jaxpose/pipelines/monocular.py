@@ -13,9 +13,12 @@ Pipeline (:func:`initialise_pose`):
 4. the best ``top_k`` (five) hypotheses are kept. The paper ranks by eq. 22 over each hypothesis's
    own 4-6 correspondences, which EPnP fits almost exactly whatever the hypothesis; here the rank
    is a symmetric truncated chamfer distance between the projected front-facing model edges and
-   the detected segments (``rank_by="chamfer"``, default; ``"e2d"`` gives the paper's rule);
-5. each is refined by Newton-Raphson (:func:`jaxpose.refine.refine_pose`, ``newton-raphson``),
-   together with its planar mirror (:func:`jaxpose.pnp.planar_flip`) for planar groups;
+   the detected segments (``rank_by="chamfer"``, default; ``"e2d"`` gives the paper's rule),
+   computed after a cheap fit of the 64 best (by a quick model-side score) to the edges
+   (:func:`_chamfer_fit`, two-sided, ``shortlist_fit``); the five best *distinct* poses go on;
+5. without the fit, each is refined by Newton-Raphson on its own points
+   (:func:`jaxpose.refine.refine_pose`, ``newton-raphson``); each comes with its planar mirror
+   (:func:`jaxpose.pnp.planar_flip`) for planar groups;
 6. visible edges are projected (painter's algorithm), their endpoints matched to detected
    endpoints by nearest neighbour, and the pose refined again on those matches (points and lines);
 7. the candidate with the lowest score wins; ``E_2D`` (eq. 22) over the re-matched endpoints is
