@@ -14,7 +14,7 @@ Pipeline (:func:`initialise_pose`):
    own 4-6 correspondences, which EPnP fits almost exactly whatever the hypothesis; here the rank
    is a symmetric truncated chamfer distance between the projected front-facing model edges and
    the detected segments (``rank_by="chamfer"``, default; ``"e2d"`` gives the paper's rule),
-   computed after a cheap fit of the 64 best (by a quick model-side score) to the edges
+   computed after a cheap fit of the 128 best (by a quick model-side score) to the edges
    (:func:`_chamfer_fit`, two-sided, ``shortlist_fit``); the five best *distinct* poses go on;
 5. without the fit, each is refined by Newton-Raphson on its own points
    (:func:`jaxpose.refine.refine_pose`, ``newton-raphson``); each comes with its planar mirror
@@ -414,7 +414,7 @@ def _refine_points_lines():
 
 
 _CHUNK = 512  # hypotheses per compiled call (one compilation serves every image)
-_SHORTLIST = 64  # hypotheses scored by the full symmetric chamfer distance
+_SHORTLIST = 128  # hypotheses fitted and scored by the full symmetric chamfer distance
 
 
 def _solve_and_score(P, Q, M, cam, geom, img_pts, img_mask, dt, tau, cam4, rank_by, roi, fit=False):
