@@ -107,6 +107,23 @@ def test_tracker_rejects_unrectified_rigs():
         StereoTracker(StereoCamera(cam, cam, np.eye(3), np.array([-0.3, 0.05, 0.0])))
 
 
+def test_keypoint_budget_follows_the_target_area():
+    from jaxpose.geometry import Pose
+
+    def budget(depth, **kw):
+        pose = Pose(np.eye(3), np.array([0.0, 0.0, depth]))
+        return StereoTracker(RIG, pose, options=TrackerOptions(**kw))._feature_options().n_points
+
+    # the target's apparent area goes as 1/depth^2: 2000 keypoints at 2 m, 2000 * 4/9 at 3 m
+    assert budget(2.0) == 2000
+    assert budget(1.5) == 2000  # never above the budget
+    assert budget(3.0) == 900
+    assert budget(4.0) == 500
+    assert budget(3.0, points_ref_depth_m=None) == 2000
+    with pytest.raises(ValueError, match="points_ref_depth_m"):
+        StereoTracker(RIG, options=TrackerOptions(points_ref_depth_m=0.0))
+
+
 def test_stereo_track_command_json(tmp_path, capsys):
     from jaxpose.cli import main
 
