@@ -4,9 +4,12 @@ from jaxpose.cli import main
 
 
 def test_demo_runs_and_writes_its_figures(tmp_path, capsys):
-    assert main(["demo", "--cases", "4", "--out", str(tmp_path)]) == 0
+    assert main(["demo", "--cases", "4", "--stereo-frames", "6", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "1. DOP and feature selection" in out and "2. Monocular pose initialisation" in out
+    assert "3. Stereo point-line tracking" in out and "lost frames: 0" in out
+    assert (tmp_path / "stereo" / "fig5_attitude.png").stat().st_size > 10_000
+    assert len((tmp_path / "stereo" / "trajectory.csv").read_text().splitlines()) == 7
     assert (tmp_path / "selection" / "fig6_ratio_histograms.png").stat().st_size > 10_000
     assert (tmp_path / "monocular" / "monocular_overlay.png").stat().st_size > 10_000
     assert (tmp_path / "report.txt").read_text().startswith("jaxpose demo")
