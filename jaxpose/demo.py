@@ -126,13 +126,13 @@ def _stereo(out: Path, frames: int, seed: int) -> list[str]:
 
 
 def run(args) -> int:
+    if args.stereo_frames < 0 or args.stereo_frames == 1:  # before a minute of other sections
+        raise ValueError(f"--stereo-frames must be 0 or at least 2; got {args.stereo_frames}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     report = ["jaxpose demo", ""]
     report += _selection(out, args.cases, args.seed)
     report += [""] + _monocular(out)
-    if args.stereo_frames < 0 or args.stereo_frames == 1:
-        raise ValueError(f"--stereo-frames must be 0 or at least 2; got {args.stereo_frames}")
     if args.stereo_frames:
         report += [""] + _stereo(out, args.stereo_frames, args.seed)
     text = "\n".join(report)

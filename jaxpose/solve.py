@@ -315,6 +315,8 @@ def solve_pnp(
             points, collinear or otherwise degenerate points, points behind the camera, ...).
     """
     _check_options(method, refine, robust)
+    if workers is not None and (not isinstance(workers, int | np.integer) or workers < 1):
+        raise ValueError(f"workers must be a positive integer or None; got {workers!r}")
     batch, n = _batch_shape(points_body, pixels, mask)
     if method == "ransac" and n < 6:
         raise ValueError(f"method='ransac' draws 6-point samples; got n = {n}")
@@ -352,7 +354,7 @@ def solve_pnp(
         res = _solve_fused(points_body, pixels, mask, keys, intrinsics, cfg=cfg, two=two)
     else:
         devices = jax.local_device_count() if size >= 2 * jax.local_device_count() else 1
-        parts = _thread_parts(size, cfg.chunk, devices, workers)
+        parts = _thread_parts(size, devices, workers)
         args = _pad((points_body, pixels, mask, keys), size, devices * parts)
         if parts == 1:
             res = _solve_eager(args, intrinsics, cfg, two, devices, size)
@@ -412,15 +414,13 @@ def _cpu_cores() -> int:
         return os.cpu_count() or 1
 
 
-def _thread_parts(size: int, chunk: int, devices: int, workers: int | None) -> int:
+def _thread_parts(size: int, devices: int, workers: int | None) -> int:
     """How many host threads share a batch. XLA runs one execution of these solvers on about one
     CPU core, so a large batch on a single CPU device is cut into equal parts solved by
     concurrent executions of the same compiled function (measured in ``bench/pnp.py``: 1.6x at
     B = 10 000 on 2 cores). Not used on accelerators, nor with several devices (``shard_map``
     already splits the batch)."""
     if workers is not None:
-        if int(workers) < 1:
-            raise ValueError(f"workers must be a positive integer or None; got {workers!r}")
         return max(1, min(int(workers), size))
     if devices > 1 or jax.default_backend() != "cpu":
         return 1
@@ -428,15 +428,17 @@ def _thread_parts(size: int, chunk: int, devices: int, workers: int | None) -> i
 
 
 _POOL: concurrent.futures.ThreadPoolExecutor | None = None
+_POOL_SIZE = 0
 _POOL_LOCK = threading.Lock()
 
 
 def _in_threads(fn, pieces: list) -> list:
     """``[fn(p) for p in pieces]`` on a shared thread pool, each result ready. (JAX compiles a
     function once when several threads call it first at the same time.)"""
-    global _POOL
+    global _POOL, _POOL_SIZE
     with _POOL_LOCK:
-        if _POOL is None or _POOL._max_workers < len(pieces):
+        if _POOL_SIZE < len(pieces):
+            _POOL_SIZE = len(pieces)
             _POOL = concurrent.futures.ThreadPoolExecutor(
                 max_workers=len(pieces), thread_name_prefix="jaxpose-solve"
             )

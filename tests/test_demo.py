@@ -13,3 +13,9 @@ def test_demo_runs_and_writes_its_figures(tmp_path, capsys):
     assert (tmp_path / "selection" / "fig6_ratio_histograms.png").stat().st_size > 10_000
     assert (tmp_path / "monocular" / "monocular_overlay.png").stat().st_size > 10_000
     assert (tmp_path / "report.txt").read_text().startswith("jaxpose demo")
+
+
+def test_demo_rejects_a_bad_frame_count_before_running(tmp_path, capsys):
+    assert main(["demo", "--stereo-frames", "1", "--out", str(tmp_path)]) == 2
+    assert "--stereo-frames" in capsys.readouterr().err
+    assert not (tmp_path / "selection").exists()  # nothing ran
