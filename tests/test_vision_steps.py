@@ -13,7 +13,7 @@ from jaxpose.vision.features import DetectionOptions, detect, to_gray
 from jaxpose.vision.lsd import lsd_segments
 from jaxpose.vision.merge import merge_streams, merge_truncated, remove_duplicates
 from jaxpose.vision.render import project_points, render
-from jaxpose.vision.roi import roi_diagonal, roi_from_gradient
+from jaxpose.vision.roi import roi_diagonal, roi_from_gradient, roi_from_silhouette
 from jaxpose.vision.synthesis import synthesize
 from jaxpose.vision.undistort import undistort_image
 from jaxpose.vision.wge import prewitt_magnitude, weak_gradient_elimination
@@ -76,6 +76,36 @@ def test_roi_quantiles():
     assert u0 == pytest.approx(52, abs=1) and u1 == pytest.approx(147, abs=1)
     assert v0 == pytest.approx(21, abs=1) and v1 == pytest.approx(58, abs=1)
     assert roi_diagonal([0, 0, 3, 4]) == 5.0
+
+
+def _dark_scene(rng, level=30.0, noise=4.0):
+    return level + noise * rng.standard_normal((600, 800))
+
+
+def test_roi_silhouette_includes_faint_faces(rng):
+    img = _dark_scene(rng)
+    img[300:400, 200:300] = 200.0  # the lit face
+    img[300:400, 300:420] += 6.0  # a face in shadow: 6 grey levels over the background
+    img[250:300, 200:420] -= 8.0  # a black panel hiding a faint background glow
+    box = roi_from_silhouette(np.clip(img, 0, 255).astype(np.uint8))
+    f = 600 // 150  # the shrink factor
+    np.testing.assert_allclose(box, [200, 250, 420, 400], atol=2 * f)
+    # The gradient ROI of the same image sees the lit face's edges only.
+    gy, gx = np.gradient(img)
+    g = np.hypot(gx, gy)
+    assert roi_diagonal(roi_from_gradient(np.where(g > 60, g, 0))) < 0.75 * roi_diagonal(box)
+
+
+def test_roi_silhouette_declines_without_a_clean_dark_background(rng):
+    img = _dark_scene(rng)
+    vv, uu = np.mgrid[:600, :800]
+    img[(uu - 900.0) ** 2 + (vv - 800.0) ** 2 < 600.0**2] = 150.0  # an Earth disc in a corner
+    img[100:160, 100:180] = 200.0  # a small target: less than half the foreground
+    assert roi_from_silhouette(np.clip(img, 0, 255).astype(np.uint8)) is None
+    assert roi_from_silhouette(np.zeros((600, 800), np.uint8)) is None
+    assert roi_from_silhouette(np.full((600, 800), 255, np.uint8)) is None
+    with pytest.raises(ValueError, match="grayscale"):
+        roi_from_silhouette(np.zeros((60, 80, 3), np.uint8))
 
 
 def test_coarse_position_eqs_6_to_9(camera):
@@ -150,7 +180,7 @@ def test_detect_bad_images(camera):
         camera,
         m.characteristic_length,
     )
-    assert noise.roi is None or len(noise.segments) >= 0
+    assert noise.roi_silhouette is None  # uniform noise has no silhouette
     with pytest.raises(ValueError, match="too small"):
         detect(np.zeros((8, 8), np.uint8), camera, 1.0)
     with pytest.raises(ValueError, match="image must be"):

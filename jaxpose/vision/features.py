@@ -14,7 +14,7 @@ from .coarse import coarse_position
 from .hough import sobel_hough, wge_hough
 from .lsd import lsd_segments
 from .merge import antenna_candidates, merge_streams, merge_truncated
-from .roi import roi_diagonal, roi_from_gradient, roi_from_segments
+from .roi import roi_diagonal, roi_from_gradient, roi_from_segments, roi_from_silhouette
 from .synthesis import FeatureGroups, synthesize
 from .undistort import undistort_image
 from .wge import weak_gradient_elimination
@@ -42,6 +42,13 @@ class DetectionOptions:
     an Earth background the gradient ROI was 1.6-6.6 times the projected model and the box mostly
     within 10% of it; against black space the bright share was at most 0.007, over the Earth at
     least 0.18.
+
+    ``silhouette_roi``: against a dark background the ROI is the box of the target's silhouette
+    (:func:`roi_from_silhouette`), faces turned away from the light included, instead of the
+    gradient ROI, which sees only the lit edges (on the SPEED+ lightbox photographs the gradient
+    ROI's diagonal was 55-79% of the projected model's, the silhouette's 83-99%). When no clean
+    silhouette is found (an Earth or other structured background) the gradient and cluster ROIs
+    are used as before.
     """
 
     detector: str = "hough"
@@ -61,6 +68,7 @@ class DetectionOptions:
     cluster_scale: float = 3.0
     cluster_background_share: float = 0.05
     cluster_max_ratio: float = 8.0
+    silhouette_roi: bool = True
 
 
 @dataclass
@@ -71,6 +79,7 @@ class Detection:
     roi: np.ndarray | None
     coarse_t_cam: np.ndarray | None
     roi_gradient: np.ndarray | None = None  # the paper's ROI (CDF of the WGE gradient)
+    roi_silhouette: np.ndarray | None = None  # the silhouette box against a dark background
     segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
     from_wge: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     antennas: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
@@ -160,7 +169,10 @@ def detect(
         return det
     det.roi = det.roi_gradient = roi
     t0 = time.perf_counter()
-    if options.cluster_roi:
+    sil = roi_from_silhouette(und) if options.silhouette_roi else None
+    if sil is not None and roi_diagonal(sil) >= options.min_roi_px:
+        det.roi = det.roi_silhouette = roi = sil
+    elif options.cluster_roi:
         # Hough lengths and gaps scaled for a target `cluster_scale` times smaller than the
         # gradient ROI: an Earth background inflates the ROI, and the target's edges must not be
         # too short for the streams scaled by it.
