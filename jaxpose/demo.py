@@ -46,22 +46,22 @@ def _selection(out: Path, cases: int, seed: int) -> list[str]:
     paths = write_outputs(result, out / "selection")
     lines = [
         "1. DOP and feature selection (Ning et al. 2018): quasi-optimal vs exhaustive optimum",
-        f"   scenario: 1 m plane at {Scenario().range_m:g} m, attitude {Scenario().attitude_deg} deg, "
-        f"{cases} cases per group",
+        f"   scenario: 1 m plane at {Scenario().range_m:g} m, "
+        f"attitude {Scenario().attitude_deg} deg, {cases} cases per group",
         "      n  m  mean PDOP ratio  max   mean ADOP ratio  max   time per case: optimal  quasi",
     ]
     for g in result.results["groups"]:
+        pdop, adop, tm = g["pdop_ratio"], g["adop_ratio"], g["time_s"]
         lines.append(
-            f"     {g['n']:2d} {g['m']:2d}      {g['pdop_ratio']['mean']:.4f}     {g['pdop_ratio']['max']:.3f}"
-            f"      {g['adop_ratio']['mean']:.4f}     {g['adop_ratio']['max']:.3f}"
-            f"        {g['time_s']['optimal_per_case'] * 1e3:8.3f} ms {g['time_s']['quasi_per_case'] * 1e6:6.1f} us"
+            f"     {g['n']:2d} {g['m']:2d}      {pdop['mean']:.4f}     {pdop['max']:.3f}"
+            f"      {adop['mean']:.4f}     {adop['max']:.3f}"
+            f"        {tm['optimal_per_case'] * 1e3:8.3f} ms {tm['quasi_per_case'] * 1e6:6.1f} us"
         )
     lines.append(
         "   (times batched over the cases; bench/selection.py measures the speed-ups properly)"
     )
-    lines.append(
-        f"   figures: {', '.join(p.name for p in paths if p.suffix == '.png')} in {out / 'selection'}"
-    )
+    pngs = ", ".join(p.name for p in paths if p.suffix == ".png")
+    lines.append(f"   figures: {pngs} in {out / 'selection'}")
     lines.append(f"   ({time.perf_counter() - t0:.1f} s including compilation)")
     return lines
 
@@ -82,19 +82,21 @@ def _monocular(out: Path) -> list[str]:
         )
     if "translation_error_m" in r:
         lines.append(
-            f"   pose error: {r['translation_error_m'] * 100:.1f} cm, {r['rotation_error_deg']:.2f} deg; "
+            f"   pose error: {r['translation_error_m'] * 100:.1f} cm, "
+            f"{r['rotation_error_deg']:.2f} deg; "
             f"success: {r['success']}; ESA score {r['esa_score']:.4f}"
         )
     lines.append(f"   overlay: {r['overlay']}")
     lines.append(
-        f"   ({time.perf_counter() - t0:.1f} s including compilation; pipeline {r['runtime_s']:.2f} s)"
+        f"   ({time.perf_counter() - t0:.1f} s including compilation; "
+        f"pipeline {r['runtime_s']:.2f} s)"
     )
     return lines
 
 
 def _stereo(out: Path, frames: int, seed: int) -> list[str]:
     from .pipelines.stereo import TrackerOptions
-    from .studies.stereo_track import _figures, _write_csv, summarize, track_sequence
+    from .studies.stereo_track import summarize, track_sequence, write_outputs
     from .vision.stereo_render import StereoScene, default_rig, render_sequence
 
     t0 = time.perf_counter()
@@ -105,9 +107,7 @@ def _stereo(out: Path, frames: int, seed: int) -> list[str]:
     )
     report = summarize(results, truths, seconds)
     folder = out / "stereo"
-    folder.mkdir(parents=True, exist_ok=True)
-    _write_csv(report["rows"], folder / "trajectory.csv")
-    _figures(report["rows"], folder, 1.0 / scene.frame_rate_hz, "points+lines")
+    write_outputs(report, folder, 1.0 / scene.frame_rate_hz, "points+lines")
     s = report["summary"]
     turn = scene.rate_deg_s * (frames - 1) / scene.frame_rate_hz
     return [

@@ -15,6 +15,7 @@ from jaxpose.pipelines.monocular import (
     _chamfer_fit,
     _distance_map,
     _distinct,
+    _EdgeScene,
     _ideal_params,
     _image_samples,
     _model_geometry,
@@ -47,33 +48,33 @@ def _scene():
     pts, mask = _image_samples(segs)
     dt = jnp.asarray(_distance_map(segs, (600, 800)))
     l_roi = float(np.linalg.norm(segs.reshape(-1, 2).max(0) - segs.reshape(-1, 2).min(0)))
-    return model, cam, true, geom, pts, mask, dt, 0.05 * l_roi, _ideal_params(cam)
+    return true, _EdgeScene(geom, pts, mask, dt, 0.05 * l_roi, _ideal_params(cam))
 
 
 def test_chamfer_fit_recovers_a_perturbed_pose():
-    _, _, true, geom, pts, mask, dt, tau, cam4 = _scene()
+    true, sc = _scene()
     R0 = so3_exp(jnp.asarray([0.03, -0.04, 0.02])) @ true.R  # about 3 deg off
     t0 = true.t + jnp.asarray([0.04, -0.03, 0.15])
     assert _angle_deg(R0, true.R) > 2.5
-    R, t = _chamfer_fit(R0, t0, geom, pts, mask, dt, tau, cam4, steps=12)
+    R, t = _chamfer_fit(R0, t0, sc, steps=12)
     # a cheap fit for ranking, not the final refinement: it must close most of the gap (the
     # points-and-lines refinement after it does the rest)
     assert _angle_deg(R, true.R) < 0.5 * _angle_deg(R0, true.R)
     assert float(jnp.linalg.norm(t - true.t)) < 0.05
-    s0, _ = _chamfer(R0, t0, geom, pts, mask, dt, tau, cam4)
-    s1, _ = _chamfer(R, t, geom, pts, mask, dt, tau, cam4)
-    s_true, _ = _chamfer(true.R, true.t, geom, pts, mask, dt, tau, cam4)
+    s0, _ = _chamfer(R0, t0, sc)
+    s1, _ = _chamfer(R, t, sc)
+    s_true, _ = _chamfer(true.R, true.t, sc)
     assert float(s1) < 0.3 * float(s0)
     assert float(s1) < 1.5 * float(s_true)
 
 
 def test_chamfer_fit_never_worsens_a_wrong_hypothesis():
-    _, _, true, geom, pts, mask, dt, tau, cam4 = _scene()
+    true, sc = _scene()
     R0 = so3_exp(jnp.asarray([0.0, np.pi, 0.0])) @ true.R  # turned half a turn
     t0 = true.t + jnp.asarray([0.3, 0.0, 1.0])
-    R, t = _chamfer_fit(R0, t0, geom, pts, mask, dt, tau, cam4)
-    s0, _ = _chamfer(R0, t0, geom, pts, mask, dt, tau, cam4)
-    s1, _ = _chamfer(R, t, geom, pts, mask, dt, tau, cam4)
+    R, t = _chamfer_fit(R0, t0, sc)
+    s0, _ = _chamfer(R0, t0, sc)
+    s1, _ = _chamfer(R, t, sc)
     assert float(s1) <= float(s0) + 1e-9
     assert np.all(np.isfinite(np.asarray(R))) and np.all(np.isfinite(np.asarray(t)))
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import functools
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import jax
@@ -164,6 +165,22 @@ def load_image(path) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- JAX kernels
+class _EdgeScene(NamedTuple):
+    """What every pose score of one image shares (a pytree: ``vmap`` with ``in_axes=None``).
+
+    ``geom``: :func:`_model_geometry` of the model; ``img_pts (N, 2)``, ``img_mask (N,)``: samples
+    of the detected segments (:func:`_image_samples`); ``dt (H, W)``: distance map of the detected
+    segments (pixels); ``tau``: truncation of the chamfer distances (pixels, ``0.05 l_ROI``);
+    ``cam4``: ``[fx, fy, cx, cy]`` of the undistorted image."""
+
+    geom: tuple
+    img_pts: jax.Array
+    img_mask: jax.Array
+    dt: jax.Array
+    tau: float
+    cam4: jax.Array
+
+
 def _ideal_params(camera: PinholeCamera):
     return jnp.asarray([float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy)])
 
@@ -198,10 +215,11 @@ def _visible_edges(R, t, geom):
     return jnp.where(has_face, jnp.any(edge_faces & front[None], axis=1), True)
 
 
-def _quick_score(R, t, geom, dt, tau, cam4, roi):
+def _quick_score(R, t, sc: _EdgeScene, roi):
     """Cheap ranking score of many hypotheses: the model side of :func:`_chamfer` plus a penalty
     when the projected model's box does not match the ROI in size (a small, far-away projection
     otherwise fits any dense patch of edges)."""
+    geom, dt, tau, cam4 = sc.geom, sc.dt, sc.tau, sc.cam4
     edges, samples, edge_faces, normals, centres = geom
     vis = _visible_edges(R, t, geom)
     pc = samples @ R.T + t
@@ -221,13 +239,14 @@ def _quick_score(R, t, geom, dt, tau, cam4, roi):
     return model_term + tau * size
 
 
-def _chamfer(R, t, geom, img_pts, img_mask, dt, tau, cam4):
+def _chamfer(R, t, sc: _EdgeScene):
     """Symmetric truncated chamfer distance (pixels) of the model at ``(R, t)``.
 
     Model side: samples of front-facing edges looked up in the distance transform of the detected
     segments. Image side: samples of the detected segments to the nearest projected edge.
     Returns ``(score, share of model samples within tau / 4 of a detected segment)``.
     """
+    geom, img_pts, img_mask, dt, tau, cam4 = sc
     edges, samples, edge_faces, normals, centres = geom
     vis = _visible_edges(R, t, geom)
     pc = samples @ R.T + t  # (E, S, 3)
@@ -271,12 +290,13 @@ def _bilinear(img, uv):
     )
 
 
-def _chamfer_residuals(R, t, vis, geom, img_pts, img_mask, dt, tau, cam4, nearest=None):
+def _chamfer_residuals(R, t, vis, sc: _EdgeScene, nearest=None):
     """Residuals of the two-sided truncated chamfer distance (pixels, each side weighted by one
     over the square root of its count so that the squared sum is the sum of the two mean squares):
     model samples to the nearest detected segment (bilinear distance map) and detected samples to
     the nearest projected model edge (or the edge ``nearest`` of each, fixed as in ICP: far cheaper
     to differentiate). Truncation at ``tau`` makes far points constant (no pull)."""
+    geom, img_pts, img_mask, dt, tau, cam4 = sc
     edges, samples, _, _, _ = geom
     pc = samples @ R.T + t
     pix = _project(pc, cam4)
@@ -304,7 +324,7 @@ def _chamfer_residuals(R, t, vis, geom, img_pts, img_mask, dt, tau, cam4, neares
     return jnp.concatenate([dm / jnp.sqrt(nm), di / jnp.sqrt(ni)])
 
 
-def _chamfer_fit(R0, t0, geom, img_pts, img_mask, dt, tau, cam4, steps=8):
+def _chamfer_fit(R0, t0, sc: _EdgeScene, steps=8):
     """Cheap local fit of a hypothesis to the edges: Levenberg-Marquardt steps on the two-sided
     truncated chamfer residuals (:func:`_chamfer_residuals`), rotating about the model's centre.
 
@@ -314,6 +334,7 @@ def _chamfer_fit(R0, t0, geom, img_pts, img_mask, dt, tau, cam4, steps=8):
     at every step. Returns the fitted ``(R, t)``."""
     from ..geometry import so3_exp
 
+    geom, img_pts, cam4 = sc.geom, sc.img_pts, sc.cam4
     centre = jnp.mean(geom[1].reshape(-1, 3), axis=0)
 
     def apply(R, t, x):
@@ -322,7 +343,7 @@ def _chamfer_fit(R0, t0, geom, img_pts, img_mask, dt, tau, cam4, steps=8):
         return E @ R, E @ (t - c) + c + x[3:]
 
     def cost_at(R, t, vis):
-        r = _chamfer_residuals(R, t, vis, geom, img_pts, img_mask, dt, tau, cam4)
+        r = _chamfer_residuals(R, t, vis, sc)
         return jnp.sum(r * r)
 
     def body(_, state):
@@ -334,9 +355,7 @@ def _chamfer_fit(R0, t0, geom, img_pts, img_mask, dt, tau, cam4, steps=8):
 
         def res(x):
             Rx, tx = apply(R, t, x)
-            return _chamfer_residuals(
-                Rx, tx, vis, geom, img_pts, img_mask, dt, tau, cam4, nearest=nearest
-            )
+            return _chamfer_residuals(Rx, tx, vis, sc, nearest=nearest)
 
         x0 = jnp.zeros(6, R.dtype)
         r = res(x0)
@@ -360,7 +379,7 @@ def _chamfer_fit(R0, t0, geom, img_pts, img_mask, dt, tau, cam4, steps=8):
 
 @functools.lru_cache(maxsize=4)
 def _batched_fit():
-    return jax.jit(jax.vmap(_chamfer_fit, in_axes=(0, 0, None, None, None, None, None, None)))
+    return jax.jit(jax.vmap(_chamfer_fit, in_axes=(0, 0, None)))
 
 
 @functools.lru_cache(maxsize=4)
@@ -372,12 +391,12 @@ def _batched_epnp():
 
 @functools.lru_cache(maxsize=4)
 def _batched_quick():
-    return jax.jit(jax.vmap(_quick_score, in_axes=(0, 0, None, None, None, None, None)))
+    return jax.jit(jax.vmap(_quick_score, in_axes=(0, 0, None, None)))
 
 
 @functools.lru_cache(maxsize=4)
 def _batched_chamfer():
-    return jax.jit(jax.vmap(_chamfer, in_axes=(0, 0, None, None, None, None, None, None)))
+    return jax.jit(jax.vmap(_chamfer, in_axes=(0, 0, None)))
 
 
 @functools.lru_cache(maxsize=4)
@@ -417,7 +436,7 @@ _CHUNK = 512  # hypotheses per compiled call (one compilation serves every image
 _SHORTLIST = 128  # hypotheses fitted and scored by the full symmetric chamfer distance
 
 
-def _solve_and_score(P, Q, M, cam, geom, img_pts, img_mask, dt, tau, cam4, rank_by, roi, fit=False):
+def _solve_and_score(P, Q, M, cam, sc: _EdgeScene, rank_by, roi, fit=False):
     """EPnP of every hypothesis (``jax.vmap(epnp)``, fixed-size chunks) and its ranking key.
 
     ``chamfer``: a quick model-side score ranks all hypotheses, the best ``_SHORTLIST`` get the
@@ -432,7 +451,7 @@ def _solve_and_score(P, Q, M, cam, geom, img_pts, img_mask, dt, tau, cam4, rank_
         if rank_by == "e2d":
             k = res.reprojection_error
         else:
-            k = _batched_quick()(res.pose.R, res.pose.t, geom, dt, tau, cam4, jnp.asarray(roi))
+            k = _batched_quick()(res.pose.R, res.pose.t, sc, jnp.asarray(roi))
         Rs.append(np.asarray(res.pose.R)[: b - a])
         ts.append(np.asarray(res.pose.t)[: b - a])
         ok.append(np.asarray(res.status)[: b - a] == 0)
@@ -447,19 +466,10 @@ def _solve_and_score(P, Q, M, cam, geom, img_pts, img_mask, dt, tau, cam4, rank_
             pad = np.concatenate([short, np.repeat(short[:1], _SHORTLIST - len(short))])
             Rs_, ts_ = jnp.asarray(R_all[pad]), jnp.asarray(t_all[pad])
             if fit:
-                Rs_, ts_ = _batched_fit()(Rs_, ts_, geom, img_pts, img_mask, dt, tau, cam4)
+                Rs_, ts_ = _batched_fit()(Rs_, ts_, sc)
                 R_all[short] = np.asarray(Rs_)[: len(short)]
                 t_all[short] = np.asarray(ts_)[: len(short)]
-            full, _ = _batched_chamfer()(
-                Rs_,
-                ts_,
-                geom,
-                img_pts,
-                img_mask,
-                dt,
-                tau,
-                cam4,
-            )
+            full, _ = _batched_chamfer()(Rs_, ts_, sc)
             new = np.full(n, np.inf)
             new[short] = np.asarray(full)[: len(short)]
             key = new
@@ -634,14 +644,15 @@ def initialise_pose(
     H, W = det.image.shape
     t1 = time.perf_counter()
     dt = jnp.asarray(_distance_map(det.segments, (H, W)))
+    sc = _EdgeScene(geom, img_pts, img_mask, dt, tau, cam4)
     timings["distance_map_s"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
     if options.method == "ransac":
-        cand = _ransac_candidates(det, model, options, cam, geom, img_pts, img_mask, dt, tau, cam4)
+        cand = _ransac_candidates(det, model, options, cam, sc)
         kind_used = "ransac"
     else:
-        cand = _svd_candidates(det, model, options, cam, geom, img_pts, img_mask, dt, tau, cam4)
+        cand = _svd_candidates(det, model, options, cam, sc)
         kind_used = cand[-1] if cand is not None else None
     timings["hypotheses_epnp_s"] = time.perf_counter() - t1
     if cand is None:
@@ -653,7 +664,7 @@ def initialise_pose(
     poses = _rematch_refine(poses, det, model, cam, l_roi, options.rematch_rounds)
     timings["refine_rematch_s"] = time.perf_counter() - t1
     t1 = time.perf_counter()
-    score = _score_poses(poses, geom, img_pts, img_mask, dt, tau, cam4)
+    score = _score_poses(poses, sc)
     t = np.stack([np.asarray(p.t) for p in poses])
     good = np.isfinite(score) & (t[:, 2] > 0)
     if not good.any():
@@ -697,7 +708,7 @@ def initialise_pose(
     )
 
 
-def _score_poses(poses, geom, img_pts, img_mask, dt, tau, cam4) -> np.ndarray:
+def _score_poses(poses, sc: _EdgeScene) -> np.ndarray:
     """Symmetric chamfer distance of each pose (batches of ``_MAX_CANDIDATES``); ``inf`` when not
     finite or behind the camera."""
     out = []
@@ -705,14 +716,14 @@ def _score_poses(poses, geom, img_pts, img_mask, dt, tau, cam4) -> np.ndarray:
         chunk = poses[a : a + _MAX_CANDIDATES]
         R = _pad_to(jnp.stack([p.R for p in chunk]), _MAX_CANDIDATES)
         t = _pad_to(jnp.stack([p.t for p in chunk]), _MAX_CANDIDATES)
-        sc, _ = _batched_chamfer()(R, t, geom, img_pts, img_mask, dt, tau, cam4)
-        out.append(np.asarray(sc)[: len(chunk)])
+        score, _ = _batched_chamfer()(R, t, sc)
+        out.append(np.asarray(score)[: len(chunk)])
     score = np.concatenate(out)
     z = np.array([float(p.t[2]) for p in poses])
     return np.where(np.isfinite(score) & (z > 0), score, np.inf)
 
 
-def _svd_candidates(det, model, opts, cam, geom, img_pts, img_mask, dt, tau, cam4):
+def _svd_candidates(det, model, opts, cam, sc: _EdgeScene):
     hyp = _hypotheses(det, model, opts)
     if hyp is None:
         return None
@@ -723,12 +734,7 @@ def _svd_candidates(det, model, opts, cam, geom, img_pts, img_mask, dt, tau, cam
         Q,
         M,
         cam,
-        geom,
-        img_pts,
-        img_mask,
-        dt,
-        tau,
-        cam4,
+        sc,
         opts.rank_by,
         det.roi,
         fit=opts.shortlist_fit and opts.rank_by == "chamfer",
@@ -787,7 +793,7 @@ def _distinct(R, t, order, k, angle_deg=5.0, rel_dist=0.05):
     return np.asarray(picked, dtype=np.int64)
 
 
-def _ransac_candidates(det, model, opts, cam, geom, img_pts, img_mask, dt, tau, cam4):
+def _ransac_candidates(det, model, opts, cam, sc: _EdgeScene):
     """Test 4 baseline: 3 image segments and 3 model edges at random (random endpoint order),
     EPnP of the 6 endpoint pairs, score by the chamfer distance; the best ``top_k`` go on."""
     segs = det.segments
@@ -808,9 +814,7 @@ def _ransac_candidates(det, model, opts, cam, geom, img_pts, img_mask, dt, tau, 
     P = p.reshape(k, 6, 3)
     Q = q.reshape(k, 6, 2)
     M = np.ones((k, 6), bool)
-    R_all, t_all, ok, key = _solve_and_score(
-        P, Q, M, cam, geom, img_pts, img_mask, dt, tau, cam4, "chamfer", det.roi
-    )
+    R_all, t_all, ok, key = _solve_and_score(P, Q, M, cam, sc, "chamfer", det.roi)
     order = np.argsort(key, kind="stable")[: opts.top_k]
     order = order[np.isfinite(key[order])]
     if not len(order):

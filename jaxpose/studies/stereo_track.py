@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["add_arguments", "run", "track_sequence", "summarize"]
+__all__ = ["add_arguments", "run", "track_sequence", "summarize", "write_outputs"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -159,6 +159,18 @@ def summarize(results, truths, seconds) -> dict:
         "fps": round((len(seconds) - 1) / total, 2) if total > 0 else float("nan"),
     }
     return {"summary": summary, "rows": rows}
+
+
+def write_outputs(report: dict, out, dt: float, title: str, *, figures: bool = True) -> None:
+    """Write a :func:`summarize` report to the folder ``out``: ``trajectory.csv`` (one row a
+    frame) and, with ``figures``, the paper's Figs. 3-5 (``fig3_position_track.png``,
+    ``fig4_position.png``, ``fig5_attitude.png``); ``dt`` is the frame interval in seconds,
+    ``title`` names the mode in the figures."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_csv(report["rows"], out / "trajectory.csv")
+    if figures:
+        _figures(report["rows"], out, dt, title)
 
 
 def _write_csv(rows, path: Path) -> None:
@@ -319,7 +331,8 @@ def run(args: argparse.Namespace) -> int:
             frames, rig, use_lines=use_lines, initial_pose=initial, options=opts, progress=bar
         )
     report = summarize(results, truths, seconds)
-    _write_csv(report["rows"], out / "trajectory.csv")
+    mode = "points+lines" if use_lines else "points only"
+    write_outputs(report, out, dt, mode, figures=not args.no_figures)
     stage = {
         k: float(np.mean([r.timings.get(k, 0.0) for r in results[1:]])) for k in results[0].timings
     }
@@ -333,8 +346,6 @@ def run(args: argparse.Namespace) -> int:
             indent=1,
         )
     )
-    if not args.no_figures:
-        _figures(report["rows"], out, dt, "points+lines" if use_lines else "points only")
     s = report["summary"]
     if args.json:
         print(json.dumps(s))
