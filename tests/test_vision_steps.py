@@ -96,12 +96,22 @@ def test_roi_silhouette_includes_faint_faces(rng):
     assert roi_diagonal(roi_from_gradient(np.where(g > 60, g, 0))) < 0.75 * roi_diagonal(box)
 
 
+def ndimage_blur(x, sigma):
+    import cv2
+
+    return cv2.GaussianBlur(x, (0, 0), sigma)
+
+
 def test_roi_silhouette_declines_without_a_clean_dark_background(rng):
     img = _dark_scene(rng)
     vv, uu = np.mgrid[:600, :800]
     img[(uu - 900.0) ** 2 + (vv - 800.0) ** 2 < 600.0**2] = 150.0  # an Earth disc in a corner
     img[100:160, 100:180] = 200.0  # a small target: less than half the foreground
     assert roi_from_silhouette(np.clip(img, 0, 255).astype(np.uint8)) is None
+    clouds = 60.0 + 400.0 * ndimage_blur(rng.standard_normal((600, 800)), 12.0)
+    clouds[250:350, 300:450] = 200.0  # the target
+    clouds[330:450, 430:600] = 150.0  # a bright cloud touching it: its silhouette would merge
+    assert roi_from_silhouette(np.clip(clouds, 0, 255).astype(np.uint8)) is None
     assert roi_from_silhouette(np.zeros((600, 800), np.uint8)) is None
     assert roi_from_silhouette(np.full((600, 800), 255, np.uint8)) is None
     with pytest.raises(ValueError, match="grayscale"):
