@@ -1,6 +1,12 @@
-"""Region of interest from the WGE-filtered gradient (Sharma et al. 2018 Sec. III.A.1, Fig. 5):
-along each image axis, the positions where the CDF of the filtered gradient reaches 0.025 and
-0.975."""
+"""Regions of interest of the target.
+
+- :func:`roi_from_gradient`: the paper's (Sharma et al. 2018 Sec. III.A.1, Fig. 5): along each
+  image axis, the positions where the CDF of the WGE-filtered gradient reaches 0.025 and 0.975.
+- :func:`roi_from_segments`: over an Earth background, the box of the largest cluster of line
+  segments meeting at corners.
+- :func:`roi_from_silhouette`: against black space, the box of the target's silhouette, faces in
+  shadow included.
+"""
 
 from __future__ import annotations
 
