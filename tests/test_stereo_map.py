@@ -130,3 +130,29 @@ def test_closed_form_rectified_triangulation_equals_the_rig():
     )
     bad = _triangulate_rectified(rig, left[:1], left[:1] + [1.0, 0.0])  # negative disparity
     assert np.isnan(bad).all()
+
+
+def test_observe_lines_intersects_the_planes_and_moves_endpoints_across_the_line():
+    # a body-frame line through P0 along u; planes through four camera centres and the line
+    rng = np.random.default_rng(1)
+    P0, u = np.array([0.1, -0.2, 0.3]), np.array([0.6, 0.3, -0.74])
+    u /= np.linalg.norm(u)
+    m = LandmarkMap()
+    R, t = _look_at(np.array([0.0, 0.0, -2.0]))
+    # wrong initial endpoints: off the line by a perpendicular offset, at along-line 0.1 and 0.4
+    off = np.cross(u, [0.0, 0.0, 1.0])
+    off = 0.03 * off / np.linalg.norm(off)
+    start = np.stack([P0 + 0.1 * u + off, P0 + 0.4 * u - off])
+    (i,) = m.add("lines", start[None], np.zeros((1, 32), np.uint8), R, t, 0)
+    c0 = np.array([0.0, 0.0, -2.0])
+    n0 = np.cross(P0 - c0, u)
+    m.observe_lines([i], n0[None], [n0 @ c0])  # one plane: underdetermined, nothing moves
+    np.testing.assert_allclose(m.lines.X[i], start)
+    for c in ([1.0, 0.2, -1.7], [-0.5, 0.4, -1.9], [0.3, -0.8, -1.6]):
+        n = np.cross(P0 - np.asarray(c), u) * rng.uniform(0.5, 2.0)  # any scale
+        m.observe_lines([i], n[None], [n @ np.asarray(c)], [rng.uniform(0.5, 2.0)])
+    X = m.lines.X[i]
+    # on the line, and each endpoint kept its along-line position (moved perpendicularly)
+    for e, s in enumerate((0.1, 0.4)):
+        np.testing.assert_allclose(X[e], P0 + s * u + (start[e] - P0 - s * u) @ u * u, atol=1e-9)
+        np.testing.assert_allclose(np.cross(X[e] - P0, u), 0.0, atol=1e-9)

@@ -180,3 +180,48 @@ def test_tracker_with_windowed_bundle_adjustment(frames):
         assert angle < 1.0
         ran |= res.timings["ba"] > 0
     assert ran and len(tracker._ba_frames) == 4
+
+
+def test_line_gate_uses_the_landmark_disparity_at_the_endpoint_rows():
+    """The gate of the line-plane refinement: a segment triangulated at the landmark line agrees;
+    one whose depth gives 1.5 px more disparity at an endpoint does not (disparity fx b / Z of the
+    rig, computed here by hand)."""
+    tracker = StereoTracker(RIG, None)
+    fx, b = float(RIG.left.fx), float(RIG.baseline)
+    T = np.eye(4)  # body = left camera
+    line = np.array([[[-0.1, -0.2, 2.0], [0.05, 0.25, 2.3]]])
+    tracker.map.add("lines", line, np.zeros((1, 32), np.uint8), np.eye(3), np.zeros(3), 0)
+    # a shorter segment on the same 3-D line: agrees
+    s = 0.2
+    same = np.stack([line[0, 0] + s * (line[0, 1] - line[0, 0]), line[0, 1]])[None]
+    # far endpoint pushed along its ray to 1.5 px more disparity
+    Z = line[0, 1, 2]
+    Z_off = fx * b / (fx * b / Z + 1.5)
+    off = same.copy()
+    off[0, 1] *= Z_off / Z
+    # 0.5 px more: still agrees
+    near = same.copy()
+    near[0, 1] *= fx * b / (fx * b / Z + 0.5) / Z
+    idx = np.zeros(1, int)
+    assert tracker._line_disparity_agrees(idx, same, T).tolist() == [True]
+    assert tracker._line_disparity_agrees(idx, near, T).tolist() == [True]
+    assert tracker._line_disparity_agrees(idx, off, T).tolist() == [False]
+
+
+def test_measured_line_sigma_is_the_ratio_of_the_residual_scales():
+    """Point residuals: 2-D distances of Gaussian pixel noise sigma 0.8; line residuals: the larger
+    of two endpoint distances with sigma 0.4 (sampled here): the measured line weight is their
+    ratio, 0.5, within the sampling error; the running average moves towards it."""
+    rng = np.random.default_rng(3)
+    e_p = np.linalg.norm(rng.normal(0.0, 0.8, (20000, 2)), axis=1)
+    e_l = np.abs(rng.normal(0.0, 0.4, (20000, 2))).max(1)
+    tracker = StereoTracker(RIG, None, options=TrackerOptions(line_scale_memory=0.0))
+    tracker._update_line_scale(e_p, e_l)
+    assert tracker._line_scale == pytest.approx(0.5, rel=0.03)
+    slow = StereoTracker(RIG, None, options=TrackerOptions(line_scale_memory=0.9))
+    slow._update_line_scale(e_p, e_l)
+    assert slow._line_scale == pytest.approx(0.9 + 0.1 * 0.5, rel=0.01)
+    slow._update_line_scale(e_p, e_l[:2])  # too few lines: unchanged
+    assert slow._line_scale == pytest.approx(0.9 + 0.1 * 0.5, rel=0.01)
+    with pytest.raises(ValueError, match="line_scale_memory"):
+        StereoTracker(RIG, None, options=TrackerOptions(line_scale_memory=1.0))

@@ -15,10 +15,13 @@ Per stereo pair (rectified, see :mod:`jaxpose.vision.stereo_match`):
    is the target pose itself (body to left camera): nothing is chained from frame to frame;
 4. map update on keyframes (every ``keyframe_every`` tracked frames): the frame's features get
    stereo correspondences by epipolar ZNCC search (eqs. 4-5) and are triangulated with the rig
-   (:meth:`jaxpose.camera.StereoCamera.triangulate`); those matched to a landmark refine its
-   body-frame running mean, the others become new landmarks. When the target turns back to a
-   face seen before, the landmarks of that face are found again, so the error stays bounded
-   instead of accumulating as a chain of frame-to-keyframe increments does (the paper's scheme);
+   (:meth:`jaxpose.camera.StereoCamera.triangulate`); those matched to a landmark refine it
+   when their disparity agrees with it (a point: the least-squares intersection of all its
+   observation rays; a line: of all its observation planes), the others become new landmarks.
+   Lines are weighted by their measured residual scale relative to the points'. When the target
+   turns back to a face seen before, the landmarks of that face are found again, so the error
+   stays bounded instead of accumulating as a chain of frame-to-keyframe increments does (the
+   paper's scheme);
 5. an explicit :data:`~jaxpose.status.Status.LOST` (pose NaN) when too few features match, the
    solver fails, the fit error is large, or the step from the prediction is implausible; the
    tracker keeps the map and a constant-velocity prediction and tries again on the next frame
@@ -117,6 +120,20 @@ class TrackerOptions:
             ``n_points``), i.e. a constant keypoint density on the target. A far target seen
             with the full budget gets weak extra corners (clean 3 m: worse with 2000 than with
             1200 keypoints). ``None``: always ``n_points``.
+        line_planes: refine the line landmarks from all their observation planes (the planes
+            through each camera centre and the segment, body frame, of every stereo pair that
+            matched the landmark; :meth:`~jaxpose.pipelines.stereo_map.LandmarkMap.observe_lines`)
+            instead of keeping the first stereo triangulation. A matched segment's planes are
+            used only when its stereo triangulation agrees with the landmark line to
+            ``refine_disparity_px`` at both endpoints (the point rays' gate): a stereo or LBD
+            mismatch would otherwise tilt the line for good.
+        line_stereo_residuals: with ``stereo_residuals``, also fit the right-image lines of the
+            matched segments that have a stereo match (the landmark segment shifted by
+            ``R^T t_rl``, as the points), so that a line counts in both images as a point does.
+        measured_line_sigma: weight the lines by their measured noise: ``line_sigma_px`` is
+            scaled by the ratio of the line to the point residual scales (medians of the
+            residuals kept by the last pass), averaged over frames with weight
+            ``line_scale_memory`` on the past.
         ba_prior: weight of the landmarks' ray information (all their earlier observations) as
             a prior in the adjustment (0: the window's observations alone).
     """
@@ -156,6 +173,10 @@ class TrackerOptions:
     ba_prior: float = 1.0
     features: FeatureOptions = field(default_factory=lambda: FeatureOptions(n_points=2000))
     points_ref_depth_m: float | None = 2.0
+    line_planes: bool = True
+    line_stereo_residuals: bool = True
+    measured_line_sigma: bool = True
+    line_scale_memory: float = 0.9
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
 
 
@@ -288,6 +309,10 @@ class StereoTracker:
             raise ValueError(
                 f"points_ref_depth_m must be positive or None; got {options.points_ref_depth_m}"
             )
+        if not 0.0 <= options.line_scale_memory < 1.0:
+            raise ValueError(
+                f"line_scale_memory must be in [0, 1); got {options.line_scale_memory}"
+            )
         self.rig = rig
         self.options = options
         pose = Pose.identity() if initial_pose is None else initial_pose
@@ -311,6 +336,7 @@ class StereoTracker:
         fb = float(rig.left.fx) * float(rig.baseline)
         self._same_intrinsics = bool(np.allclose(np.asarray(rig.left.K), np.asarray(rig.right.K)))
         self._fb = fb
+        self._line_scale = 1.0  # running ratio of line to point residual scales (line_sigma)
 
     # ------------------------------------------------------------------ stages
     def _stereo(self, left, right, feats, timings):
@@ -391,8 +417,13 @@ class StereoTracker:
             if has_l.any():
                 idx = np.array([assoc_l[i] for i in il[has_l]])
                 self.map.refine("lines", idx, None, feats.line_desc[il[has_l]], R, t, k)
+                if o.line_planes:
+                    agree = self._line_disparity_agrees(idx, S[has_l], T)
+                    self._observe_lines(idx[agree], S[has_l][agree], T)
             new_l = ~has_l & ~np.isin(il, list(self._rejected_l))
-            self.map.add("lines", Sb[new_l], feats.line_desc[il[new_l]], R, t, k)
+            ids_l = self.map.add("lines", Sb[new_l], feats.line_desc[il[new_l]], R, t, k)
+            if o.line_planes:
+                self._observe_lines(ids_l, S[new_l], T)
         self.map.cull()
         self._since_kf = 0
 
@@ -470,6 +501,62 @@ class StereoTracker:
         z = self.map.points.X[idx] @ R[2] + t[2]
         w = 1.0 / np.maximum(z, 1e-3) ** 2
         self.map.observe(idx, np.broadcast_to((centre - t) @ R, d.shape), d @ R, w)
+
+    def _update_line_scale(self, e_p: np.ndarray, e_l: np.ndarray) -> None:
+        """Fold this frame's measured residual scales into the running line weight: the line
+        noise relative to the point noise, ``sigma_l / sigma_p``, each from the median of the
+        residuals kept by the last pass (a point's is the 2-D distance, median ``1.177 sigma``
+        for Gaussian pixel noise; a line's the larger of its two endpoint distances, median
+        ``1.052 sigma``). An exponential average over frames (``line_scale_memory``) steadies the
+        few lines of a frame."""
+        if len(e_p) < 10 or len(e_l) < 3:
+            return
+        s_p = float(np.median(e_p)) / 1.1774
+        s_l = float(np.median(e_l)) / 1.0518
+        if not (s_p > 0 and s_l > 0):
+            return
+        ratio = float(np.clip(s_l / s_p, 0.2, 2.0))
+        a = self.options.line_scale_memory
+        self._line_scale = a * self._line_scale + (1 - a) * ratio
+
+    def _line_disparity_agrees(self, idx, S, T) -> np.ndarray:
+        """Whether the stereo triangulations ``S`` (``(n, 2, 3)``, left camera) of the segments
+        matched to line landmarks ``idx`` agree with the landmark lines: at both endpoints, the
+        disparity of the landmark line where the endpoint's left ray passes closest to it is
+        within ``refine_disparity_px`` of the segment's own (the point rays' gate)."""
+        if len(idx) == 0:
+            return np.zeros(0, bool)
+        R, t = T[:3, :3], T[:3, 3]
+        A = self.map.lines.X[idx, 0] @ R.T + t
+        D = (self.map.lines.X[idx, 1] - self.map.lines.X[idx, 0]) @ R.T
+        ok = np.ones(len(idx), bool)
+        for e in range(2):
+            r = S[:, e] / S[:, e, 2:3]  # the left ray of the endpoint, unit depth
+            # closest points of the ray lam r and the line A + s D (2x2 normal equations)
+            rr, rd, dd = (r * r).sum(1), (r * D).sum(1), (D * D).sum(1)
+            ra, da = (r * A).sum(1), (D * A).sum(1)
+            det = rr * dd - rd**2
+            with np.errstate(divide="ignore", invalid="ignore"):
+                lam = (ra * dd - da * rd) / det
+                disp_map = self._fb / lam
+            disp_new = self._fb / S[:, e, 2]
+            ok &= (det > 1e-12 * rr * dd) & (lam > 0)
+            ok &= np.abs(disp_new - disp_map) < self.options.refine_disparity_px
+        return ok
+
+    def _observe_lines(self, idx, S, T) -> None:
+        """Observation planes (body frame) of line landmarks ``idx`` from their stereo
+        triangulations ``S`` (``(n, 2, 3)``, left camera, pose ``T``): the planes through each
+        camera centre and the segment, weighted by ``1 / depth^2`` (pixel-error weighting), into
+        the landmarks' multi-view line fit (:meth:`LandmarkMap.observe_lines`)."""
+        if len(idx) == 0:
+            return
+        R, t = T[:3, :3], T[:3, 3]
+        w = 1.0 / np.maximum(S[..., 2].mean(1), 1e-3) ** 2
+        for C in (np.zeros(3), -np.asarray(self.rig.t_rl, float)):
+            n = np.cross(S[:, 0] - C, S[:, 1] - C)
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+            self.map.observe_lines(idx, n @ R, n @ (C - t), w)
 
     def _feature_options(self) -> FeatureOptions:
         """The feature options of the next frame: the ORB budget scaled to a constant keypoint
@@ -620,16 +707,41 @@ class StereoTracker:
                 uv_r = pr_s[order][pos[q_r]]
             n_r = len(q_r)
             t_rl = np.asarray(self.rig.t_rl, float)
+            # the same for the lines: the right segment of a matched segment with a stereo
+            # match (the right projection of its triangulation, i.e. the fitted right line)
+            ql_r, seg_r = np.zeros(0, int), np.zeros((0, 2, 2))
+            if (
+                o.stereo_residuals
+                and o.line_stereo_residuals
+                and stereo is not None
+                and n_l
+                and len(stereo[1][0])
+            ):
+                il_s, S_s = stereo[1]
+                order = np.argsort(il_s)
+                pos = np.searchsorted(il_s[order], l_cur)
+                hit = (pos < len(il_s)) & (il_s[order][np.minimum(pos, len(il_s) - 1)] == l_cur)
+                ql_r = np.nonzero(hit)[0][: o.max_lines - n_l]
+                seg_r = self._project(S_s[order][pos[ql_r]] + t_rl, np.eye(4))
+            n_lr = len(ql_r)
             mask = np.arange(o.max_points) < n_p + n_r
-            lmask = np.arange(o.max_lines) < n_l
-            L = _lines_np(feats.segments[l_cur]) if n_l else np.zeros((0, 3))
-            X_m = self.map.points.X[i_m]
-            uv_all = jnp.asarray(_pad(np.concatenate([feats.points[i_cur], uv_r]), o.max_points))
-            line_args = (
-                jnp.asarray(_pad(self.map.lines.X[l_m], o.max_lines)),
-                jnp.asarray(_pad(L, o.max_lines)),
+            lmask = np.arange(o.max_lines) < n_l + n_lr
+            L = (
+                _lines_np(np.concatenate([feats.segments[l_cur], seg_r]))
+                if n_l
+                else np.zeros((0, 3))
             )
-            statics = (self.rig.left, o.robust, o.sigma_px, o.line_sigma_px)
+            X_m = self.map.points.X[i_m]
+            X_l = self.map.lines.X[l_m]
+            uv_all = jnp.asarray(_pad(np.concatenate([feats.points[i_cur], uv_r]), o.max_points))
+            L_pad = jnp.asarray(_pad(L, o.max_lines))
+            line_sigma = o.line_sigma_px * (self._line_scale if o.measured_line_sigma else 1.0)
+            statics = (
+                self.rig.left,
+                o.robust,
+                o.sigma_px,
+                jnp.full(o.max_lines, line_sigma),  # an array: a new value compiles nothing
+            )
             pose0 = Pose(jnp.asarray(T_pred[:3, :3]), jnp.asarray(T_pred[:3, 3]))
             for _ in range(o.passes):
                 # each pass restarts from the last pose without the features it left beyond
@@ -637,13 +749,14 @@ class StereoTracker:
                 # mismatches on the repetitive texture pull the pose
                 shift = np.asarray(pose0.R).T @ t_rl
                 P_all = np.concatenate([X_m, X_m[q_r] + shift])
+                S_all = np.concatenate([X_l, X_l[ql_r] + shift])
                 res, e_p, e_l = _solve(
                     pose0,
                     jnp.asarray(_pad(P_all, o.max_points)),
                     uv_all,
                     jnp.asarray(mask),
-                    line_args[0],
-                    line_args[1],
+                    jnp.asarray(_pad(S_all, o.max_lines)),
+                    L_pad,
                     jnp.asarray(lmask),
                     *statics,
                 )
@@ -651,6 +764,7 @@ class StereoTracker:
                 mask = mask & (np.asarray(e_p) < o.reject_px)
                 lmask = lmask & (np.asarray(e_l) < o.reject_px)
             T_est = _T(np.asarray(res.pose.R), np.asarray(res.pose.t))
+            kept_e = (np.asarray(e_p)[mask], np.asarray(e_l)[lmask])  # residuals of the last pass
             e_p, e_l = np.asarray(e_p)[:n_p], np.asarray(e_l)[:n_l]
             in_p, in_l = e_p < o.inlier_px, e_l < o.inlier_px
             inliers = int(in_p.sum() + in_l.sum())
@@ -683,6 +797,8 @@ class StereoTracker:
                 self._delta = _fractional_step(T_est @ np.linalg.inv(self._T_prev), steps)
                 self._T_prev = T_est
                 self._misses = 0
+                if o.measured_line_sigma and n_l:
+                    self._update_line_scale(*kept_e)
                 result.R, result.t = T_est[:3, :3], T_est[:3, 3]
                 result.status = int(Status.OK)
                 self._last_depth = float(result.t[2])

@@ -206,6 +206,36 @@ class LandmarkMap:
         if len(u):
             s.X[u] = np.linalg.solve(s.M[u], s.b[u][..., None])[..., 0]
 
+    def observe_lines(self, idx, normals, offsets, weights=None) -> None:
+        """Add observation planes ``normals . X = offsets`` (body frame; ``(n, 3)`` and ``(n,)``:
+        the plane through a camera centre and an image segment) of line landmarks ``idx`` and
+        re-solve them: the line is the weighted least-squares intersection of all its planes
+        (``sum w n n^T``, ``sum w d n`` kept in ``M``, ``b``), and each endpoint moves
+        perpendicularly to that line onto it (the planes say nothing of where a segment ends).
+        A line whose planes are still nearly parallel (a second eigenvalue below ``1e-4`` of the
+        largest) keeps its endpoints."""
+        s = self.lines
+        idx = np.asarray(idx, int)
+        if len(idx) == 0:
+            return
+        n = np.asarray(normals, float)
+        norm = np.linalg.norm(n, axis=1)
+        norm = np.where(norm > 0, norm, 1.0)
+        n, d = n / norm[:, None], np.asarray(offsets, float) / norm
+        w = np.ones(len(idx)) if weights is None else np.asarray(weights, float)
+        np.add.at(s.M, idx, w[:, None, None] * n[:, :, None] * n[:, None, :])
+        np.add.at(s.b, idx, (w * d)[:, None] * n)
+        u = np.unique(idx)
+        ev, V = np.linalg.eigh(s.M[u])
+        ok = ev[:, 1] > 1e-4 * ev[:, 2]
+        u, ev, V = u[ok], ev[ok], V[ok]
+        if len(u):
+            V2 = V[:, :, 1:]  # the two directions across the line
+            X = s.X[u]  # (k, 2, 3)
+            r = s.b[u][:, None] - np.einsum("kij,kej->kei", s.M[u], X)  # (k, 2, 3)
+            y = np.einsum("kia,kei->kea", V2, r) / ev[:, None, 1:]
+            s.X[u] = X + np.einsum("kia,kea->kei", V2, y)
+
     def refine(self, kind: str, idx, X_body, desc, R, t, frame: int) -> None:
         """Fold new body-frame triangulations ``X_body`` of landmarks ``idx`` into their running
         means (``X_body=None``: keep the positions, update descriptor and viewing direction; the
