@@ -7,7 +7,15 @@ import pytest
 from jaxpose import PinholeCamera, Pose
 from jaxpose.geometry import euler_to_dcm
 from jaxpose.models import tango
-from jaxpose.vision.render import BACKGROUND, project_points, random_pose, render, render_layers
+from jaxpose.vision.render import (
+    BACKGROUND,
+    blanket_texture,
+    lightbox_scene,
+    project_points,
+    random_pose,
+    render,
+    render_layers,
+)
 
 
 @pytest.fixture
@@ -104,3 +112,23 @@ def test_background_noise_blur_and_hooks(camera):
 def test_bad_pose_raises(camera):
     with pytest.raises(ValueError, match="in front"):
         render(tango(), Pose(np.eye(3), np.array([0.0, 0.0, -3.0])), camera)
+
+
+def test_lightbox_scene_background_noise_and_blanket(camera):
+    m = tango()
+    rng = np.random.default_rng(3)
+    opts = lightbox_scene(m, rng)
+    r = render(m, front_pose(4.0), camera, rng=rng, **opts)
+    bg = r.image[r.face_ids == BACKGROUND].astype(float)
+    # grey background of 25-40 grey levels with sensor noise of 6-8 grey levels (sigma)
+    assert 22 < bg.mean() < 43 and 4.5 < bg.std() < 9.5
+    # a flat-faced render of the same pose has no texture: the blanket only adds variance
+    V = m.vertices
+    tex = blanket_texture(V[list(m.faces[7])], np.random.default_rng(0), albedo=0.5)
+    pts = V[list(m.faces[7])].mean(0) + np.linspace(-0.1, 0.1, 400)[:, None] * (V[15] - V[4])
+    vals = tex(pts)
+    assert vals.min() < 0.45 < 0.55 < vals.max()  # dark folds and bright glints on the face
+    with pytest.raises(ValueError, match="face_vertices"):
+        blanket_texture(np.zeros((2, 3)), rng)
+    with pytest.raises(ValueError, match="exclusive"):
+        render(m, front_pose(), camera, rng=0, earth=True, background_level=0.1)

@@ -32,7 +32,9 @@ __all__ = [
     "Rendering",
     "VisibleEdges",
     "apply_sensor",
+    "blanket_texture",
     "earth_background",
+    "lightbox_scene",
     "project_points",
     "random_pose",
     "render",
@@ -256,6 +258,95 @@ def solar_cell_texture(origin, axis_u, axis_v, cells=(8, 10), *, base=0.22, line
     return texture
 
 
+def blanket_texture(
+    face_vertices,
+    rng: np.random.Generator,
+    *,
+    albedo: float = 0.8,
+    creases_per_m2: float = 400.0,
+    length_m: tuple[float, float] = (0.03, 0.2),
+    texel_m: float = 0.002,
+):
+    """A crumpled multi-layer-insulation (MLI) blanket on one planar face (a body-attached hook).
+
+    The face is covered by short straight creases at random places and angles (lengths
+    ``length_m``), each a one-texel line brighter (a glint on the fold) or darker (its shadow) than
+    the blanket, over a slow +-15 % undulation: the many short spurious edge segments inside the
+    faces that the SPEED+ lightbox photographs show. ``face_vertices (k, 3)``: the face polygon
+    (body frame, metres). Rasterised once into a texture map of ``texel_m`` metres per texel.
+    """
+    V = np.asarray(face_vertices, dtype=float)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) < 3:
+        raise ValueError(f"face_vertices must be (k >= 3, 3); got shape {V.shape}")
+    o = V[0]
+    eu = V[1] - V[0]
+    eu /= np.linalg.norm(eu)
+    n = np.cross(V[1] - V[0], V[2] - V[0])
+    n /= np.linalg.norm(n)
+    ev = np.cross(n, eu)
+    uv = np.stack([(V - o) @ eu, (V - o) @ ev], 1)
+    lo, hi = uv.min(0) - 0.01, uv.max(0) + 0.01
+    nu, nv = (np.ceil((hi - lo) / texel_m).astype(int) + 1).tolist()
+    smooth = cv2.resize(rng.random((4, 4)).astype(np.float32), (nu, nv), cv2.INTER_CUBIC)
+    tex = (1.0 + 0.3 * (smooth - 0.5)).astype(np.float32)
+    area = float(np.prod(hi - lo))
+    for _ in range(int(creases_per_m2 * area)):
+        c = rng.uniform(lo, hi)
+        ang = rng.uniform(0, np.pi)
+        half = 0.5 * rng.uniform(*length_m) * np.array([np.cos(ang), np.sin(ang)])
+        a = np.rint((c - half - lo) / texel_m * 16).astype(int)  # 4 fractional bits (shift=4)
+        b = np.rint((c + half - lo) / texel_m * 16).astype(int)
+        value = rng.uniform(1.5, 2.2) if rng.random() < 0.6 else rng.uniform(0.3, 0.6)
+        cv2.line(tex, tuple(a.tolist()), tuple(b.tolist()), value, 1, cv2.LINE_AA, 4)
+
+    def texture(points_body):
+        rel = np.asarray(points_body, dtype=float) - o
+        i = np.clip(np.rint((rel @ ev - lo[1]) / texel_m).astype(int), 0, nv - 1)
+        j = np.clip(np.rint((rel @ eu - lo[0]) / texel_m).astype(int), 0, nu - 1)
+        return albedo * tex[i, j]
+
+    return texture
+
+
+def lightbox_scene(model, rng: np.random.Generator) -> dict:
+    """Render options of a laboratory image like the SPEED+ lightbox photographs (a development
+    domain for :func:`render`, not fitted to those photographs).
+
+    What the photographs show and these options imitate: a flat grey background (about 30 of 255)
+    with strong sensor noise (sigma about 7 grey levels, measured on a background patch); an
+    exposure that saturates the lit faces; faces in shadow only a few grey levels from the
+    background (weak ambient); crumpled MLI blankets on the body (:func:`blanket_texture`) and a
+    dark solar panel; Sun direction random over the hemisphere facing the camera. The background
+    level, noise, ambient and exposure are drawn per image from the ranges below.
+    """
+    sun = rng.normal(size=3)
+    sun[2] = -abs(sun[2]) - 0.3  # towards the camera's side: some lit face is seen
+    F = len(model.faces)
+    albedo = np.full(F, 0.7)
+    textures = {}
+    if model.name == "tango":
+        V = model.vertices
+        albedo[:6] = 0.25  # the panel slab: dark cells and edges
+        textures[0] = solar_cell_texture(V[0], V[3] - V[0], V[1] - V[0], base=0.1, line=0.2)
+        body = range(6, F)
+    else:
+        body = range(F)
+    for f in body:
+        textures[f] = blanket_texture(model.vertices[list(model.faces[f])], rng, albedo=0.8)
+    exposure = rng.uniform(2.5, 5.0)
+    bg = rng.uniform(25, 40) / 255.0
+    return dict(
+        sun_dir_cam=sun,
+        ambient=bg / exposure * rng.uniform(0.75, 1.35) / 0.8,  # shadow: 0.75-1.35 x background
+        albedo=albedo,
+        textures=textures,
+        exposure=exposure,
+        noise_sigma=rng.uniform(6.0, 8.0) / 255.0,
+        blur_sigma_px=rng.uniform(0.8, 1.5),
+        background_level=bg / exposure,
+    )
+
+
 def earth_background(shape, rng: np.random.Generator, *, brightness: float = 0.55) -> np.ndarray:
     """An Earth-like background ``(H, W)`` in ``[0, 1]``: a limb at a random place, fractal clouds
     over a darker ocean/land pattern, black space beyond the limb."""
@@ -413,12 +504,15 @@ def render(
     blur_sigma_px: float = 0.8,
     noise_sigma: float = 0.01,
     exposure: float = 1.0,
+    background_level: float | None = None,
     **layer_options,
 ) -> Rendering:
     """Render ``model`` at ``pose``: image, true pose, visible edges, face buffer and true ROI.
 
     ``layer_options`` go to :func:`render_layers` (light, albedo, textures, specular, ...). With
     ``textures`` left out and the Tango model, the top of the solar panel gets solar cells.
+    ``background_level``: a uniform background radiance (before ``exposure``) instead of black
+    space or ``earth``; :func:`lightbox_scene` gives all the options of a lightbox photograph.
     """
     rng = np.random.default_rng(rng)
     H, W = _image_size(camera, shape)
@@ -426,6 +520,10 @@ def render(
         layer_options["textures"] = default_textures(model)
     radiance, face_ids = render_layers(model, pose, camera, shape=(H, W), **layer_options)
     bg = earth_background((H, W), rng) if earth else None
+    if background_level is not None:
+        if earth:
+            raise ValueError("earth and background_level are exclusive")
+        bg = np.full((H, W), float(background_level), np.float32)
     image = apply_sensor(
         radiance,
         rng,
