@@ -27,7 +27,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "pose-study": (
         "jaxpose.studies.pose",
-        "predicted pose covariance vs Monte Carlo scatter of refined poses (noise levels, geometries)",
+        "predicted pose covariance vs Monte Carlo scatter of refined poses "
+        "(noise levels, geometries)",
     ),
     "stereo-track": (
         "jaxpose.studies.stereo_track",

@@ -17,5 +17,8 @@ def test_readme_tour_runs(capsys):
     assert np.isfinite(batch.pdop[0]) and np.isinf(batch.pdop[1])
     assert list(np.asarray(batch.status)) == [0, 3]
     assert len(namespace["idx_quasi"]) == 8
-    np.testing.assert_allclose(namespace["best"].pdop, namespace["jp"].select.subset_dop(
-        namespace["blocks"], namespace["idx_opt"])[0], rtol=1e-9)
+    np.testing.assert_allclose(
+        namespace["best"].pdop,
+        namespace["jp"].select.subset_dop(namespace["blocks"], namespace["idx_opt"])[0],
+        rtol=1e-9,
+    )

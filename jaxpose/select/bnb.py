@@ -503,8 +503,6 @@ def _finish(blocks, mask, is_pdop, heuristic_phi, nodes, iters, converged, finit
     return value, status, jnp.sqrt(heuristic_phi)
 
 
-
-
 # ----------------------------------------------------------------------------- NumPy host loop
 def _branch_and_bound_numpy(
     blocks, m: int, *, criterion: str = "pdop", relax_iters: int = 16, rtol: float | None = None

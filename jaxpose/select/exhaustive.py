@@ -346,8 +346,6 @@ def _exhaustive_batch(blocks, m, mask, chunk_size, kernel_dtype):
     )
 
 
-
-
 @functools.cache
 def _single(m: int, use_mask: bool, chunk_size, kernel_dtype):
     """One-case exhaustive search whose ``vmap`` is :func:`exhaustive_batch` on the batch."""
