@@ -202,6 +202,10 @@ class _EdgeScene(NamedTuple):
     face_poly: jax.Array | None = None
     region_weight: float = 0.0
 
+    def chamfer_inputs(self):
+        """``(geom, img_pts, img_mask, dt, tau, cam4)``: the fields the chamfer terms use."""
+        return self.geom, self.img_pts, self.img_mask, self.dt, self.tau, self.cam4
+
 
 def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> _EdgeScene:
     """The score inputs of one image (needs ``det.roi`` and ``det.segments``)."""
@@ -356,7 +360,7 @@ def _chamfer(R, t, sc: _EdgeScene):
     segments. Image side: samples of the detected segments to the nearest projected edge.
     Returns ``(score, share of model samples within tau / 4 of a detected segment)``.
     """
-    geom, img_pts, img_mask, dt, tau, cam4 = sc[:6]
+    geom, img_pts, img_mask, dt, tau, cam4 = sc.chamfer_inputs()
     edges, samples, edge_faces, normals, centres = geom
     vis = _visible_edges(R, t, geom)
     pc = samples @ R.T + t  # (E, S, 3)
@@ -406,7 +410,7 @@ def _chamfer_residuals(R, t, vis, sc: _EdgeScene, nearest=None):
     model samples to the nearest detected segment (bilinear distance map) and detected samples to
     the nearest projected model edge (or the edge ``nearest`` of each, fixed as in ICP: far cheaper
     to differentiate). Truncation at ``tau`` makes far points constant (no pull)."""
-    geom, img_pts, img_mask, dt, tau, cam4 = sc[:6]
+    geom, img_pts, img_mask, dt, tau, cam4 = sc.chamfer_inputs()
     edges, samples, _, _, _ = geom
     pc = samples @ R.T + t
     pix = _project(pc, cam4)

@@ -700,11 +700,9 @@ class StereoTracker:
             q_r, uv_r = np.zeros(0, int), np.zeros((0, 2))
             if o.stereo_residuals and stereo is not None and len(stereo[0][0]):
                 ip_s, _, pr_s = stereo[0]
-                order = np.argsort(ip_s)
-                pos = np.searchsorted(ip_s[order], i_cur)
-                hit = (pos < len(ip_s)) & (ip_s[order][np.minimum(pos, len(ip_s) - 1)] == i_cur)
-                q_r = np.nonzero(hit)[0][: o.max_points - n_p]
-                uv_r = pr_s[order][pos[q_r]]
+                q, j = _find(ip_s, i_cur)
+                keep = o.max_points - n_p
+                q_r, uv_r = q[:keep], pr_s[j[:keep]]
             n_r = len(q_r)
             t_rl = np.asarray(self.rig.t_rl, float)
             # the same for the lines: the right segment of a matched segment with a stereo
@@ -718,11 +716,9 @@ class StereoTracker:
                 and len(stereo[1][0])
             ):
                 il_s, S_s = stereo[1]
-                order = np.argsort(il_s)
-                pos = np.searchsorted(il_s[order], l_cur)
-                hit = (pos < len(il_s)) & (il_s[order][np.minimum(pos, len(il_s) - 1)] == l_cur)
-                ql_r = np.nonzero(hit)[0][: o.max_lines - n_l]
-                seg_r = self._project(S_s[order][pos[ql_r]] + t_rl, np.eye(4))
+                q, j = _find(il_s, l_cur)
+                keep = o.max_lines - n_l
+                ql_r, seg_r = q[:keep], self._project(S_s[j[:keep]] + t_rl, np.eye(4))
             n_lr = len(ql_r)
             mask = np.arange(o.max_points) < n_p + n_r
             lmask = np.arange(o.max_lines) < n_l + n_lr
@@ -825,6 +821,16 @@ class StereoTracker:
             self._update_map(T_est, left, right, feats, *update, timings, stereo=stereo)
             result.keyframe = True
         return result
+
+
+def _find(keys: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``q`` of the ``queries`` present in the non-empty ``keys`` and, for each, its
+    index in ``keys`` (sorted lookup)."""
+    order = np.argsort(keys)
+    pos = np.searchsorted(keys[order], queries)
+    hit = (pos < len(keys)) & (keys[order][np.minimum(pos, len(keys) - 1)] == queries)
+    q = np.nonzero(hit)[0]
+    return q, order[pos[q]]
 
 
 def _T(R: np.ndarray, t: np.ndarray) -> np.ndarray:

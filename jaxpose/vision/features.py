@@ -170,6 +170,8 @@ def detect(
     det.roi = det.roi_gradient = roi
     t0 = time.perf_counter()
     sil = roi_from_silhouette(und) if options.silhouette_roi else None
+    tm["wge_roi_s"] += time.perf_counter() - t0  # the ROI stage: gradient and silhouette
+    t0 = time.perf_counter()
     if sil is not None and roi_diagonal(sil) >= options.min_roi_px:
         det.roi = det.roi_silhouette = roi = sil
     elif options.cluster_roi:

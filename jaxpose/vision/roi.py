@@ -223,12 +223,12 @@ def _box_outlier(S, idx, chains, length, shrink):
     labels = chains[idx]
     total = {c: float(length[idx[labels == c]].sum()) for c in set(labels.tolist())}
     full = S[idx].reshape(-1, 2)
-    diag = roi_diagonal([*full.min(0), *full.max(0)])
+    diag = roi_diagonal(_box(full))
     for c in sorted(total, key=total.get, reverse=True):
         rest = S[idx[labels != c]].reshape(-1, 2)
         if not len(rest):
             continue
-        rest_diag = roi_diagonal([*rest.min(0), *rest.max(0)])
+        rest_diag = roi_diagonal(_box(rest))
         if total[c] > rest_diag and rest_diag < shrink * diag:
             return idx[labels == c]
     return None
