@@ -7,7 +7,7 @@ import pytest
 from jaxpose import PinholeCamera, Pose
 from jaxpose.geometry import euler_to_dcm
 from jaxpose.models import tango
-from jaxpose.pipelines.monocular import InitOptions, _allocate, _hypotheses
+from jaxpose.pipelines.monocular import InitOptions, _allocate, _hypotheses, initialise_pose
 from jaxpose.vision.features import bright_background_share, detect
 from jaxpose.vision.render import render
 from jaxpose.vision.roi import roi_diagonal, roi_from_segments, segment_distances
@@ -79,6 +79,14 @@ def test_cluster_roi_needs_a_corner():
     assert roi_from_segments(np.zeros((0, 2, 2)))[0] is None
     with pytest.raises(ValueError):
         roi_from_segments(np.zeros((3, 2, 3)))
+
+
+@pytest.mark.parametrize("weight", [-0.5, float("nan")])
+def test_region_weight_is_checked_before_work(camera, weight):
+    with pytest.raises(ValueError, match="region_weight"):
+        initialise_pose(
+            np.zeros((64, 64), np.uint8), camera, options=InitOptions(region_weight=weight)
+        )
 
 
 def test_allocate_water_filling():

@@ -740,6 +740,11 @@ def initialise_pose(
         raise ValueError(f"method must be 'svd' or 'ransac'; got {options.method!r}")
     if options.rank_by not in ("chamfer", "e2d"):
         raise ValueError(f"rank_by must be 'chamfer' or 'e2d'; got {options.rank_by!r}")
+    if not np.isfinite(options.region_weight) or options.region_weight < 0:
+        raise ValueError(
+            f"region_weight must be finite and >= 0 (0 turns the region term off); "
+            f"got {options.region_weight}"
+        )
     timings = {}
     t0 = time.perf_counter()
     L_C = model.characteristic_length * ROI_LENGTH_FACTOR
