@@ -1,4 +1,5 @@
-"""Builds notebooks/dop_selection.ipynb (kept as a script so the notebook's source is reviewable)."""
+"""Builds notebooks/dop_selection.ipynb (a script, so that the notebook's source is reviewable)."""
+
 import nbformat as nbf
 
 cells = []
@@ -7,8 +8,9 @@ code = lambda s: cells.append(nbf.v4.new_code_cell(s))  # noqa: E731
 
 md("""# DOP and feature-point selection
 
-A walk through `jaxpose.dop` and `jaxpose.select`, after Ning, Zhang and Wang, *A Non-Cooperative
-Satellite Feature Point Selection Method for Vision-Based Navigation System*, Sensors 18(3):854, 2018.
+A walk through `jaxpose.dop` and `jaxpose.select`, after Ning, Zhang and Wang, *A
+Non-Cooperative Satellite Feature Point Selection Method for Vision-Based Navigation System*,
+Sensors 18(3):854, 2018.
 
 * The **observation matrix** `H` (2n x 6) is the Jacobian of the pixels of `n` feature points with
   respect to the relative position `T` (m) and attitude Euler angles (rad), eq. 7.
@@ -66,7 +68,8 @@ fig, ax = plt.subplots(1, 2, figsize=(10, 3.5))
 for deg in (0.0, 20.0, 40.0):
     pd, ad = jax.vmap(lambda r: pdop_at(r, deg))(ranges)
     ax[0].plot(ranges, pd, label=f"{deg:g} deg"); ax[1].plot(ranges, ad, label=f"{deg:g} deg")
-ax[0].set(xlabel="range (m)", ylabel="PDOP (m/px)", yscale="log"); ax[1].set(xlabel="range (m)", ylabel="ADOP (rad/px)", yscale="log")
+ax[0].set(xlabel="range (m)", ylabel="PDOP (m/px)", yscale="log")
+ax[1].set(xlabel="range (m)", ylabel="ADOP (rad/px)", yscale="log")
 ax[0].legend(); fig.tight_layout()""")
 
 md("""PDOP grows roughly with the square of the range (depth is observed through the angular size of
@@ -101,11 +104,12 @@ fig, axes = plt.subplots(1, len(choices), figsize=(3.2 * len(choices), 3.2))
 for ax, (name, idx) in zip(axes, choices.items()):
     pd, ad = sel.subset_dop(blocks, jnp.asarray(idx))
     ax.scatter(*pixels.T, c="lightgray"); ax.scatter(*pixels[idx].T, c="C0")
-    ax.set_title(f"{name}\\nPDOP {pd:.2e}", fontsize=9); ax.invert_yaxis(); ax.set_xticks([]); ax.set_yticks([])
+    ax.set_title(f"{name}\\nPDOP {pd:.2e}", fontsize=9); ax.invert_yaxis()
+    ax.set_xticks([]); ax.set_yticks([])
 fig.tight_layout()""")
 
-md("""The exhaustive search and branch and bound agree (branch and bound is exact); the quasi-optimal
-rule needs no DOP evaluation at all and lands close.
+md("""The exhaustive search and branch and bound agree (branch and bound is exact); the
+quasi-optimal rule needs no DOP evaluation at all and lands close.
 
 ## A small Monte Carlo study (the paper's Table 4)
 `jaxpose.studies.selection.run_study` is what `jaxpose select-study` runs: cases in resumable
@@ -119,7 +123,11 @@ fig, ax = plt.subplots(1, 2, figsize=(9, 3.2))
 for (n, m), c in study.cases.items():
     ax[0].hist(c["pdop_quasi"] / c["pdop_opt"], bins=20, alpha=0.6, label=f"n={n}")
     ax[1].hist(c["adop_quasi"] / c["adop_opt"], bins=20, alpha=0.6, label=f"n={n}")
-ax[0].set_xlabel("PDOP ratio quasi/optimal"); ax[1].set_xlabel("ADOP ratio quasi/optimal"); ax[0].legend();""")
+ax[0].set_xlabel("PDOP ratio quasi/optimal"); ax[1].set_xlabel("ADOP ratio quasi/optimal")
+ax[0].legend();""")
 
-nb = nbf.v4.new_notebook(cells=cells, metadata={"kernelspec": {"name": "python3", "display_name": "Python 3"}})
+kernel = {"kernelspec": {"name": "python3", "display_name": "Python 3"}}
+for i, cell in enumerate(cells):  # fixed ids: regenerating gives no diff
+    cell["id"] = f"cell-{i:02d}"
+nb = nbf.v4.new_notebook(cells=cells, metadata=kernel)
 nbf.write(nb, "notebooks/dop_selection.ipynb")

@@ -1,4 +1,4 @@
-"""Builds notebooks/pose_sensitivity.ipynb (kept as a script so the notebook's source is reviewable)."""
+"""Builds notebooks/pose_sensitivity.ipynb (a script: the notebook's source stays reviewable)."""
 
 import nbformat as nbf
 
@@ -49,7 +49,8 @@ points = rng.uniform(-0.5, 0.5, (n, 3))
 pixels = np.asarray(camera.project_body(truth, points)) + 0.5 * rng.normal(size=(n, 2))
 
 res = jp.refine_pose(truth, points, pixels, camera, sigma=0.5, rtol=1e-13, atol=1e-15)
-print("status", jp.Status(int(res.status)).name, " rms %.3f px" % res.rms_px, " steps", int(res.num_steps))
+print("status", jp.Status(int(res.status)).name, " rms %.3f px" % res.rms_px,
+      " steps", int(res.num_steps))
 sens = jp.sensitivity(res, points, pixels, camera, sigma=0.5)
 print("d pose / d(fx, fy, cx, cy)  [rows tx ty tz (m/px), wx wy wz (rad/px)]")
 print(np.array2string(np.asarray(sens.d_intrinsics), precision=6, suppress_small=True))""")
@@ -80,9 +81,11 @@ ax[0].set_xlabel("focal-length error (px)"); ax[0].set_ylabel("tz change (mm)");
 for i, name in zip(range(3, 6), ("wx", "wy", "wz")):
     ax[1].plot(errors, np.rad2deg(actual[:, i]) * 1e3, "o", label=f"{name} re-solved")
     ax[1].plot(errors, np.rad2deg(slope[i] * errors) * 1e3, "-")
-ax[1].set_xlabel("focal-length error (px)"); ax[1].set_ylabel("attitude change (mdeg)"); ax[1].legend()
+ax[1].set_xlabel("focal-length error (px)"); ax[1].set_ylabel("attitude change (mdeg)")
+ax[1].legend()
 fig.tight_layout()
-print("tz per 1 px of focal error: %.3f mm (z/f = %.3f mm)" % (slope[2] * 1e3, 5.0 / 1000 * 1e3))""")
+print("tz per 1 px of focal error: %.3f mm (z/f = %.3f mm)"
+      % (slope[2] * 1e3, 5.0 / 1000 * 1e3))""")
 
 md("""## 2. Which feature matters most?
 
@@ -97,7 +100,8 @@ order = np.argsort(-dpos)
 print("most influential features (position):", order[:5].tolist())
 
 fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
-sc = ax[0].scatter(pixels[:, 0], pixels[:, 1], c=dpos, s=30 + 300 * datt / datt.max(), cmap="viridis")
+sc = ax[0].scatter(pixels[:, 0], pixels[:, 1], c=dpos, s=30 + 300 * datt / datt.max(),
+                   cmap="viridis")
 ax[0].invert_yaxis(); ax[0].set_aspect("equal")
 ax[0].set_title("feature influence (colour: mm/px, size: mdeg/px)")
 fig.colorbar(sc, ax=ax[0])
@@ -128,7 +132,11 @@ code("""def range_of(cam, pts):
 
 g_cam, g_pts = jax.grad(range_of, argnums=(0, 1))(camera, jnp.asarray(points))
 print("d tz / d fx = %.4e m/px (sensitivity: %.4e)" % (g_cam.fx, sens.d_intrinsics[2, 0]))
-print("max |d tz / d points - sensitivity| =", float(jnp.max(jnp.abs(g_pts - sens.d_points_body[2]))))""")
+print("max |d tz / d points - sensitivity| =",
+      float(jnp.max(jnp.abs(g_pts - sens.d_points_body[2]))))""")
 
-nb = nbf.v4.new_notebook(cells=cells, metadata={"kernelspec": {"name": "python3", "display_name": "Python 3"}})
+kernel = {"kernelspec": {"name": "python3", "display_name": "Python 3"}}
+for i, cell in enumerate(cells):  # fixed ids: regenerating gives no diff
+    cell["id"] = f"cell-{i:02d}"
+nb = nbf.v4.new_notebook(cells=cells, metadata=kernel)
 nbf.write(nb, "notebooks/pose_sensitivity.ipynb")
