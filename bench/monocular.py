@@ -64,6 +64,63 @@ def true_pose_score(res, pose, model, opts) -> float:
     return float(mono._chamfer(Rf, tf, sc)[0]) / roi_diagonal(res.detection.roi)
 
 
+def _mean(values) -> float | None:
+    """Mean of a list, ``None`` when empty (a domain without images of that kind)."""
+    return float(np.mean(values)) if values else None
+
+
+def _roi_row(r, camera, model, detection, earth, cover) -> dict:
+    """Per-image record of the image processing alone (``--roi-only``)."""
+    from jaxpose.vision.features import detect
+    from jaxpose.vision.roi import roi_diagonal
+
+    t0 = time.perf_counter()
+    det = detect(r.image, camera, model.characteristic_length, detection)
+    wall = time.perf_counter() - t0
+    rng_true = float(np.linalg.norm(np.asarray(r.pose.t)))
+    ratio = None if det.coarse_t_cam is None else float(np.linalg.norm(det.coarse_t_cam)) / rng_true
+    kind = "roi" if det.roi_silhouette is None else "silhouette"
+    if det.roi is not None and det.roi_silhouette is None and det.roi_gradient is not None:
+        kind = "gradient" if np.array_equal(det.roi, det.roi_gradient) else "cluster"
+    return {
+        "earth": earth,
+        "cover": cover,
+        "range_m": rng_true,
+        "coarse_range_ratio": ratio,
+        "coarse_within_20pct": ratio is not None and abs(ratio - 1) <= 0.2,
+        "roi_kind": kind if det.roi is not None else None,
+        "roi_over_true_diagonal": None
+        if det.roi is None
+        else roi_diagonal(det.roi) / roi_diagonal(r.roi),
+        "detect_s": wall,
+    }
+
+
+def _roi_summary(rows, args) -> None:
+    by_cover = {}
+    for r in rows:
+        key = (r["cover"] or "earth") if r["earth"] else "no-earth"
+        by_cover.setdefault(key, []).append(r)
+    summary = {
+        "images": len(rows),
+        "domain": args.domain,
+        "seed": args.seed,
+        "coarse_range_within_20pct": _mean([r["coarse_within_20pct"] for r in rows]),
+        "coarse_range_within_20pct_by_background": {
+            k: _mean([r["coarse_within_20pct"] for r in v]) for k, v in sorted(by_cover.items())
+        },
+        "roi_kinds": {
+            str(k): sum(r["roi_kind"] == k for r in rows)
+            for k in sorted({str(r["roi_kind"]) for r in rows})
+        },
+        "median_detect_s": float(np.median([r["detect_s"] for r in rows])),
+    }
+    print(json.dumps(summary, indent=1))
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps({"summary": summary, "per_image": rows}))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -74,17 +131,26 @@ def main() -> None:
     ap.add_argument("--detector", choices=("hough", "lsd"), default="hough")
     ap.add_argument(
         "--domain",
-        choices=("space", "lightbox"),
+        choices=("space", "lightbox", "lightbox-earth"),
         default="space",
         help="space: black sky, every other image over the Earth; lightbox: grey noisy "
         "background, faint shadowed faces, saturated lit faces, MLI blanket creases "
-        "(jaxpose.vision.render.lightbox_scene), a development domain like the SPEED+ photographs",
+        "(jaxpose.vision.render.lightbox_scene), a development domain like the SPEED+ photographs; "
+        "lightbox-earth: the same over an Earth of "
+        "photographic contrast (bright sharp clouds), its limb crossing the image in even images, "
+        "filling it in odd ones (lightbox_scene(earth=...))",
     )
     ap.add_argument(
         "--true-score",
         action="store_true",
         help="also record the chamfer score of the true pose after the edge fit from the truth "
         "(true_score, l_ROI units; diagnosis: does the score prefer the truth?)",
+    )
+    ap.add_argument(
+        "--roi-only",
+        action="store_true",
+        help="run only the image processing (jaxpose.vision.features.detect) and report the "
+        "coarse range (within 20%%, ratio to the truth) and the ROI diagonal over the true box's",
     )
     ap.add_argument("--out", default=None, help="write the summary and per-image records (JSON)")
     args = ap.parse_args()
@@ -94,17 +160,27 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     warm = render(model, random_pose(rng, camera), camera, rng=rng)
     t0 = time.perf_counter()
-    initialise_pose(warm.image, camera, model, opts)
+    if not args.roi_only:
+        initialise_pose(warm.image, camera, model, opts)
     compile_s = time.perf_counter() - t0
     rows = []
     for i in tqdm(range(args.images), desc=f"rendered ({args.method})", unit="img"):
         pose = random_pose(rng, camera, range_m=(3.0, 12.0))
+        cover = None
         if args.domain == "lightbox":
             earth = False
             r = render(model, pose, camera, rng=rng, **lightbox_scene(model, rng))
+        elif args.domain == "lightbox-earth":
+            earth = True
+            cover = "partial" if i % 2 == 0 else "full"
+            opts_i = lightbox_scene(model, rng, earth=cover, shape=(camera.height, camera.width))
+            r = render(model, pose, camera, rng=rng, **opts_i)
         else:
             earth = i % 2 == 1
             r = render(model, pose, camera, rng=rng, earth=earth)
+        if args.roi_only:
+            rows.append(_roi_row(r, camera, model, opts.detection, earth, cover))
+            continue
         t0 = time.perf_counter()
         res = initialise_pose(r.image, camera, model, opts)
         wall = time.perf_counter() - t0
@@ -142,6 +218,9 @@ def main() -> None:
             )
             row["esa_score"] = float(esa_score(res.pose, pose)[0])
         rows.append(row)
+    if args.roi_only:
+        _roi_summary(rows, args)
+        return
     n = len(rows)
     by = {
         c: [r for r in rows if r["confidence"] == c]
@@ -154,8 +233,14 @@ def main() -> None:
         "method": args.method,
         "detector": args.detector,
         "success_rate": sum(r["success"] for r in rows) / n,
-        "success_rate_no_earth": float(np.mean([r["success"] for r in rows if not r["earth"]])),
-        "success_rate_earth": float(np.mean([r["success"] for r in rows if r["earth"]])),
+        "success_rate_no_earth": _mean([r["success"] for r in rows if not r["earth"]]),
+        "success_rate_earth": _mean([r["success"] for r in rows if r["earth"]]),
+        "coarse_range_within_20pct_no_earth": _mean(
+            [r["coarse_within_20pct"] for r in rows if not r["earth"]]
+        ),
+        "coarse_range_within_20pct_earth": _mean(
+            [r["coarse_within_20pct"] for r in rows if r["earth"]]
+        ),
         "confidence_counts": {c: len(v) for c, v in by.items()},
         "precision": {
             c: (sum(r["success"] for r in v) / len(v) if v else None) for c, v in by.items()

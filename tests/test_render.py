@@ -132,3 +132,33 @@ def test_lightbox_scene_background_noise_and_blanket(camera):
         blanket_texture(np.zeros((2, 3)), rng)
     with pytest.raises(ValueError, match="exclusive"):
         render(m, front_pose(), camera, rng=0, earth=True, background_level=0.1)
+
+
+def test_lightbox_scene_earth_option(camera):
+    m = tango()
+    plain = lightbox_scene(m, np.random.default_rng(5))
+    shape = (camera.height, camera.width)
+    for cover in ("partial", "full"):
+        opts = lightbox_scene(m, np.random.default_rng(5), earth=cover, shape=shape)
+        # the options without the Earth are drawn first: the same for the same generator state
+        for key in ("exposure", "ambient", "noise_sigma", "blur_sigma_px"):
+            assert opts[key] == plain[key]
+        np.testing.assert_array_equal(opts["sun_dir_cam"], plain["sun_dir_cam"])
+        assert "background_level" not in opts
+        bg = opts["background"]
+        assert bg.shape == shape
+        sky = np.isclose(bg, plain["background_level"], rtol=1e-5)
+        if cover == "partial":  # grey lab background beyond the limb, the Earth on the rest
+            assert 0.2 < sky.mean() < 0.95
+        # bright clouds: well above the lab background somewhere
+        assert bg.max() * opts["exposure"] > 0.3
+        r = render(m, front_pose(4.0), camera, rng=np.random.default_rng(1), **opts)
+        assert r.image.shape == shape and np.isfinite(r.roi).all()
+    with pytest.raises(ValueError, match="earth"):
+        lightbox_scene(m, np.random.default_rng(5), earth="half", shape=shape)
+    with pytest.raises(ValueError, match="shape"):
+        lightbox_scene(m, np.random.default_rng(5), earth="full")
+    with pytest.raises(ValueError, match="exclusive"):
+        render(m, front_pose(), camera, rng=0, background=np.zeros(shape), background_level=0.1)
+    with pytest.raises(ValueError, match="shape"):
+        render(m, front_pose(), camera, rng=0, background=np.zeros((3, 3)))

@@ -35,6 +35,7 @@ __all__ = [
     "blanket_texture",
     "earth_background",
     "lightbox_scene",
+    "photographic_earth",
     "project_points",
     "random_pose",
     "render",
@@ -308,7 +309,9 @@ def blanket_texture(
     return texture
 
 
-def lightbox_scene(model, rng: np.random.Generator) -> dict:
+def lightbox_scene(
+    model, rng: np.random.Generator, *, earth: str | None = None, shape=None
+) -> dict:
     """Render options of a laboratory image like the SPEED+ lightbox photographs (a development
     domain for :func:`render`, not fitted to those photographs).
 
@@ -318,7 +321,17 @@ def lightbox_scene(model, rng: np.random.Generator) -> dict:
     background (weak ambient); crumpled MLI blankets on the body (:func:`blanket_texture`) and a
     dark solar panel; Sun direction random over the hemisphere facing the camera. The background
     level, noise, ambient and exposure are drawn per image from the ranges below.
+
+    ``earth``: ``None`` (the laboratory's grey background), ``"partial"`` (an Earth whose limb
+    crosses the image, clouds in a corner or along a side, grey background beyond the limb) or
+    ``"full"`` (the Earth fills the image): a :func:`photographic_earth` of image ``shape``
+    ``(H, W)`` as the ``background`` option, drawn after everything else, so that the options
+    without it are the same for the same generator state.
     """
+    if earth not in (None, "partial", "full"):
+        raise ValueError(f"earth must be None, 'partial' or 'full'; got {earth!r}")
+    if earth is not None and shape is None:
+        raise ValueError("an Earth background needs the image shape=(H, W)")
     sun = rng.normal(size=3)
     sun[2] = -abs(sun[2]) - 0.3  # towards the camera's side: some lit face is seen
     F = len(model.faces)
@@ -335,7 +348,7 @@ def lightbox_scene(model, rng: np.random.Generator) -> dict:
         textures[f] = blanket_texture(model.vertices[list(model.faces[f])], rng, albedo=0.8)
     exposure = rng.uniform(2.5, 5.0)
     bg = rng.uniform(25, 40) / 255.0
-    return dict(
+    options = dict(
         sun_dir_cam=sun,
         ambient=bg / exposure * rng.uniform(0.75, 1.35) / 0.8,  # shadow: 0.75-1.35 x background
         albedo=albedo,
@@ -345,6 +358,65 @@ def lightbox_scene(model, rng: np.random.Generator) -> dict:
         blur_sigma_px=rng.uniform(0.8, 1.5),
         background_level=bg / exposure,
     )
+    if earth is not None:
+        ground, inside = photographic_earth(shape, rng, coverage=earth)
+        options.pop("background_level")
+        options["background"] = (np.where(inside, np.maximum(ground, bg), bg) / exposure).astype(
+            np.float32
+        )
+    return options
+
+
+def photographic_earth(
+    shape, rng: np.random.Generator, *, coverage: str = "partial"
+) -> tuple[np.ndarray, np.ndarray]:
+    """An Earth of photographic contrast: ``(radiance (H, W) in [0, 1], inside (H, W) bool)``.
+
+    Unlike :func:`earth_background` (soft clouds at half brightness), the clouds here are bright
+    (their top level drawn in 0.35-1.0, so the brightest may saturate after exposure) with sharp
+    edges and fine structure, over a dark ocean (0.1-0.3 of that level) and brighter land with
+    sharp coasts: the SPEED+
+    lightbox photographs with the Earth show such clouds, dimmer than the lit target in some and
+    far brighter than its shadowed faces in others. ``coverage``: ``"full"`` (the Earth fills the
+    image) or ``"partial"`` (a limb, a circle 1-3 image sizes in radius, crosses the image so that
+    the Earth covers a corner or a side; ``inside`` is False beyond it).
+    """
+    if coverage not in ("partial", "full"):
+        raise ValueError(f"coverage must be 'partial' or 'full'; got {coverage!r}")
+    H, W = (int(v) for v in shape)
+    if H < 2 or W < 2:
+        raise ValueError(f"shape must be at least 2x2; got {shape}")
+
+    def fractal(octaves, base, decay):
+        out = np.zeros((H, W), dtype=np.float32)
+        amp = 1.0
+        for octave in range(octaves):
+            n = base * 2**octave
+            small = rng.random((n, max(2, int(n * W / H)))).astype(np.float32)
+            out += amp * cv2.resize(small, (W, H), interpolation=cv2.INTER_CUBIC)
+            amp *= decay
+        return (out - out.min()) / max(float(out.max() - out.min()), 1e-6)
+
+    cloud_field = fractal(7, 3, 0.65)
+    land = fractal(5, 2, 0.5)
+    level = rng.uniform(0.35, 1.0)
+    cover = rng.uniform(0.35, 0.6)  # the higher, the fewer clouds
+    gain = rng.uniform(3.0, 6.0)
+    clouds = np.clip((cloud_field - cover) * gain, 0.0, 1.0)
+    ocean = rng.uniform(0.1, 0.3)
+    coast = land > rng.uniform(0.4, 0.6)  # land masses with sharp coasts
+    ground = np.where(coast, ocean + rng.uniform(0.1, 0.25), ocean) + 0.1 * (land - 0.5)
+    img = level * np.maximum(clouds, ground)
+    if coverage == "full":
+        return img.astype(np.float32), np.ones((H, W), bool)
+    size = max(H, W)
+    r = rng.uniform(1.0, 3.0) * size
+    ang = rng.uniform(0, 2 * np.pi)
+    dist = r + rng.uniform(0.1, 0.4) * size  # the image centre lies beyond the limb
+    cx, cy = W / 2 + np.cos(ang) * dist, H / 2 + np.sin(ang) * dist
+    yy, xx = np.mgrid[0:H, 0:W]
+    inside = (xx - cx) ** 2 + (yy - cy) ** 2 < r**2
+    return img.astype(np.float32), inside
 
 
 def earth_background(shape, rng: np.random.Generator, *, brightness: float = 0.55) -> np.ndarray:
@@ -505,6 +577,7 @@ def render(
     noise_sigma: float = 0.01,
     exposure: float = 1.0,
     background_level: float | None = None,
+    background: np.ndarray | None = None,
     **layer_options,
 ) -> Rendering:
     """Render ``model`` at ``pose``: image, true pose, visible edges, face buffer and true ROI.
@@ -512,7 +585,8 @@ def render(
     ``layer_options`` go to :func:`render_layers` (light, albedo, textures, specular, ...). With
     ``textures`` left out and the Tango model, the top of the solar panel gets solar cells.
     ``background_level``: a uniform background radiance (before ``exposure``) instead of black
-    space or ``earth``; :func:`lightbox_scene` gives all the options of a lightbox photograph.
+    space or ``earth``; ``background``: an ``(H, W)`` background radiance (before ``exposure``);
+    :func:`lightbox_scene` gives all the options of a lightbox photograph.
     """
     rng = np.random.default_rng(rng)
     H, W = _image_size(camera, shape)
@@ -524,6 +598,12 @@ def render(
         if earth:
             raise ValueError("earth and background_level are exclusive")
         bg = np.full((H, W), float(background_level), np.float32)
+    if background is not None:
+        if earth or background_level is not None:
+            raise ValueError("background, earth and background_level are exclusive")
+        bg = np.asarray(background, dtype=np.float32)
+        if bg.shape != (H, W):
+            raise ValueError(f"background must have shape {(H, W)}; got {bg.shape}")
     image = apply_sensor(
         radiance,
         rng,
