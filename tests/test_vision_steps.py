@@ -102,12 +102,50 @@ def ndimage_blur(x, sigma):
     return cv2.GaussianBlur(x, (0, 0), sigma)
 
 
+def _cloudy_cap(rng, shape, centre, radius, level=30.0):
+    """Sky at ``level`` and an Earth cap (a disc crossing the frame) of bright, sharp-edged,
+    fragmented clouds over a ground a few levels above the sky; the cap mask."""
+    H, W = shape
+    vv, uu = np.mgrid[:H, :W]
+    cap = (uu - centre[0]) ** 2 + (vv - centre[1]) ** 2 < radius**2
+    field = ndimage_blur(rng.standard_normal((H, W)), 6.0)
+    clouds = np.clip((field / field.std() - 0.3) * 150.0, 0.0, 200.0)  # about 40% cloud cover
+    return np.where(cap, level + 10.0 + clouds, level), cap
+
+
+def test_roi_silhouette_beside_an_earth_in_a_corner(rng):
+    # A small, faint target against a dark sky, clouds in a corner (SPEED+ lightbox image 3):
+    # the components touching two sides and their hull are the Earth, the target is the rest.
+    img, cap = _cloudy_cap(rng, (600, 800), (900.0, 800.0), 600.0)
+    assert cap.mean() > 0.25
+    img[100:160, 100:180] += 25.0  # the target, far from the Earth
+    img[160:200, 140:150] += 15.0  # a fainter antenna below it
+    img += 6.0 * rng.standard_normal(img.shape)  # strong sensor noise as in the photographs
+    box = roi_from_silhouette(np.clip(img, 0, 255).astype(np.uint8))
+    f = 600 // 150
+    np.testing.assert_allclose(box, [100, 100, 180, 200], atol=2 * f)
+    # The same with the clouds bright enough that the image's overall spread says "texture":
+    # the sky level is then the histogram mode, its noise the spread of the darker pixels.
+    big, _ = _cloudy_cap(rng, (600, 800), (1000.0, 900.0), 800.0)
+    big[100:160, 100:180] += 25.0
+    big += 6.0 * rng.standard_normal(big.shape)
+    box = roi_from_silhouette(np.clip(big, 0, 255).astype(np.uint8))
+    np.testing.assert_allclose(box, [100, 100, 180, 160], atol=2 * f)
+
+
 def test_roi_silhouette_declines_without_a_clean_dark_background(rng):
     img = _dark_scene(rng)
     vv, uu = np.mgrid[:600, :800]
     img[(uu - 900.0) ** 2 + (vv - 800.0) ** 2 < 600.0**2] = 150.0  # an Earth disc in a corner
-    img[100:160, 100:180] = 200.0  # a small target: less than half the foreground
+    img[380:460, 380:470] = 200.0  # a target in front of the Earth's edge: one component
+    assert (
+        (uu[380:460, 380:470] - 900.0) ** 2 + (vv[380:460, 380:470] - 800.0) ** 2
+    ).min() < 600.0**2
     assert roi_from_silhouette(np.clip(img, 0, 255).astype(np.uint8)) is None
+    # Clouds over the whole image (no flat sky, the Earth fills the frame): no silhouette.
+    full, _ = _cloudy_cap(rng, (600, 800), (400.0, 300.0), 2000.0)
+    full[250:350, 300:450] = 15.0  # a dark target in front of it (SPEED+ lightbox image 6)
+    assert roi_from_silhouette(np.clip(full, 0, 255).astype(np.uint8)) is None
     clouds = 60.0 + 400.0 * ndimage_blur(rng.standard_normal((600, 800)), 12.0)
     clouds[250:350, 300:450] = 200.0  # the target
     clouds[330:450, 430:600] = 150.0  # a bright cloud touching it: its silhouette would merge

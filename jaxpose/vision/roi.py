@@ -4,8 +4,8 @@
   image axis, the positions where the CDF of the WGE-filtered gradient reaches 0.025 and 0.975.
 - :func:`roi_from_segments`: over an Earth background, the box of the largest cluster of line
   segments meeting at corners.
-- :func:`roi_from_silhouette`: against black space, the box of the target's silhouette, faces in
-  shadow included.
+- :func:`roi_from_silhouette`: against black space (an Earth in part of the image excluded),
+  the box of the target's silhouette, faces in shadow included.
 """
 
 from __future__ import annotations
@@ -242,6 +242,7 @@ def roi_from_silhouette(
     min_noise: float = 0.5,
     min_share: float = 0.5,
     max_noise: float = 3.0,
+    min_sky: float = 1 / 3,
 ) -> np.ndarray | None:
     """The target's ROI as the box of its silhouette against a dark background, or ``None``.
 
@@ -254,15 +255,24 @@ def roi_from_silhouette(
     is foreground when it differs from the median (the background) by more than ``k_sigma``
     robust standard deviations (1.4826 MAD, at least ``min_noise`` grey levels), either way;
     gaps are closed by a 3x3 closing. Connected components touching two or more image sides are
-    background (an Earth limb, a lit wall), not a target. The largest remaining component is the
-    target when it holds at least ``min_share`` of all the foreground area (so a background with
-    much structure of its own, an Earth disc or clouds, gives ``None``); its box,
-    back in full-resolution pixels, is returned. A background whose robust spread on the shrunk
-    image exceeds ``max_noise`` grey levels is not black space but texture (clouds) and gives
-    ``None`` at once: the caller then keeps the gradient or cluster ROI. (On the shrunk images
+    background (an Earth limb, a lit wall), not a target: a disc crossing the image leaves a
+    convex cap, so the convex hull of those components, grown by two pixels, is the Earth, and
+    the components meeting it (cloud fragments, or a target in front of the Earth) are no
+    candidates; with less than ``min_sky`` of the image left as background outside it, ``None``.
+    The largest remaining component is the target when it holds at least ``min_share`` of the
+    area of the candidates (so a background with much structure of its own gives ``None``); the
+    other components cut by one frame side do not count against it (pieces of an Earth whose
+    limb crosses one side). Its box, back in full-resolution pixels, is returned.
+
+    A background whose robust spread on the shrunk image exceeds ``max_noise`` grey levels is not
+    flat: the Earth covers much of it. The background level is then the histogram mode (the
+    sky, when it covers more of the image than any one level of the Earth) and its spread that
+    of the pixels darker than the mode (clouds lie on the bright side); when that spread too
+    exceeds ``max_noise`` (no flat sky: the Earth fills the image), or no component touches two
+    sides, ``None``: the caller then keeps the gradient or cluster ROI. (On the shrunk images
     the spread was 0.2 over rendered black space, 0.3-1.5 on the SPEED+ lightbox photographs and
-    4.7-7.2 over the rendered Earth where the silhouette had fired without this test, one of
-    them on a cloud: development seed 7 of ``bench/monocular.py``.)
+    4.7-7.2 over the rendered Earth: development seed 7 of ``bench/monocular.py``; the Earth
+    exclusion was developed on its ``lightbox-earth`` domain, seed 7.)
     """
     import cv2
 
@@ -276,22 +286,48 @@ def roi_from_silhouette(
     small = cv2.resize(img.astype(np.float32), (W // f, H // f), interpolation=cv2.INTER_AREA)
     med = float(np.median(small))
     spread = 1.4826 * float(np.median(np.abs(small - med)))
-    if spread > max_noise:  # a textured background (clouds), not sensor noise on black space
-        return None
+    if spread > max_noise:  # a textured background: the sky, if any, is the histogram mode
+        level = np.clip(np.rint(small), 0, 255).astype(np.int64).ravel()
+        hist = np.convolve(np.bincount(level, minlength=256), [1, 2, 3, 2, 1], mode="same")
+        med = float(np.argmax(hist))
+        dark = small[small <= med]  # clouds lie on the bright side of the sky
+        spread = 1.4826 * float(np.median(med - dark)) if dark.size else 0.0
+        if spread > max_noise:
+            return None
+        textured = True
+    else:
+        textured = False
     sigma = max(spread, float(min_noise))
     mask = (np.abs(small - med) > k_sigma * sigma).astype(np.uint8)
     mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-    n, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
         return None
     x, y, w, h, area = (stats[1:, i] for i in range(5))
     hs, ws = small.shape
     sides = (x == 0).astype(int) + (y == 0) + (x + w >= ws) + (y + h >= hs)
-    cand = np.nonzero(sides < 2)[0]
+    cand = sides < 2
+    earth = np.nonzero(~cand)[0]
+    if len(earth):
+        # A disc crossing the image leaves a convex cap: the hull of the components touching
+        # two sides, grown by two pixels, is the Earth, cloud fragments inside it included.
+        pts = np.stack(np.nonzero(np.isin(labels, earth + 1))[::-1], 1).astype(np.int32)
+        hull = np.zeros((hs, ws), np.uint8)
+        cv2.fillConvexPoly(hull, cv2.convexHull(pts), 1)
+        hull = cv2.dilate(hull, np.ones((5, 5), np.uint8))
+        if ((mask == 0) & (hull == 0)).mean() < min_sky:
+            return None
+        cand &= np.bincount(labels[hull > 0].ravel(), minlength=n)[1:] == 0
+    elif textured:
+        return None
+    cand = np.nonzero(cand)[0]
     if not len(cand):
         return None
     best = cand[np.argmax(area[cand])]
-    if area[best] < 4 or area[best] < min_share * area.sum():
+    # the other components cut by the frame are background too (pieces of an Earth whose
+    # limb crosses one side), not rivals of the target
+    rivals = cand[(sides[cand] == 0) | (cand == best)]
+    if area[best] < 4 or area[best] < min_share * area[rivals].sum():
         return None
     box = np.array([x[best], y[best], x[best] + w[best], y[best] + h[best]], dtype=float) * f
     return np.minimum(box, [W, H, W, H])
