@@ -9,7 +9,7 @@ from jaxpose import PinholeCamera, Pose
 from jaxpose.geometry import euler_to_dcm
 from jaxpose.models import tango
 from jaxpose.vision.coarse import coarse_position
-from jaxpose.vision.features import DetectionOptions, detect, to_gray
+from jaxpose.vision.features import DetectionOptions, detect, lsd_cluster_box, to_gray
 from jaxpose.vision.lsd import lsd_segments
 from jaxpose.vision.merge import merge_streams, merge_truncated, remove_duplicates
 from jaxpose.vision.render import project_points, render
@@ -131,6 +131,40 @@ def test_roi_silhouette_beside_an_earth_in_a_corner(rng):
     big += 6.0 * rng.standard_normal(big.shape)
     box = roi_from_silhouette(np.clip(big, 0, 255).astype(np.uint8))
     np.testing.assert_allclose(box, [100, 100, 180, 160], atol=2 * f)
+
+
+def _target_over_clouds(rng, blur):
+    """A dark man-made target (a tilted face and a lit side) in front of sharp-edged clouds
+    filling the image (SPEED+ lightbox image 6); its box by construction."""
+    import cv2
+
+    field = ndimage_blur(rng.standard_normal((600, 800)), blur)
+    img = 70.0 + np.clip((field / field.std() - 0.3) * 150.0, 0.0, 180.0)
+    body = np.array([[300, 200], [480, 170], [520, 330], [340, 370]], np.int32)
+    side = np.array([[480, 170], [540, 190], [575, 340], [520, 330]], np.int32)
+    cv2.fillPoly(img, [body], 15.0)
+    cv2.fillPoly(img, [side], 110.0)
+    img = np.clip(img + 3.0 * rng.standard_normal(img.shape), 0, 255).astype(np.uint8)
+    return img, [300, 170, 575, 370]
+
+
+def test_lsd_cluster_box_over_a_full_earth():
+    # Small clouds: the target's straight edges meeting at corners are the largest cluster of
+    # LSD segments (a scene drawn with 10 seeds: a rare cloud edge may still join the target).
+    ratios = []
+    for seed in range(10):
+        img, truth = _target_over_clouds(np.random.default_rng(seed), 6.0)
+        box = lsd_cluster_box(img)
+        ratios.append(np.inf if box is None else roi_diagonal(box) / roi_diagonal(truth))
+    assert sum(abs(r - 1) < 0.2 for r in ratios) >= 8, ratios
+    # Large smooth clouds: their curved edges, cut by LSD into polylines, form big clusters
+    # with "corners", but none spanned by a long straight edge: no box rather than a wrong one.
+    for seed in range(3):
+        img, truth = _target_over_clouds(np.random.default_rng(seed), 16.0)
+        box = lsd_cluster_box(img)
+        assert box is None or roi_diagonal(box) < 1.3 * roi_diagonal(truth)
+    assert lsd_cluster_box(np.full((600, 800), 40, np.uint8)) is None  # no edges
+    assert lsd_cluster_box(np.zeros((20, 20), np.uint8)) is None  # too small
 
 
 def test_roi_silhouette_declines_without_a_clean_dark_background(rng):

@@ -19,7 +19,7 @@ from .synthesis import FeatureGroups, synthesize
 from .undistort import undistort_image
 from .wge import weak_gradient_elimination
 
-__all__ = ["DetectionOptions", "Detection", "detect", "to_gray"]
+__all__ = ["DetectionOptions", "Detection", "detect", "lsd_cluster_box", "to_gray"]
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,14 @@ class DetectionOptions:
     ROI's diagonal was 55-79% of the projected model's, the silhouette's 83-99%). When no clean
     silhouette is found (an Earth or other structured background) the gradient and cluster ROIs
     are used as before.
+
+    ``cluster_lsd``: when the cluster box above is not taken (no cluster, or the tests fail: over
+    a bright, high-contrast Earth the WGE keeps the clouds' gradients and drops the target's
+    edges), the same tests are tried on the box of the largest cluster of LSD segments of the
+    whole image at half resolution (:func:`lsd_cluster_box`): LSD finds edges of any contrast.
+    Developed on rendered images of seed 7 (80 space images with an Earth, 100 lightbox-earth):
+    it replaced the gradient ROI in 9: 7 fixed (the gradient ROI was 1.3-5 times the target's
+    box, the new one within 15%), one right kept right, one wrong kept wrong.
     """
 
     detector: str = "hough"
@@ -69,6 +77,8 @@ class DetectionOptions:
     cluster_background_share: float = 0.05
     cluster_max_ratio: float = 8.0
     silhouette_roi: bool = True
+    cluster_lsd: bool = True
+    cluster_lsd_min_px: float = 15.0
 
 
 @dataclass
@@ -120,6 +130,39 @@ def bright_background_share(image: np.ndarray, box, *, grow: float = 0.5, level:
     if not away.any() or thr <= 0:
         return 0.0
     return float((img[away] > thr).mean())
+
+
+def lsd_cluster_box(
+    image: np.ndarray, *, min_length_px: float = 15.0, min_span: float = 0.4
+) -> np.ndarray | None:
+    """Box ``[u0, v0, u1, v1]`` (full-resolution pixels) of the largest cluster of line segments
+    with corners (:func:`roi_from_segments`) among the LSD segments of ``image`` shrunk to half
+    resolution, or ``None``. LSD breaks a long edge crossing a textured or saturated background
+    into collinear pieces, which would no longer meet at the corners: pieces on one line (within
+    3 deg and 2 pixels) less than 10 pixels apart are merged first (pieces shorter than 10
+    pixels dropped before); segments shorter than ``min_length_px`` (half-resolution pixels:
+    cloud texture) are dropped after. A man-made target's box is spanned by a few long edges: a
+    cluster whose longest segment is shorter than ``min_span`` times its box diagonal is the
+    polyline of curved cloud edges and gives ``None`` (on the rendered Earth images of seed 7
+    where this box replaced a wrong gradient ROI and was right, the longest segment spanned
+    0.47-0.70 of it)."""
+    img = np.asarray(image)
+    H, W = img.shape[:2]
+    if min(H, W) < 32:
+        return None
+    half = cv2.resize(img, (W // 2, H // 2), interpolation=cv2.INTER_AREA)
+    segs = lsd_segments(half)
+    if not len(segs):
+        return None
+    # pieces under 10 pixels are cloud texture (and would make the quadratic merge slow)
+    segs = segs[np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1) >= 10.0]
+    segs = merge_truncated(segs, theta_thresh_deg=3.0, rho_thresh=2.0, d_thresh=10.0)
+    segs = 2.0 * segs[np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1) >= min_length_px]
+    box, idx = roi_from_segments(segs)
+    if box is None:
+        return None
+    longest = float(np.linalg.norm(segs[idx, 1] - segs[idx, 0], axis=1).max())
+    return box if longest >= min_span * roi_diagonal(box) else None
 
 
 def _segments(smooth, wge, roi, options):
@@ -186,15 +229,21 @@ def detect(
             kappa3=options.kappa3 * k,
             kappa4=options.kappa4 * k,
         )
+
+        def accepted(box):
+            return (
+                box is not None
+                and roi_diagonal(box) >= options.min_roi_px
+                and options.cluster_roi_ratio
+                < roi_diagonal(roi) / roi_diagonal(box)
+                < options.cluster_max_ratio
+                and bright_background_share(smooth, box) > options.cluster_background_share
+            )
+
         box, _ = roi_from_segments(_segments(smooth, wge, roi, fine)[0])
-        if (
-            box is not None
-            and roi_diagonal(box) >= options.min_roi_px
-            and options.cluster_roi_ratio
-            < roi_diagonal(roi) / roi_diagonal(box)
-            < options.cluster_max_ratio
-            and bright_background_share(smooth, box) > options.cluster_background_share
-        ):
+        if not accepted(box) and options.cluster_lsd:
+            box = lsd_cluster_box(und, min_length_px=options.cluster_lsd_min_px)
+        if accepted(box):
             det.roi = roi = box
     segs, from_wge, antennas = _segments(smooth, wge, roi, options)
     det.coarse_t_cam = coarse_position(roi, ideal, characteristic_length_m)
