@@ -30,7 +30,12 @@ from jaxpose import PinholeCamera  # noqa: E402
 from jaxpose.commands import enable_compilation_cache  # noqa: E402
 from jaxpose.metrics import esa_score, rotation_error, success  # noqa: E402
 from jaxpose.models import tango  # noqa: E402
-from jaxpose.pipelines.monocular import InitOptions, initialise_pose  # noqa: E402
+from jaxpose.pipelines.monocular import (  # noqa: E402
+    ANTENNA_WEIGHT,
+    REGION_WEIGHT,
+    InitOptions,
+    initialise_pose,
+)
 from jaxpose.vision.features import DetectionOptions  # noqa: E402
 from jaxpose.vision.render import lightbox_scene, random_pose, render  # noqa: E402
 
@@ -152,11 +157,28 @@ def main() -> None:
         help="run only the image processing (jaxpose.vision.features.detect) and report the "
         "coarse range (within 20%%, ratio to the truth) and the ROI diagonal over the true box's",
     )
+    ap.add_argument(
+        "--antenna-weight",
+        type=float,
+        default=ANTENNA_WEIGHT,
+        help="weight of the antenna term in the ranking (0: off; ablation)",
+    )
+    ap.add_argument(
+        "--region-weight",
+        type=float,
+        default=REGION_WEIGHT,
+        help="weight of the region term in the ranking (0: off; ablation)",
+    )
     ap.add_argument("--out", default=None, help="write the summary and per-image records (JSON)")
     args = ap.parse_args()
     enable_compilation_cache()
     model, camera = tango(), SPEEDPLUS_CAMERA
-    opts = InitOptions(method=args.method, detection=DetectionOptions(detector=args.detector))
+    opts = InitOptions(
+        method=args.method,
+        detection=DetectionOptions(detector=args.detector),
+        antenna_weight=args.antenna_weight,
+        region_weight=args.region_weight,
+    )
     rng = np.random.default_rng(args.seed)
     warm = render(model, random_pose(rng, camera), camera, rng=rng)
     t0 = time.perf_counter()
@@ -231,6 +253,8 @@ def main() -> None:
         "images": n,
         "domain": args.domain,
         "method": args.method,
+        "antenna_weight": args.antenna_weight,
+        "region_weight": args.region_weight,
         "detector": args.detector,
         "success_rate": sum(r["success"] for r in rows) / n,
         "success_rate_no_earth": _mean([r["success"] for r in rows if not r["earth"]]),
