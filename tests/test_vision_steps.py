@@ -236,6 +236,52 @@ def test_synthesis_of_a_square_and_a_u():
     assert synthesize(np.zeros((0, 2, 2)), d_max=1.0).most_complex() is None
 
 
+def test_corner_test_for_proximal_pairs():
+    # l_ROI = 100, so d_max = 0.04 l_ROI = 4. Two edges of a 60-degree corner at (10, 20), each
+    # stopping 8 short of it (8% of their length 100): the endpoint gap is 8 (an equilateral
+    # triangle with the corner), 0.08 l_ROI, too far for the endpoint test.
+    c = np.array([10.0, 20.0])
+    ua, ub = np.array([1.0, 0.0]), np.array([0.5, np.sqrt(3.0) / 2.0])
+    pair = np.array([[c + 8 * ua, c + 108 * ua], [c + 8 * ub, c + 108 * ub]])
+    assert np.isclose(np.linalg.norm(pair[0, 0] - pair[1, 0]), 8.0)
+    assert synthesize(pair, d_max=4.0).count("proximal_pair") == 0  # the old rule alone
+    g = synthesize(pair, d_max=4.0, corner_frac=0.1)
+    assert g.count("proximal_pair") == 1
+    far_a, corner, far_b = g.points["proximal_pair"][0]
+    np.testing.assert_allclose(corner, [10.0, 20.0], atol=1e-9)
+    np.testing.assert_allclose(far_a, [118.0, 20.0], atol=1e-9)
+    np.testing.assert_allclose(far_b, [10.0 + 54.0, 20.0 + 54.0 * np.sqrt(3.0)], atol=1e-9)
+    # Too narrow an angle: lines 10 degrees apart meeting at the same kind of gap.
+    un = np.array([np.cos(np.deg2rad(10.0)), np.sin(np.deg2rad(10.0))])
+    narrow = np.array([[c - 8 * ua, c - 108 * ua], [c + 8 * un, c + 108 * un]])
+    assert synthesize(narrow, d_max=4.0, corner_frac=0.1).count("proximal_pair") == 0
+    assert (
+        synthesize(narrow, d_max=4.0, corner_frac=0.1, corner_min_angle_deg=5.0).count(
+            "proximal_pair"
+        )
+        == 1
+    )
+    # Far apart: the lines meet at (300, 0), 2 lengths beyond the first segment's end.
+    far = np.array([[[0.0, 0.0], [100.0, 0.0]], [[300.0, 50.0], [300.0, 150.0]]])
+    assert synthesize(far, d_max=4.0, corner_frac=0.25).count("proximal_pair") == 0
+    # Within 0.1 of the first segment's length but half the second's: each segment's own share.
+    one_sided = np.array([[[0.0, 0.0], [100.0, 0.0]], [[110.0, 50.0], [110.0, 150.0]]])
+    assert synthesize(one_sided, d_max=4.0, corner_frac=0.25).count("proximal_pair") == 0
+    assert synthesize(one_sided, d_max=4.0, corner_frac=0.6).count("proximal_pair") == 1
+    # A square whose sides all stop 8 short of the corners closes a tetrad at the true corners.
+    sq = np.array(
+        [[[8, 0], [92, 0]], [[100, 8], [100, 92]], [[92, 100], [8, 100]], [[0, 92], [0, 8]]],
+        float,
+    )
+    assert synthesize(sq, d_max=4.0).count("closed_tetrad") == 0
+    g = synthesize(sq, d_max=4.0, corner_frac=0.1)
+    assert g.count("closed_tetrad") == 1
+    corners = {tuple(np.round(p, 9)) for p in g.points["closed_tetrad"][0]}
+    assert corners == {(0, 0), (100, 0), (100, 100), (0, 100)}
+    with pytest.raises(ValueError):
+        synthesize(sq, d_max=4.0, corner_frac=-0.1)
+
+
 def test_detect_on_a_rendering(camera):
     m = tango()
     pose = oblique_pose()

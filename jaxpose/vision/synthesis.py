@@ -3,7 +3,12 @@
 The same rules serve the image (2-D segments, pixels) and the model (3-D edges, metres), so the
 model's groups are "precomputed with the same conditions" as the paper asks:
 
-* proximal pair: closest endpoints within ``d_max`` (eq. 14) and the segments not parallel;
+* proximal pair: closest endpoints within ``d_max`` (eq. 14) and the segments not parallel; or,
+  with ``corner_frac > 0`` (2-D only), the corner test: the segments' lines cross at an angle of
+  at least ``corner_min_angle_deg`` and their intersection lies within ``corner_frac`` times each
+  segment's own length of its nearer end (beyond it or inside it). Edges detected on a lit face
+  often stop short of the corners by more than ``d_max`` while their lines still meet there;
+  the junction point of a pair is always the lines' intersection;
 * parallel pair: slope difference within ``theta_max`` (eq. 15) and the lines apart (not collinear);
 * open polygonal triad: two proximal pairs sharing a segment, attached at its two ends, with the
   far endpoints on the same side of the shared segment (eq. 16). In 3-D "same side" means the parts
@@ -113,6 +118,29 @@ def _junction(a0, a1, b0, b1, fallback):
     return a0 + s * da
 
 
+def _corner_pairs(S: np.ndarray, frac: float, min_angle_deg: float):
+    """Corner test for 2-D segments ``(N, 2, 2)``.
+
+    Returns ``(ok, near)``: ``ok[i, j]`` when the lines of i and j cross at an angle of at least
+    ``min_angle_deg`` and the intersection is within ``frac`` times each segment's length of its
+    nearer end; ``near[i, j]`` the endpoint (0 or 1) of i nearer the intersection.
+    """
+    d = S[:, 1] - S[:, 0]
+    length = np.linalg.norm(d, axis=1)
+    w = S[None, :, 0, :] - S[:, None, 0, :]  # b0 - a0 for a = i (rows), b = j (columns)
+    den = d[:, None, 0] * d[None, :, 1] - d[:, None, 1] * d[None, :, 0]
+    sin = np.abs(den) / np.maximum(length[:, None] * length[None, :], 1e-300)
+    ok = sin >= np.sin(np.deg2rad(min_angle_deg)) - 1e-12
+    ok &= (length[:, None] > 0) & (length[None, :] > 0) & (np.abs(den) > 0)
+    safe = np.where(ok, den, 1.0)
+    # a0 + t d_a = b0 + s d_b: t = (w x d_b) / (d_a x d_b), parameter along i.
+    t = (w[..., 0] * d[None, :, 1] - w[..., 1] * d[None, :, 0]) / safe
+    near = (t >= 0.5).astype(int)
+    off = np.minimum(np.abs(t), np.abs(t - 1.0))  # distance to the nearer end / own length
+    ok &= (off <= frac) & (off.T <= frac)
+    return ok, near
+
+
 def synthesize(
     segments: np.ndarray,
     *,
@@ -120,6 +148,8 @@ def synthesize(
     theta_max_deg: float = 5.0,
     min_separation: float = 0.0,
     max_groups: int = 64,
+    corner_frac: float = 0.0,
+    corner_min_angle_deg: float = 20.0,
 ) -> FeatureGroups:
     """Organise segments ``(N, 2, D)`` (D = 2 pixels or 3 metres) into :class:`FeatureGroups`.
 
@@ -129,7 +159,15 @@ def synthesize(
         min_separation: parallel segments must be farther apart than this (not collinear).
         max_groups: at most this many groups of each kind are kept (the longest, by summed
             segment length), to bound the number of hypotheses.
+        corner_frac: scale-aware corner test for proximal pairs (2-D segments only; 0 turns it
+            off): two segments also form a proximal pair when the intersection of their lines
+            is within ``corner_frac`` times each segment's length of that segment's nearer end.
+        corner_min_angle_deg: least angle between the two lines for the corner test.
     """
+    if not (np.isfinite(corner_frac) and corner_frac >= 0.0):
+        raise ValueError(f"corner_frac must be a finite number >= 0; got {corner_frac}")
+    if not (0.0 <= corner_min_angle_deg <= 90.0):
+        raise ValueError(f"corner_min_angle_deg must be in [0, 90]; got {corner_min_angle_deg}")
     S = np.asarray(segments, dtype=float)
     if S.ndim != 3 or S.shape[1] != 2 or S.shape[2] not in (2, 3):
         raise ValueError(f"segments must have shape (N, 2, 2) or (N, 2, 3); got {S.shape}")
@@ -165,6 +203,14 @@ def synthesize(
     prox = (dmin <= d_max) & ~(cos >= cos_max)
     np.fill_diagonal(prox, False)
     end_i, end_j = best // 2, best % 2  # which endpoint of i (resp. j) is the near one
+    if corner_frac > 0 and D == 2 and n > 1:
+        corner, near = _corner_pairs(S, corner_frac, corner_min_angle_deg)
+        corner &= ~prox & ~(cos >= cos_max)
+        np.fill_diagonal(corner, False)
+        # Pairs found by the corner test only: the near ends are those next to the intersection.
+        end_i = np.where(corner, near, end_i)
+        end_j = np.where(corner, near.T, end_j)
+        prox |= corner
 
     J: dict[tuple[int, int], np.ndarray] = {}
 
