@@ -1,6 +1,9 @@
 """Image-processing steps one by one: undistortion, WGE, ROI, coarse position, Hough, LSD, merging,
 synthesis, and the chained detector on a rendered image."""
 
+from dataclasses import replace
+
+import cv2
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -9,7 +12,13 @@ from jaxpose import PinholeCamera, Pose
 from jaxpose.geometry import euler_to_dcm
 from jaxpose.models import tango
 from jaxpose.vision.coarse import coarse_position
-from jaxpose.vision.features import DetectionOptions, detect, lsd_cluster_box, to_gray
+from jaxpose.vision.features import (
+    DetectionOptions,
+    detect,
+    lsd_cluster_box,
+    segment_support,
+    to_gray,
+)
 from jaxpose.vision.lsd import lsd_segments
 from jaxpose.vision.merge import merge_streams, merge_truncated, remove_duplicates
 from jaxpose.vision.render import project_points, render
@@ -295,6 +304,43 @@ def test_detect_on_a_rendering(camera):
         rng_true = float(np.linalg.norm(np.asarray(pose.t)))
         assert abs(np.linalg.norm(det.coarse_t_cam) / rng_true - 1) < 0.35
         assert det.groups.most_complex() is not None
+
+
+def test_segment_support_on_a_drawn_square():
+    # A bright square (OpenCV-drawn) on a noisy dark background: a segment on its side is fully
+    # supported, one through the background not at all, one that leaves the side halfway (the
+    # supported half is known from the geometry: the side ends at x = 300) about half.
+    img = np.full((400, 400), 30, np.uint8)
+    cv2.rectangle(img, (100, 100), (300, 300), 200, -1)
+    noise = np.random.default_rng(0).normal(0.0, 4.0, img.shape)
+    img = np.clip(img + noise, 0, 255).astype(np.uint8)
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    segs = np.array(
+        [
+            [[110.0, 100.0], [290.0, 100.0]],  # on the top side
+            [[20.0, 350.0], [380.0, 360.0]],  # background below the square
+            [[140.0, 300.0], [460.0, 300.0]],  # bottom side, x 140-300 of 140-460: 0.5 on it
+            [[200.0, 150.0], [200.0, 250.0]],  # inside the flat square
+        ]
+    )
+    s = segment_support(img, segs, [90, 90, 310, 310])
+    assert s[0] == pytest.approx(1.0)
+    assert s[1] <= 0.05 and s[3] <= 0.05
+    # samples at 5-95% of the segment: 0.05 + 0.9 t = 0.5 -> a share of 0.5 of the samples
+    assert s[2] == pytest.approx(0.5, abs=0.07)
+    assert segment_support(img, np.zeros((0, 2, 2)), [0, 0, 10, 10]).shape == (0,)
+    with pytest.raises(ValueError, match="image must be"):
+        segment_support(img[..., None], segs, [0, 0, 10, 10])
+
+
+def test_detect_min_support_keeps_supported_segments(camera):
+    m = tango()
+    r = render(m, oblique_pose(), camera, rng=3)
+    opts = DetectionOptions(min_support=0.3, max_segments=1000)
+    det = detect(r.image, camera, m.characteristic_length, opts)
+    raw = detect(r.image, camera, m.characteristic_length, replace(opts, min_support=0.0))
+    assert 4 <= len(det.segments) <= len(raw.segments)
+    assert (segment_support(det.image, det.segments, det.roi) >= 0.3).all()
 
 
 def test_detect_bad_images(camera):
