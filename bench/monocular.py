@@ -169,6 +169,16 @@ def main() -> None:
         default=REGION_WEIGHT,
         help="weight of the region term in the ranking (0: off; ablation)",
     )
+    ap.add_argument(
+        "--cell-grid",
+        type=float,
+        nargs=3,
+        default=None,
+        metavar=("CELLS_U", "CELLS_V", "LINE"),
+        help="lightbox domains: a solar-cell grid of CELLS_U x CELLS_V cells with gaps of "
+        "radiance LINE on the panel (lightbox_scene(cell_grid=...); a stress test like the "
+        "SPEED+ panel, e.g. 12 14 0.6)",
+    )
     ap.add_argument("--out", default=None, help="write the summary and per-image records (JSON)")
     args = ap.parse_args()
     enable_compilation_cache()
@@ -185,17 +195,22 @@ def main() -> None:
     if not args.roi_only:
         initialise_pose(warm.image, camera, model, opts)
     compile_s = time.perf_counter() - t0
+    grid = None
+    if args.cell_grid is not None:
+        grid = (int(args.cell_grid[0]), int(args.cell_grid[1]), float(args.cell_grid[2]))
     rows = []
     for i in tqdm(range(args.images), desc=f"rendered ({args.method})", unit="img"):
         pose = random_pose(rng, camera, range_m=(3.0, 12.0))
         cover = None
         if args.domain == "lightbox":
             earth = False
-            r = render(model, pose, camera, rng=rng, **lightbox_scene(model, rng))
+            r = render(model, pose, camera, rng=rng, **lightbox_scene(model, rng, cell_grid=grid))
         elif args.domain == "lightbox-earth":
             earth = True
             cover = "partial" if i % 2 == 0 else "full"
-            opts_i = lightbox_scene(model, rng, earth=cover, shape=(camera.height, camera.width))
+            opts_i = lightbox_scene(
+                model, rng, earth=cover, shape=(camera.height, camera.width), cell_grid=grid
+            )
             r = render(model, pose, camera, rng=rng, **opts_i)
         else:
             earth = i % 2 == 1
@@ -252,6 +267,7 @@ def main() -> None:
     summary = {
         "images": n,
         "domain": args.domain,
+        "cell_grid": args.cell_grid,
         "method": args.method,
         "antenna_weight": args.antenna_weight,
         "region_weight": args.region_weight,

@@ -1,5 +1,6 @@
 """Synthetic renderer: geometry against the camera model, visibility, sensor effects, hooks."""
 
+import cv2
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -162,3 +163,27 @@ def test_lightbox_scene_earth_option(camera):
         render(m, front_pose(), camera, rng=0, background=np.zeros(shape), background_level=0.1)
     with pytest.raises(ValueError, match="shape"):
         render(m, front_pose(), camera, rng=0, background=np.zeros((3, 3)))
+
+
+def test_lightbox_scene_cell_grid_option(camera):
+    m = tango()
+    pose = front_pose(4.0)
+
+    def image(grid):
+        rng = np.random.default_rng(11)
+        opts = lightbox_scene(m, rng) if grid == "off" else lightbox_scene(m, rng, cell_grid=grid)
+        return render(m, pose, camera, rng=rng, **opts)
+
+    off = image("off")
+    # the documented default grid (8 x 10 cells, gaps 0.2) is what renders without the option
+    np.testing.assert_array_equal(off.image, image((8, 10, 0.2)).image)
+    # bright gaps on the panel's top (face 0) raise its radiance; nothing else changes
+    bright = image((12, 14, 0.6))
+    panel = off.face_ids == 0
+    assert panel.sum() > 1000
+    assert bright.image[panel].mean() > off.image[panel].mean() + 5
+    # away from the panel (beyond the sensor blur's reach) the images are the same
+    near = cv2.dilate(panel.astype(np.uint8), np.ones((21, 21), np.uint8)) > 0
+    np.testing.assert_array_equal(bright.image[~near], off.image[~near])
+    with pytest.raises(ValueError, match="cell_grid"):
+        lightbox_scene(m, np.random.default_rng(0), cell_grid=(0, 4, 0.5))

@@ -310,7 +310,12 @@ def blanket_texture(
 
 
 def lightbox_scene(
-    model, rng: np.random.Generator, *, earth: str | None = None, shape=None
+    model,
+    rng: np.random.Generator,
+    *,
+    earth: str | None = None,
+    shape=None,
+    cell_grid: tuple[int, int, float] | None = None,
 ) -> dict:
     """Render options of a laboratory image like the SPEED+ lightbox photographs (a development
     domain for :func:`render`, not fitted to those photographs).
@@ -327,7 +332,18 @@ def lightbox_scene(
     ``"full"`` (the Earth fills the image): a :func:`photographic_earth` of image ``shape``
     ``(H, W)`` as the ``background`` option, drawn after everything else, so that the options
     without it are the same for the same generator state.
+
+    ``cell_grid``: ``(cells_u, cells_v, line)``, a solar-cell grid of that many cells along the
+    panel's two sides with gaps of radiance ``line`` (the default: 8 x 10 cells, ``line`` 0.2,
+    faint); the SPEED+ panel shows many cells with bright gaps, whose lines the Hough streams
+    pick up (a development stress test; it draws nothing from ``rng``).
     """
+    if cell_grid is not None and (
+        len(cell_grid) != 3 or min(cell_grid[:2]) < 1 or not 0 <= cell_grid[2] <= 1
+    ):
+        raise ValueError(
+            f"cell_grid must be (cells_u >= 1, cells_v >= 1, line in [0, 1]); got {cell_grid}"
+        )
     if earth not in (None, "partial", "full"):
         raise ValueError(f"earth must be None, 'partial' or 'full'; got {earth!r}")
     if earth is not None and shape is None:
@@ -340,7 +356,8 @@ def lightbox_scene(
     if model.name == "tango":
         V = model.vertices
         albedo[:6] = 0.25  # the panel slab: dark cells and edges
-        textures[0] = solar_cell_texture(V[0], V[3] - V[0], V[1] - V[0], base=0.1, line=0.2)
+        cells, line = ((8, 10), 0.2) if cell_grid is None else (tuple(cell_grid[:2]), cell_grid[2])
+        textures[0] = solar_cell_texture(V[0], V[3] - V[0], V[1] - V[0], cells, base=0.1, line=line)
         body = range(6, F)
     else:
         body = range(F)
