@@ -17,6 +17,7 @@ from jaxpose.vision.features import (
     detect,
     lsd_cluster_box,
     segment_support,
+    texture_families,
     to_gray,
 )
 from jaxpose.vision.lsd import lsd_segments
@@ -331,6 +332,36 @@ def test_segment_support_on_a_drawn_square():
     assert segment_support(img, np.zeros((0, 2, 2)), [0, 0, 10, 10]).shape == (0,)
     with pytest.raises(ValueError, match="image must be"):
         segment_support(img[..., None], segs, [0, 0, 10, 10])
+
+
+def test_texture_families_keep_the_outermost_members():
+    # A cell grid drawn by hand: 8 lines 12 px apart (the 5th missing), rotated by 30 deg, with
+    # a little jitter; its first and last lines are the panel's sides. A box's three parallel
+    # edges (steps 40 and 95 px) and a lone segment are no family.
+    rng = np.random.default_rng(1)
+    c, s_ = np.cos(np.radians(30)), np.sin(np.radians(30))
+    rot = np.array([[c, -s_], [s_, c]])
+    grid = [
+        [[0.0, 12.0 * k + rng.normal(0, 0.3)], [150.0 + rng.normal(0, 3), 12.0 * k]]
+        for k in range(8)
+        if k != 4
+    ]
+    grid = np.array(grid) @ rot.T + [300.0, 100.0]
+    box = np.array([[[0, 400], [200, 400]], [[0, 440], [200, 441]], [[0, 535], [200, 535]]], float)
+    lone = np.array([[[500.0, 50.0], [520.0, 300.0]]])
+    segs = np.concatenate([grid, box, lone])
+    inner = texture_families(segs)
+    expected = np.zeros(len(segs), bool)
+    expected[1:6] = True  # grid lines 1, 2, 3, 5, 6 (of 0-7, 4 missing); 0 and 7 stay
+    np.testing.assert_array_equal(inner, expected)
+    # evenly spaced but staggered along their direction (no overlap): not one face's texture
+    staggered = np.array([[[100.0 * k, 10.0 * k], [100.0 * k + 60, 10.0 * k]] for k in range(6)])
+    assert not texture_families(staggered).any()
+    # with min_members=6 the 7-line grid is still a family, with 8 it is not
+    assert texture_families(grid, min_members=6)[1:6].all()
+    assert not texture_families(grid, min_members=8).any()
+    with pytest.raises(ValueError, match="min_members"):
+        texture_families(segs, min_members=2)
 
 
 def test_detect_min_support_keeps_supported_segments(camera):
