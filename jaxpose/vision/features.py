@@ -230,13 +230,21 @@ def segment_support(
         raise ValueError(f"samples must be >= 1; got {samples}")
     if not len(segs):
         return np.zeros(0)
+    # Sobel only over a crop holding the ROI and the segments (margin: offset, rounding, kernel)
+    H, W = img.shape
+    m = int(np.ceil(offset_px)) + 3
+    lo = np.floor(np.minimum(segs.reshape(-1, 2).min(0), np.asarray(roi, float)[:2])) - m
+    hi = np.ceil(np.maximum(segs.reshape(-1, 2).max(0), np.asarray(roi, float)[2:])) + m
+    cx0, cy0 = int(np.clip(lo[0], 0, W - 1)), int(np.clip(lo[1], 0, H - 1))
+    cx1, cy1 = int(np.clip(hi[0], cx0, W - 1)) + 1, int(np.clip(hi[1], cy0, H - 1)) + 1
+    img = img[cy0:cy1, cx0:cx1]
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)
-    H, W = img.shape
-    u0, v0, u1, v1 = np.asarray(roi, float).tolist()
+    h, w = img.shape
+    u0, v0, u1, v1 = (np.asarray(roi, float) - [cx0, cy0, cx0, cy0]).tolist()
     window = np.hypot(gx, gy)[
-        min(max(int(v0), 0), H - 1) : max(int(np.ceil(v1)) + 1, 1),
-        min(max(int(u0), 0), W - 1) : max(int(np.ceil(u1)) + 1, 1),
+        min(max(int(v0), 0), h - 1) : max(int(np.ceil(v1)) + 1, 1),
+        min(max(int(u0), 0), w - 1) : max(int(np.ceil(u1)) + 1, 1),
     ]
     thr = level * float(np.percentile(window, 99)) if window.size else 0.0
     if thr <= 0:
@@ -249,8 +257,8 @@ def segment_support(
     best = np.zeros(pts.shape[:2])
     for off in (-offset_px, 0.0, offset_px):
         q = pts + off * nrm[:, None, :]
-        x = np.clip(np.rint(q[..., 0]).astype(int), 0, W - 1)
-        y = np.clip(np.rint(q[..., 1]).astype(int), 0, H - 1)
+        x = np.clip(np.clip(np.rint(q[..., 0]).astype(int), 0, W - 1) - cx0, 0, w - 1)
+        y = np.clip(np.clip(np.rint(q[..., 1]).astype(int), 0, H - 1) - cy0, 0, h - 1)
         g = np.abs(gx[y, x] * nrm[:, None, 0] + gy[y, x] * nrm[:, None, 1])
         best = np.maximum(best, g)
     return (best > thr).mean(axis=1)
