@@ -391,3 +391,17 @@ def test_detect_bad_images(camera):
     with pytest.raises(ValueError, match="image must be"):
         to_gray(np.zeros((4, 4, 4, 4)))
     assert lsd_segments(np.zeros((50, 50), np.uint8)).shape[1:] == (2, 2)
+
+
+@pytest.mark.parametrize(
+    "bad", [dict(min_support=float("nan")), dict(min_support=-0.1), dict(min_support=1.5)]
+)
+def test_detect_rejects_bad_min_support(camera, bad):
+    with pytest.raises(ValueError, match="min_support"):
+        detect(np.zeros((64, 64), np.uint8), camera, 1.0, DetectionOptions(**bad))
+
+
+@pytest.mark.parametrize("family", [1, 2, 4.5, -3])
+def test_detect_rejects_bad_texture_family(camera, family):
+    with pytest.raises(ValueError, match="texture_family"):
+        detect(np.zeros((64, 64), np.uint8), camera, 1.0, DetectionOptions(texture_family=family))

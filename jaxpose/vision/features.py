@@ -361,6 +361,14 @@ def detect(
 
     if options.detector not in ("hough", "lsd"):
         raise ValueError(f"detector must be 'hough' or 'lsd'; got {options.detector!r}")
+    if not (np.isfinite(options.min_support) and 0.0 <= options.min_support <= 1.0):
+        raise ValueError(f"min_support must be in [0, 1] (0: off); got {options.min_support}")
+    if options.texture_family != 0 and not (
+        int(options.texture_family) == options.texture_family and options.texture_family >= 3
+    ):
+        raise ValueError(
+            f"texture_family must be 0 (off) or an integer >= 3; got {options.texture_family}"
+        )
     tm = {}
     t0 = time.perf_counter()
     gray = to_gray(image)
