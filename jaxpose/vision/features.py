@@ -14,7 +14,13 @@ from .coarse import coarse_position
 from .hough import sobel_hough, wge_hough
 from .lsd import lsd_segments
 from .merge import antenna_candidates, merge_streams, merge_truncated
-from .roi import roi_diagonal, roi_from_gradient, roi_from_segments, roi_from_silhouette
+from .roi import (
+    roi_diagonal,
+    roi_from_gradient,
+    roi_from_segments,
+    roi_from_silhouette,
+    silhouette_mask,
+)
 from .synthesis import FeatureGroups, synthesize
 from .undistort import undistort_image
 from .wge import weak_gradient_elimination
@@ -28,6 +34,10 @@ __all__ = [
     "texture_families",
     "to_gray",
 ]
+
+
+#: Shrink factor of :attr:`Detection.silhouette` (:func:`silhouette_mask`).
+SILHOUETTE_FACTOR = 4
 
 
 @dataclass(frozen=True)
@@ -65,7 +75,9 @@ class DetectionOptions:
     gradient ROI, which sees only the lit edges (on the SPEED+ lightbox photographs the gradient
     ROI's diagonal was 55-79% of the projected model's, the silhouette's 83-99%). When no clean
     silhouette is found (an Earth or other structured background) the gradient and cluster ROIs
-    are used as before.
+    are used as before. ``silhouette_shape``: with a silhouette ROI, also keep the silhouette
+    itself (:func:`silhouette_mask`, a quarter of the resolution) for the silhouette term of the
+    monocular ranking.
 
     ``cluster_lsd``: when the cluster box above is not taken (no cluster, or the tests fail: over
     a bright, high-contrast Earth the WGE keeps the clouds' gradients and drops the target's
@@ -117,6 +129,7 @@ class DetectionOptions:
     cluster_background_share: float = 0.05
     cluster_max_ratio: float = 8.0
     silhouette_roi: bool = True
+    silhouette_shape: bool = True
     cluster_lsd: bool = True
     cluster_lsd_min_px: float = 15.0
     min_support: float = 0.3
@@ -133,6 +146,9 @@ class Detection:
     coarse_t_cam: np.ndarray | None
     roi_gradient: np.ndarray | None = None  # the paper's ROI (CDF of the WGE gradient)
     roi_silhouette: np.ndarray | None = None  # the silhouette box against a dark background
+    # the silhouette itself (jaxpose.vision.roi.silhouette_mask), (H // f, W // f) in {0, 1}
+    silhouette: np.ndarray | None = None
+    silhouette_factor: int = SILHOUETTE_FACTOR
     segments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 2)))
     from_wge: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     antennas: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
@@ -395,6 +411,8 @@ def detect(
     t0 = time.perf_counter()
     if sil is not None and roi_diagonal(sil) >= options.min_roi_px:
         det.roi = det.roi_silhouette = roi = sil
+        if options.silhouette_shape:
+            det.silhouette = silhouette_mask(und, sil, factor=SILHOUETTE_FACTOR)
     elif options.cluster_roi:
         # Hough lengths and gaps scaled for a target `cluster_scale` times smaller than the
         # gradient ROI: an Earth background inflates the ROI, and the target's edges must not be
