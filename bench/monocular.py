@@ -32,7 +32,10 @@ from jaxpose.metrics import esa_score, rotation_error, success  # noqa: E402
 from jaxpose.models import tango  # noqa: E402
 from jaxpose.pipelines.monocular import (  # noqa: E402
     ANTENNA_WEIGHT,
+    ATTITUDE_GRID,
+    CONFIDENCE,
     REGION_WEIGHT,
+    SILHOUETTE_WEIGHT,
     InitOptions,
     initialise_pose,
 )
@@ -170,6 +173,18 @@ def main() -> None:
         help="weight of the region term in the ranking (0: off; ablation)",
     )
     ap.add_argument(
+        "--silhouette-weight",
+        type=float,
+        default=SILHOUETTE_WEIGHT,
+        help="weight of the silhouette term in the ranking (0: off; ablation)",
+    )
+    ap.add_argument(
+        "--attitude-grid",
+        type=int,
+        default=ATTITUDE_GRID,
+        help="attitudes tried at the coarse position when the image has a silhouette (0: off)",
+    )
+    ap.add_argument(
         "--cell-grid",
         type=float,
         nargs=3,
@@ -178,6 +193,13 @@ def main() -> None:
         help="lightbox domains: a solar-cell grid of CELLS_U x CELLS_V cells with gaps of "
         "radiance LINE on the panel (lightbox_scene(cell_grid=...); a stress test like the "
         "SPEED+ panel, e.g. 12 14 0.6)",
+    )
+    ap.add_argument(
+        "--low-score",
+        type=float,
+        default=None,
+        help="override the confidence class's low_score (l_ROI units; e.g. 1 returns every "
+        "pose, to record score, coverage and silhouette IoU against success for calibration)",
     )
     ap.add_argument("--out", default=None, help="write the summary and per-image records (JSON)")
     args = ap.parse_args()
@@ -188,6 +210,11 @@ def main() -> None:
         detection=DetectionOptions(detector=args.detector),
         antenna_weight=args.antenna_weight,
         region_weight=args.region_weight,
+        silhouette_weight=args.silhouette_weight,
+        attitude_grid=args.attitude_grid,
+        confidence=dict(
+            CONFIDENCE, **({} if args.low_score is None else {"low_score": args.low_score})
+        ),
     )
     rng = np.random.default_rng(args.seed)
     warm = render(model, random_pose(rng, camera), camera, rng=rng)
@@ -229,6 +256,7 @@ def main() -> None:
             "group": res.group_kind,
             "score": res.score,
             "coverage": res.coverage,
+            "silhouette_iou": res.silhouette_iou,
             "e2d_px": res.reprojection_error_px if np.isfinite(res.reprojection_error_px) else None,
             "runtime_s": wall,
             "timings": res.timings,
@@ -271,6 +299,9 @@ def main() -> None:
         "method": args.method,
         "antenna_weight": args.antenna_weight,
         "region_weight": args.region_weight,
+        "silhouette_weight": args.silhouette_weight,
+        "attitude_grid": args.attitude_grid,
+        "low_score": args.low_score,
         "detector": args.detector,
         "success_rate": sum(r["success"] for r in rows) / n,
         "success_rate_no_earth": _mean([r["success"] for r in rows if not r["earth"]]),
