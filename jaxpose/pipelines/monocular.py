@@ -1347,8 +1347,9 @@ def _e2d(vis, det, l_roi):
 def draw_overlay(
     image: np.ndarray, result: InitResult, model: WireframeModel | None = None
 ) -> np.ndarray:
-    """Colour overlay on the undistorted image: ROI (yellow), detected segments (green; antennas
-    cyan), the segments of the winning group (magenta), and the projected model (red)."""
+    """Colour overlay on the undistorted image: ROI (yellow), the silhouette's outline when there
+    is one (orange), detected segments (green; antennas cyan), the segments of the winning group
+    (magenta), and the projected model (red)."""
     det = result.detection
     base = det.image if det.image is not None else np.asarray(image)
     img = cv2.cvtColor(base, cv2.COLOR_GRAY2BGR) if base.ndim == 2 else base.copy()
@@ -1361,6 +1362,12 @@ def draw_overlay(
     if result.roi is not None:
         u0, v0, u1, v1 = (int(round(v)) for v in result.roi)
         cv2.rectangle(img, (u0, v0), (u1, v1), (0, 255, 255), thick)
+    if det.silhouette is not None:
+        f = det.silhouette_factor
+        contours, _ = cv2.findContours(det.silhouette, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        # mask cell c is centred on image pixel c f + (f - 1) / 2
+        scaled = [np.rint(c * f + (f - 1) / 2).astype(np.int32) for c in contours]
+        cv2.polylines(img, scaled, True, (0, 128, 255), thick, cv2.LINE_AA)
     ant = set(det.antennas.tolist())
     for i, seg in enumerate(det.segments):
         line(seg, (255, 255, 0) if i in ant else (0, 200, 0))
