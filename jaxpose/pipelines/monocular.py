@@ -119,9 +119,10 @@ _ROD_KERNEL = 0.06
 #: key: ``+ SILHOUETTE_WEIGHT * tau * (1 - IoU)`` (pixels), used only when the image has a
 #: silhouette (:attr:`jaxpose.vision.features.Detection.silhouette`: a dark sky).
 SILHOUETTE_WEIGHT = 1.0
-#: Attitudes (:func:`attitude_grid`, super-Fibonacci) placed at the coarse position and scored
-#: with the hypotheses when the image has a silhouette: where the edges give no correct group
-#: (faces in shadow, texture), the silhouette term can still find the attitude.
+#: Attitudes (:func:`jaxpose.geometry.super_fibonacci_rotations`) placed on the silhouette
+#: (:func:`_place_on_silhouette`) and scored with the hypotheses when the image has a
+#: silhouette: where the edges give no correct group (faces in shadow, texture), the silhouette
+#: term can still find the attitude. Set before any measurement, not tuned (README).
 ATTITUDE_GRID = 4096
 
 _PAD_POINTS = 6
@@ -151,7 +152,7 @@ class InitOptions:
     region_weight: float = REGION_WEIGHT  # rank by chamfer + this x tau x _region_energy
     antenna_weight: float = ANTENNA_WEIGHT  # + this x _antenna_term (0: off)
     silhouette_weight: float = SILHOUETTE_WEIGHT  # + this x tau x _silhouette_term (0: off)
-    attitude_grid: int = ATTITUDE_GRID  # attitudes tried at the coarse position (0: off)
+    attitude_grid: int = ATTITUDE_GRID  # attitudes placed on the silhouette (0: off)
     ransac_iterations: int | None = None
     ransac_seed: int = 0
     confidence: dict = field(default_factory=lambda: dict(CONFIDENCE))
@@ -1148,11 +1149,12 @@ def _svd_candidates(det, model, opts, cam, sc: _EdgeScene):
         _, sv, vt = np.linalg.svd(pts - c)
         if sv[-1] < 1e-6 * max(sv[0], 1e-12):
             poses.append(planar_flip(p, jnp.asarray(c), jnp.asarray(vt[-1])))
+    tried = n + (0 if grid is None else len(grid[0]))  # hypotheses and grid attitudes
     if order[0] >= n:
-        return poses, n + len(grid[0]), np.zeros(0, int), "attitude-grid"
+        return poses, tried, np.zeros(0, int), "attitude-grid"
     kind = KINDS[int(info[order[0], 0])]
     seg_idx = det.groups.segments[kind][int(info[order[0], 1])]
-    return poses, n + (0 if grid is None else len(grid[0])), np.asarray(seg_idx), kind
+    return poses, tried, np.asarray(seg_idx), kind
 
 
 def _grid_poses(det, model: WireframeModel, opts: InitOptions, sc: _EdgeScene):
@@ -1160,7 +1162,8 @@ def _grid_poses(det, model: WireframeModel, opts: InitOptions, sc: _EdgeScene):
     each placed on the silhouette (:func:`_place_on_silhouette`, from the model's centre at the
     coarse position), ``(R (X, 3, 3), t (X, 3))``; ``None``
     when the grid is off or the image has no silhouette term (the edges alone cannot rank an
-    attitude that no feature group proposed: tried in session 4, no gain)."""
+    attitude that no feature group proposed: a grid ranked without the silhouette was tried
+    earlier and gave no gain, README)."""
     if opts.attitude_grid <= 0 or sc.sil_pts is None or det.coarse_t_cam is None:
         return None
     R = _attitudes(int(opts.attitude_grid))
