@@ -161,3 +161,5 @@ def test_cli_init_and_eval(tmp_path, camera, scene, capsys, monkeypatch):
     ):
         assert key in summary
     assert summary["images"] == 1 and summary["success_rate"] == 1.0
+    # black sky: the silhouette term took part, and the right pose covers the silhouette
+    assert summary["per_image"][0]["silhouette_iou"] > 0.7

@@ -74,6 +74,7 @@ def evaluate(
             row["coarse_range_m"] is not None and abs(row["coarse_range_m"] / rng_true - 1) <= 0.2
         )
         row["reprojection_error_px"] = res.to_json()["reprojection_error_px"]
+        row["silhouette_iou"] = res.silhouette_iou  # None without a silhouette (Earth behind)
         if res.pose is not None:
             row["translation_error_m"] = float(jnp.linalg.norm(res.pose.t - truth.t))
             row["rotation_error_deg"] = float(np.rad2deg(rotation_error(res.pose.R, truth.R)))
