@@ -182,7 +182,7 @@ def main() -> None:
         "--attitude-grid",
         type=int,
         default=ATTITUDE_GRID,
-        help="attitudes tried at the coarse position when the image has a silhouette (0: off)",
+        help="attitudes placed on the silhouette when the image has one (0: off)",
     )
     ap.add_argument(
         "--cell-grid",

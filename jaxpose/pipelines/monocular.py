@@ -296,23 +296,40 @@ _GRID = 32
 _GRID_MARGIN = 0.1
 
 
+def _roi_cells(image, roi, grid, margin, *, factor=1, min_cells=2, fill=None):
+    """Area-averaged ``grid x grid`` cells over ``roi`` (pixels of the undistorted image) grown
+    by ``margin`` of its size on every side, read from ``image`` sampled at ``1 / factor`` of
+    that resolution (image pixel ``p`` lies in cell ``(p + 0.5) / factor - 0.5``); the crop spans
+    at least ``min_cells`` image cells a side. Where the grown ROI leaves the image, its edge is
+    replicated (``fill=None``) or ``fill`` is used. Returns the cell centres ``(G^2, 2)`` in
+    image pixels and the cell means ``(G^2,)`` (NumPy float64)."""
+    u0, v0, u1, v1 = (float(x) for x in roi)
+    mu, mv = margin * (u1 - u0), margin * (v1 - v0)
+    f = float(factor)
+    a = np.floor([(u0 - mu) / f, (v0 - mv) / f]).astype(int)
+    b = np.ceil([(u1 + mu) / f, (v1 + mv) / f]).astype(int) + 1
+    b = np.maximum(b, a + min_cells)
+    H, W = image.shape
+    pad = (max(-a[1], 0), max(b[1] - H, 0), max(-a[0], 0), max(b[0] - W, 0))
+    if fill is None:
+        img = cv2.copyMakeBorder(image.astype(np.float32), *pad, cv2.BORDER_REPLICATE)
+    else:
+        img = cv2.copyMakeBorder(image.astype(np.float32), *pad, cv2.BORDER_CONSTANT, value=fill)
+    crop = img[a[1] + pad[0] : b[1] + pad[0], a[0] + pad[2] : b[0] + pad[2]]
+    cells = cv2.resize(crop, (grid, grid), interpolation=cv2.INTER_AREA)
+    s = (np.arange(grid) + 0.5) / grid
+    # image cell c covers image pixels [c f - 0.5, (c + 1) f - 0.5)
+    uu, vv = np.meshgrid(
+        f * a[0] - 0.5 + f * s * (b[0] - a[0]), f * a[1] - 0.5 + f * s * (b[1] - a[1])
+    )
+    return np.stack([uu.ravel(), vv.ravel()], 1), cells.ravel().astype(np.float64)
+
+
 def _region_grid(image: np.ndarray, roi) -> tuple[jax.Array, jax.Array]:
     """Cell centres ``(G^2, 2)`` and cell mean grey levels ``(G^2,)`` over the grown ROI (the
     image edge replicated where the grown ROI leaves the image)."""
-    u0, v0, u1, v1 = (float(x) for x in roi)
-    mu, mv = _GRID_MARGIN * (u1 - u0), _GRID_MARGIN * (v1 - v0)
-    a = np.floor([u0 - mu, v0 - mv]).astype(int)
-    b = np.ceil([u1 + mu, v1 + mv]).astype(int) + 1
-    b = np.maximum(b, a + _GRID)
-    H, W = image.shape
-    pad = (max(-a[1], 0), max(b[1] - H, 0), max(-a[0], 0), max(b[0] - W, 0))
-    img = cv2.copyMakeBorder(image.astype(np.float32), *pad, cv2.BORDER_REPLICATE)
-    crop = img[a[1] + pad[0] : b[1] + pad[0], a[0] + pad[2] : b[0] + pad[2]]
-    cells = cv2.resize(crop, (_GRID, _GRID), interpolation=cv2.INTER_AREA)
-    s = (np.arange(_GRID) + 0.5) / _GRID
-    uu, vv = np.meshgrid(a[0] - 0.5 + s * (b[0] - a[0]), a[1] - 0.5 + s * (b[1] - a[1]))
-    pts = np.stack([uu.ravel(), vv.ravel()], 1)
-    return jnp.asarray(pts), jnp.asarray(cells.ravel().astype(np.float64))
+    pts, val = _roi_cells(image, roi, _GRID, _GRID_MARGIN, min_cells=_GRID)
+    return jnp.asarray(pts), jnp.asarray(val)
 
 
 @functools.lru_cache(maxsize=8)
@@ -378,25 +395,10 @@ _SIL_MARGIN = 0.25
 
 def _silhouette_grid(mask: np.ndarray, factor: int, roi) -> tuple[jax.Array, jax.Array]:
     """Cell centres ``(G^2, 2)`` (pixels of the undistorted image) and the share of each cell
-    inside the silhouette ``(G^2,)`` in ``[0, 1]`` (area averaging of the mask; outside the
-    image, 0), over the ROI grown by ``_SIL_MARGIN``."""
-    u0, v0, u1, v1 = (float(x) for x in roi)
-    mu, mv = _SIL_MARGIN * (u1 - u0), _SIL_MARGIN * (v1 - v0)
-    f = float(factor)
-    # the grown ROI in mask cells (pixel p of the image lies in cell (p + 0.5) / f - 0.5)
-    a = np.floor([(u0 - mu) / f, (v0 - mv) / f]).astype(int)
-    b = np.ceil([(u1 + mu) / f, (v1 + mv) / f]).astype(int) + 1
-    b = np.maximum(b, a + 2)
-    h, w = mask.shape
-    pad = (max(-a[1], 0), max(b[1] - h, 0), max(-a[0], 0), max(b[0] - w, 0))
-    m = cv2.copyMakeBorder(mask.astype(np.float32), *pad, cv2.BORDER_CONSTANT, value=0.0)
-    crop = m[a[1] + pad[0] : b[1] + pad[0], a[0] + pad[2] : b[0] + pad[2]]
-    cells = cv2.resize(crop, (_SIL_GRID, _SIL_GRID), interpolation=cv2.INTER_AREA)
-    s = (np.arange(_SIL_GRID) + 0.5) / _SIL_GRID
-    # mask cell c covers image pixels [c f - 0.5, (c + 1) f - 0.5)
-    uu, vv = np.meshgrid(f * (a[0] + s * (b[0] - a[0])) - 0.5, f * (a[1] + s * (b[1] - a[1])) - 0.5)
-    pts = np.stack([uu.ravel(), vv.ravel()], 1)
-    return jnp.asarray(pts), jnp.asarray(np.clip(cells.ravel(), 0.0, 1.0).astype(np.float64))
+    inside the silhouette ``(G^2,)`` in ``[0, 1]`` (area averaging of the mask, sampled at
+    ``1 / factor``; outside the image, 0), over the ROI grown by ``_SIL_MARGIN``."""
+    pts, val = _roi_cells(mask, roi, _SIL_GRID, _SIL_MARGIN, factor=factor, fill=0.0)
+    return jnp.asarray(pts), jnp.asarray(np.clip(val, 0.0, 1.0))
 
 
 def _silhouette_cells(sc: _EdgeScene, coarse: bool):
@@ -834,7 +836,6 @@ def _solve_and_score(P, Q, M, cam, sc: _EdgeScene, rank_by, roi, fit=False, extr
     R_all, t_all, ok = np.concatenate(Rs), np.concatenate(ts), np.concatenate(ok)
     key = np.where(ok, np.concatenate(key), np.inf)
     key = np.where(np.isfinite(key), key, np.inf)
-    n = len(key)
     if rank_by == "chamfer":
         short = np.argsort(key, kind="stable")[:_SHORTLIST]
         short = short[np.isfinite(key[short])]
@@ -846,7 +847,7 @@ def _solve_and_score(P, Q, M, cam, sc: _EdgeScene, rank_by, roi, fit=False, extr
                 R_all[short] = np.asarray(Rs_)[: len(short)]
                 t_all[short] = np.asarray(ts_)[: len(short)]
             full, _, _ = _batched_rank()(Rs_, ts_, sc)
-            new = np.full(n, np.inf)
+            new = np.full(len(key), np.inf)  # hypotheses and extra poses
             new[short] = np.asarray(full)[: len(short)]
             key = new
     return R_all, t_all, ok, key
