@@ -28,8 +28,7 @@ from tqdm import tqdm  # noqa: E402
 
 from jaxpose import PinholeCamera  # noqa: E402
 from jaxpose.commands import enable_compilation_cache  # noqa: E402
-from jaxpose.metrics import esa_score, rotation_error, success  # noqa: E402
-from jaxpose.models import tango  # noqa: E402
+from jaxpose.core.metrics import esa_score, rotation_error, success  # noqa: E402
 from jaxpose.pipelines.monocular import (  # noqa: E402
     ANTENNA_WEIGHT,
     ATTITUDE_GRID,
@@ -40,6 +39,7 @@ from jaxpose.pipelines.monocular import (  # noqa: E402
     initialise_pose,
 )
 from jaxpose.vision.features import DetectionOptions  # noqa: E402
+from jaxpose.vision.models import tango  # noqa: E402
 from jaxpose.vision.render import lightbox_scene, random_pose, render  # noqa: E402
 
 SPEEDPLUS_CAMERA = PinholeCamera(

@@ -61,7 +61,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxpose  # noqa: E402
-from jaxpose.geometry import so3_exp  # noqa: E402
+from jaxpose.core.geometry import so3_exp  # noqa: E402
 
 try:  # bench-only dependency
     import poselib
@@ -77,7 +77,7 @@ NOISE_PX = 0.5
 def random_rotations(rng, count):
     q = rng.normal(size=(count, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return np.asarray(jaxpose.geometry.quat_to_dcm(q))
+    return np.asarray(jaxpose.core.geometry.quat_to_dcm(q))
 
 
 def project(K, R, t, points):
@@ -209,7 +209,7 @@ def bench_grid(sizes, counts, loop_max, repeats):
             m = min(B, loop_max)
             entry = {"B": B, "n": n, "loop_problems": m, "methods": {}}
             variants = [("jaxpose EPnP", None, None), ("jaxpose EPnP+LM", "lm", None)]
-            if B >= 2 * jaxpose.solve.THREAD_MIN_PROBLEMS and jax.local_device_count() == 1:
+            if B >= 2 * jaxpose.core.solve.THREAD_MIN_PROBLEMS and jax.local_device_count() == 1:
                 # solve_pnp's default splits this batch over host threads: show one thread too
                 variants.append(("jaxpose EPnP+LM (1 thread)", "lm", 1))
             for name, refine, workers in variants:

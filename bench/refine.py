@@ -31,7 +31,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxpose import PinholeCamera, Pose, refine_pose  # noqa: E402
-from jaxpose.geometry import rotation_angle, so3_exp  # noqa: E402
+from jaxpose.core.geometry import rotation_angle, so3_exp  # noqa: E402
 
 CAM = PinholeCamera(800.0, 800.0, 320.0, 240.0)
 

@@ -2,7 +2,7 @@
 
 Parts, each a function called by :func:`main`:
 
-(a) :func:`bench_kernel`: the exhaustive kernel (:func:`jaxpose.select.exhaustive_batch`, float64
+(a) :func:`bench_kernel`: the exhaustive kernel (:func:`jaxpose.core.select.exhaustive_batch`, float64
     and float32-with-float64-recheck) against a plain NumPy loop over subsets (``np.linalg.inv``
     per subset, timed on a sample and extrapolated) and against a straightforward batched
     ``jnp.linalg.inv`` (stack all subset matrices, invert, take traces), in subsets per second;
@@ -39,9 +39,9 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxpose import select as sel  # noqa: E402
-from jaxpose.dop import information_blocks  # noqa: E402
-from jaxpose.geometry import Pose  # noqa: E402
-from jaxpose.select import bnb as bnb_module  # noqa: E402
+from jaxpose.core.dop import information_blocks  # noqa: E402
+from jaxpose.core.geometry import Pose  # noqa: E402
+from jaxpose.core.select import bnb as bnb_module  # noqa: E402
 from jaxpose.studies.selection import Scenario, make_cases  # noqa: E402
 
 M = 8
@@ -174,15 +174,15 @@ def bench_kernel(
 
 
 def bench_float32_error(n: int = 14, cases: int = 100, ranges=(3.0, 10.0, 30.0, 100.0, 300.0)):
-    """What :data:`jaxpose.select.exhaustive.FLOAT32_MARGIN` rests on: the relative error of the
+    """What :data:`jaxpose.core.select.exhaustive.FLOAT32_MARGIN` rests on: the relative error of the
     float32 kernel's scores against float64 over every subset, at several ranges, and how many
     cases the float32 kernel cannot certify (near-ties, searched again in float64)."""
     import dataclasses
     import sys
 
-    from jaxpose.select._kernel import traces
+    from jaxpose.core.select._kernel import traces
 
-    ex = sys.modules["jaxpose.select.exhaustive"]
+    ex = sys.modules["jaxpose.core.select.exhaustive"]
     K = math.comb(n, M)
     member = jax.nn.one_hot(sel.unrank_combinations(jnp.arange(K), n, M), n).sum(1)
 
@@ -290,7 +290,7 @@ BNB_SCENARIO = Scenario(focal_length_m=0.0165)  # fx = 3000 px; otherwise the st
 
 
 def _bnb_case_runs(blocks, criterion: str, **options) -> dict:
-    """Time and nodes of :func:`jaxpose.select.branch_and_bound`, one case at a time."""
+    """Time and nodes of :func:`jaxpose.core.select.branch_and_bound`, one case at a time."""
     times, nodes, iters, values, idx, heuristic_hit, status = [], [], [], [], [], [], []
     for b in blocks:
         t0 = time.perf_counter()

@@ -34,7 +34,7 @@ import numpy as np
 import matplotlib.pyplot as plt
 
 import jaxpose as jp
-from jaxpose.geometry import so3_log
+from jaxpose.core.geometry import so3_log
 
 SMALL = os.environ.get("JAXPOSE_NB_SMALL") == "1"
 rng = np.random.default_rng(3)""")

@@ -3,7 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpose.geometry import quat_to_dcm, rotation_angle
+from jaxpose.core.geometry import quat_to_dcm, rotation_angle
 
 K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
 BATCH, N = 12, 20

@@ -9,12 +9,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from jaxpose.camera import PinholeCamera
-from jaxpose.dop import information_blocks
-from jaxpose.geometry import Pose
-from jaxpose.select import bnb as bnb_module
-from jaxpose.select import branch_and_bound
-from jaxpose.status import Status
+from jaxpose.core.camera import PinholeCamera
+from jaxpose.core.dop import information_blocks
+from jaxpose.core.geometry import Pose
+from jaxpose.core.select import bnb as bnb_module
+from jaxpose.core.select import branch_and_bound
+from jaxpose.core.status import Status
 
 SEL = {"pdop": slice(0, 3), "adop": slice(3, 6)}
 CAMERA = PinholeCamera.from_focal_length(0.0165, 5.5e-6, (2048, 2048))  # fx = 3000 px

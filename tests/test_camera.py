@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxpose import PinholeCamera, Pose
-from jaxpose.camera import as_camera
+from jaxpose.core.camera import as_camera
 from jaxpose.io import load_camera, load_speed_labels, save_camera
 
 SPEED_DIST = np.array([-0.2238, 0.5141, -0.000665, -0.000214, -0.1312])

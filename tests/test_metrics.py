@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from jaxpose import PinholeCamera, Pose
-from jaxpose.geometry import elementary_rotation, quat_to_dcm
-from jaxpose.metrics import (
+from jaxpose.core.geometry import elementary_rotation, quat_to_dcm
+from jaxpose.core.metrics import (
     endpoint_rates,
     esa_score,
     reprojection_error_2d,

@@ -5,8 +5,14 @@ import json
 import numpy as np
 import pytest
 
-from jaxpose.models import WireframeModel, load_model, load_model_json, load_model_mesh, tango
-from jaxpose.models.wireframe import SPEED_KEYPOINTS, build_tango
+from jaxpose.vision.models import (
+    WireframeModel,
+    load_model,
+    load_model_json,
+    load_model_mesh,
+    tango,
+)
+from jaxpose.vision.models.wireframe import SPEED_KEYPOINTS, build_tango
 from jaxpose.vision.synthesis import KINDS, POINTS_PER_GROUP
 
 

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from jaxpose import PinholeCamera, Pose
-from jaxpose.geometry import euler_to_dcm
-from jaxpose.metrics import rotation_error, success
-from jaxpose.models import tango
+from jaxpose.core.geometry import euler_to_dcm
+from jaxpose.core.metrics import rotation_error, success
 from jaxpose.pipelines.monocular import InitOptions, draw_overlay, initialise_pose, load_image
+from jaxpose.vision.models import tango
 from jaxpose.vision.render import render
 
 pytestmark = pytest.mark.slow
@@ -140,7 +140,7 @@ def test_cli_init_and_eval(tmp_path, camera, scene, capsys, monkeypatch):
         == 2
     )
     # eval-speedplus on a one-image labelled folder made of the rendering.
-    from jaxpose.geometry import dcm_to_quat
+    from jaxpose.core.geometry import dcm_to_quat
 
     q = np.asarray(dcm_to_quat(jnp.asarray(r.pose.R)))
     t = np.asarray(r.pose.t)

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from jaxpose import PinholeCamera, Pose
-from jaxpose.geometry import euler_to_dcm, so3_exp
-from jaxpose.models import tango
+from jaxpose.core.geometry import euler_to_dcm, so3_exp
 from jaxpose.pipelines.monocular import (
     InitOptions,
     _antenna_term,
@@ -20,6 +19,7 @@ from jaxpose.pipelines.monocular import (
     _rod_map,
     initialise_pose,
 )
+from jaxpose.vision.models import tango
 
 jax.config.update("jax_enable_x64", True)
 

@@ -7,8 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose import PinholeCamera, Pose
-from jaxpose.geometry import euler_to_dcm, so3_exp
-from jaxpose.models import tango
+from jaxpose.core.geometry import euler_to_dcm, so3_exp
 from jaxpose.pipelines.monocular import (
     _bilinear,
     _chamfer,
@@ -23,6 +22,7 @@ from jaxpose.pipelines.monocular import (
     _region_energy,
     _region_grid,
 )
+from jaxpose.vision.models import tango
 from jaxpose.vision.render import BACKGROUND, render_layers, visible_edges
 
 jax.config.update("jax_enable_x64", True)

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from jaxpose import PinholeCamera, Pose
-from jaxpose.geometry import euler_to_dcm
-from jaxpose.models import tango
+from jaxpose.core.geometry import euler_to_dcm
 from jaxpose.pipelines.monocular import InitOptions, _allocate, _hypotheses, initialise_pose
 from jaxpose.vision.features import bright_background_share, detect
+from jaxpose.vision.models import tango
 from jaxpose.vision.render import render
 from jaxpose.vision.roi import roi_diagonal, roi_from_segments, segment_distances
 

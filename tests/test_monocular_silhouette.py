@@ -11,8 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from jaxpose import PinholeCamera, Pose
-from jaxpose.geometry import euler_to_dcm, so3_exp, super_fibonacci_rotations
-from jaxpose.models import tango
+from jaxpose.core.geometry import euler_to_dcm, so3_exp, super_fibonacci_rotations
 from jaxpose.pipelines.monocular import (
     InitOptions,
     _EdgeScene,
@@ -24,6 +23,7 @@ from jaxpose.pipelines.monocular import (
     _silhouette_term,
     initialise_pose,
 )
+from jaxpose.vision.models import tango
 from jaxpose.vision.render import render
 from jaxpose.vision.roi import silhouette_mask
 

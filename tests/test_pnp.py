@@ -1,4 +1,4 @@
-"""EPnP, DLT and RANSAC (jaxpose.pnp): OpenCV as a live oracle, masks, statuses, small algebra.
+"""EPnP, DLT and RANSAC (jaxpose.core.pnp): OpenCV as a live oracle, masks, statuses, small algebra.
 
 Compilation dominates the run time here, so the tests share a few compiled functions: batches of
 12 problems of 20 points (fewer points through the mask) and single problems of 12 points.
@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from pnp_scenes import BATCH, K, N, angle, scenes
 
-from jaxpose import PinholeCamera, Pose, Status, dlt, epnp, pnp, ransac_pnp
-from jaxpose.geometry import rotation_angle
+from jaxpose import PinholeCamera, Pose, Status, dlt, epnp, ransac_pnp
+from jaxpose.core import pnp
+from jaxpose.core.geometry import rotation_angle
 
 CAM = PinholeCamera.from_K(K)
 CAM_DIST = PinholeCamera(800.0, 790.0, 322.0, 238.0, jnp.array([-0.08, 0.02, 1e-3, -1e-3, 0.0]))

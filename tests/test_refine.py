@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from jaxpose import PinholeCamera, Pose, Status, dop, pose_covariance, refine_pose, sensitivity
-from jaxpose.dop import point_jacobians
-from jaxpose.geometry import rotation_angle, so3_exp, so3_log
-from jaxpose.refine import _Config, _pixel_rows, _rotation_generators
-from jaxpose.residuals import line_from_segment
+from jaxpose.core.dop import point_jacobians
+from jaxpose.core.geometry import rotation_angle, so3_exp, so3_log
+from jaxpose.core.refine import _Config, _pixel_rows, _rotation_generators
+from jaxpose.core.residuals import line_from_segment
 
 CAM = PinholeCamera(800.0, 800.0, 320.0, 240.0)
 CAM_DIST = PinholeCamera(800.0, 790.0, 322.0, 238.0, jnp.array([-0.05, 0.01, 1e-3, -1e-3, 0.0]))

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from jaxpose import PinholeCamera, Pose
-from jaxpose.geometry import euler_to_dcm
-from jaxpose.models import tango
+from jaxpose.core.geometry import euler_to_dcm
+from jaxpose.vision.models import tango
 from jaxpose.vision.render import (
     BACKGROUND,
     blanket_texture,

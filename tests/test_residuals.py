@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from jaxpose import PinholeCamera, Pose
-from jaxpose.geometry import so3_exp
-from jaxpose.residuals import (
+from jaxpose.core.geometry import so3_exp
+from jaxpose.core.residuals import (
     DEFAULT_ROBUST_SCALE,
     isotropic_information,
     joint_cost,

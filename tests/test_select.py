@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 from jaxpose import PinholeCamera, Pose, Status, dop
 from jaxpose import select as sel
-from jaxpose.dop import information_blocks
-from jaxpose.select._kernel import PAIRS, traces
+from jaxpose.core.dop import information_blocks
+from jaxpose.core.select._kernel import PAIRS, traces
 
 N, M = 9, 5  # the small problem most tests share (126 subsets): one compilation each
 
@@ -337,7 +337,7 @@ def test_select_features_methods():
 
 
 def test_select_features_bnb_equals_exhaustive():
-    pytest.importorskip("jaxpose.select.bnb")
+    pytest.importorskip("jaxpose.core.select.bnb")
     points, pose, cam = scene(6)
     for criterion in ("pdop", "adop"):
         np.testing.assert_array_equal(

@@ -17,7 +17,7 @@ from pnp_scenes import BATCH, K, N, angle, scenes
 
 import jaxpose
 from jaxpose import PinholeCamera, Pose, Status, solve_pnp
-from jaxpose.geometry import so3_exp
+from jaxpose.core.geometry import so3_exp
 
 CAM_DIST = PinholeCamera(800.0, 790.0, 322.0, 238.0, jnp.array([-0.08, 0.02, 1e-3, -1e-3, 0.0]))
 

@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
+from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions, target_roi
-from jaxpose.status import Status
 from jaxpose.vision.stereo_features import extract
 from jaxpose.vision.stereo_match import disparity_range, match_points_stereo
 from jaxpose.vision.stereo_render import (
@@ -108,7 +108,7 @@ def test_tracker_rejects_unrectified_rigs():
 
 
 def test_keypoint_budget_follows_the_target_area():
-    from jaxpose.geometry import Pose
+    from jaxpose.core.geometry import Pose
 
     def budget(depth, **kw):
         pose = Pose(np.eye(3), np.array([0.0, 0.0, depth]))

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from jaxpose import PinholeCamera, Pose
-from jaxpose.geometry import euler_to_dcm
-from jaxpose.models import tango
+from jaxpose.core.geometry import euler_to_dcm
 from jaxpose.vision.coarse import coarse_position
 from jaxpose.vision.features import (
     DetectionOptions,
@@ -22,6 +21,7 @@ from jaxpose.vision.features import (
 )
 from jaxpose.vision.lsd import lsd_segments
 from jaxpose.vision.merge import merge_streams, merge_truncated, remove_duplicates
+from jaxpose.vision.models import tango
 from jaxpose.vision.render import project_points, render
 from jaxpose.vision.roi import roi_diagonal, roi_from_gradient, roi_from_silhouette
 from jaxpose.vision.synthesis import synthesize

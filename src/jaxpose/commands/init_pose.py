@@ -1,0 +1,50 @@
+"""``jaxpose init IMAGE --camera CAMERA.json [--model tango|FILE] [--overlay OUT.png]``: the pose of
+the target in one image with no prior (Sharma et al. 2018), printed as one JSON object."""
+
+from __future__ import annotations
+
+import json
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("image", help="image file (any format OpenCV reads)")
+    parser.add_argument(
+        "--camera", required=True, help="camera.json (SPEED layout: cameraMatrix, distCoeffs)"
+    )
+    parser.add_argument(
+        "--model", default="tango", help="'tango' (built in), a model .json, or a mesh (STL/OBJ)"
+    )
+    parser.add_argument(
+        "--overlay", help="write an overlay PNG: segments, groups used, projected model"
+    )
+    parser.add_argument(
+        "--method",
+        choices=("svd", "ransac"),
+        default="svd",
+        help="svd (default) or the RANSAC baseline",
+    )
+    parser.add_argument(
+        "--detector", choices=("hough", "lsd"), default="hough", help="line detector"
+    )
+
+
+def run(args) -> int:
+    import cv2
+
+    from jaxpose.commands import enable_compilation_cache
+    from jaxpose.io import load_camera
+    from jaxpose.pipelines.monocular import InitOptions, draw_overlay, initialise_pose, load_image
+    from jaxpose.vision.features import DetectionOptions
+    from jaxpose.vision.models import load_model
+
+    enable_compilation_cache()
+    camera = load_camera(args.camera)
+    model = load_model(args.model)
+    image = load_image(args.image)
+    opts = InitOptions(method=args.method, detection=DetectionOptions(detector=args.detector))
+    result = initialise_pose(image, camera, model, opts)
+    if args.overlay:
+        if not cv2.imwrite(args.overlay, draw_overlay(image, result, model)):
+            raise ValueError(f"cannot write overlay {args.overlay}")
+    print(json.dumps(result.to_json()))
+    return 0

@@ -1,0 +1,420 @@
+"""Camera models (pure JAX).
+
+Pixels ``(u, v)`` have ``(0, 0)`` at the centre of the top-left pixel; the camera frame has x
+right, y down, z along the boresight (OpenCV). Intrinsics ``K = [[fx, 0, cx], [0, fy, cy], [0, 0,
+1]]`` in pixels. Distortion is OpenCV's 5-coefficient model ``(k1, k2, p1, p2, k3)``.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from jaxpose.core.geometry import Pose
+
+__all__ = ["PinholeCamera", "StereoCamera", "as_camera"]
+
+
+def _scalar(x) -> Array:
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    return x
+
+
+class PinholeCamera(eqx.Module):
+    """Pinhole camera with optional OpenCV distortion.
+
+    Attributes:
+        fx, fy: focal lengths in pixels.
+        cx, cy: principal point in pixels.
+        dist: ``(5,)`` OpenCV distortion ``(k1, k2, p1, p2, k3)``; zeros for an ideal pinhole.
+        width, height: image size in pixels (static; 0 when unknown).
+
+    Leaves are arrays, so a camera can be batched with ``vmap`` and differentiated (the
+    sensitivity of a pose to ``fx`` is a gradient with respect to this module).
+    """
+
+    fx: Float[Array, ""]
+    fy: Float[Array, ""]
+    cx: Float[Array, ""]
+    cy: Float[Array, ""]
+    dist: Float[Array, "5"]
+    width: int = eqx.field(static=True, default=0)
+    height: int = eqx.field(static=True, default=0)
+
+    def __init__(self, fx, fy, cx, cy, dist=None, *, width: int = 0, height: int = 0):
+        self.fx, self.fy, self.cx, self.cy = (_scalar(v) for v in (fx, fy, cx, cy))
+        if dist is None:
+            dist = jnp.zeros(5, dtype=self.fx.dtype)
+        dist = _scalar(dist)
+        if dist.shape[-1:] != (5,):
+            raise ValueError(
+                "dist must hold OpenCV's 5 coefficients (k1, k2, p1, p2, k3); "
+                f"got shape {dist.shape}"
+            )
+        self.dist = dist
+        self.width, self.height = int(width), int(height)
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def from_K(cls, K, dist=None, *, width: int = 0, height: int = 0) -> PinholeCamera:
+        """From a ``3x3`` intrinsic matrix (pixels) and optional distortion coefficients."""
+        K = jnp.asarray(K)
+        if K.shape != (3, 3):
+            raise ValueError(f"K must be 3x3; got shape {K.shape}")
+        if not isinstance(K, jax.core.Tracer):  # values can be checked
+            Kn = np.asarray(K, dtype=float)
+            if not np.all(np.isfinite(Kn)) or Kn[0, 0] <= 0 or Kn[1, 1] <= 0:
+                raise ValueError(f"K must be finite with positive fx, fy; got {Kn.tolist()}")
+        if isinstance(dist, jax.core.Tracer):  # traced coefficients: shape checks only
+            if dist.shape != (5,):
+                raise ValueError(f"traced dist must have shape (5,); got {dist.shape}")
+        elif dist is not None:
+            dist = np.asarray(dist, dtype=float).ravel()
+            if dist.size not in (4, 5, 8, 12, 14):
+                raise ValueError(f"dist must have 4 or 5 coefficients; got {dist.size}")
+            if dist.size > 5 and np.any(dist[5:] != 0):
+                raise ValueError("only OpenCV's (k1, k2, p1, p2, k3) distortion is supported")
+            dist = np.concatenate([dist, np.zeros(max(0, 5 - dist.size))])[:5]
+        return cls(K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist, width=width, height=height)
+
+    @classmethod
+    def from_focal_length(
+        cls,
+        focal_length_m: float,
+        pixel_size_m: float | tuple[float, float],
+        image_size: tuple[int, int],
+        *,
+        dist=None,
+    ) -> PinholeCamera:
+        """From a lens focal length (m), a pixel pitch (m, or ``(px, py)``) and ``(width, height)``.
+
+        ``fx = focal_length / px`` and the principal point at the image centre
+        ``((width - 1) / 2, (height - 1) / 2)`` (pixel-centre convention).
+        """
+        px, py = (pixel_size_m, pixel_size_m) if np.isscalar(pixel_size_m) else pixel_size_m
+        if focal_length_m <= 0 or px <= 0 or py <= 0:
+            raise ValueError(
+                "focal length and pixel size must be positive; "
+                f"got {focal_length_m}, {pixel_size_m}"
+            )
+        w, h = (int(v) for v in image_size)
+        if w <= 0 or h <= 0:
+            raise ValueError(f"image_size must be positive (width, height); got {image_size}")
+        return cls(
+            focal_length_m / px,
+            focal_length_m / py,
+            (w - 1) / 2.0,
+            (h - 1) / 2.0,
+            dist,
+            width=w,
+            height=h,
+        )
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def K(self) -> Float[Array, "3 3"]:
+        zero, one = jnp.zeros_like(self.fx), jnp.ones_like(self.fx)
+        return jnp.stack(
+            [
+                jnp.stack([self.fx, zero, self.cx]),
+                jnp.stack([zero, self.fy, self.cy]),
+                jnp.stack([zero, zero, one]),
+            ]
+        )
+
+    @property
+    def focal_px(self) -> Float[Array, ""]:
+        """Mean focal length ``(fx + fy) / 2`` in pixels."""
+        return 0.5 * (self.fx + self.fy)
+
+    def has_distortion(self) -> bool:
+        """True when any distortion coefficient is non-zero (eager only)."""
+        return bool(np.any(np.asarray(self.dist) != 0))
+
+    def without_distortion(self) -> PinholeCamera:
+        return PinholeCamera(
+            self.fx,
+            self.fy,
+            self.cx,
+            self.cy,
+            jnp.zeros_like(self.dist),
+            width=self.width,
+            height=self.height,
+        )
+
+    # ------------------------------------------------------------------ distortion
+    def distort(self, xy: Float[Array, "... 2"]) -> Float[Array, "... 2"]:
+        """Apply OpenCV distortion to normalised image coordinates ``(x, y) = (X/Z, Y/Z)``."""
+        k1, k2, p1, p2, k3 = (self.dist[..., i] for i in range(5))
+        x, y = xy[..., 0], xy[..., 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        return jnp.stack([xd, yd], axis=-1)
+
+    def undistort(
+        self, xy_distorted: Float[Array, "... 2"], iterations: int = 8
+    ) -> Float[Array, "... 2"]:
+        """Invert :meth:`distort` by Newton's method (fixed iteration count, jit-friendly)."""
+
+        def one(xd):
+            def step(x, _):
+                r = self.distort(x) - xd
+                J = jax.jacfwd(self.distort)(x)
+                return x - jnp.linalg.solve(J, r), None
+
+            x, _ = jax.lax.scan(step, xd, None, length=iterations)
+            return x
+
+        flat = xy_distorted.reshape(-1, 2)
+        return jax.vmap(one)(flat).reshape(xy_distorted.shape)
+
+    # ------------------------------------------------------------------ projection
+    def project(self, points_cam: Float[Array, "... 3"]) -> Float[Array, "... 2"]:
+        """Pixels of camera-frame points (with distortion).
+
+        Points with ``z <= 0`` give finite but meaningless pixels (``z`` is guarded); use
+        :meth:`in_front` to mask them. Gradients are NaN-free everywhere.
+        """
+        z = points_cam[..., 2]
+        z_safe = jnp.where(z > 0, z, 1.0)
+        xy = points_cam[..., :2] / z_safe[..., None]
+        xy = self.distort(xy)
+        return jnp.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], axis=-1)
+
+    def project_body(
+        self, pose: Pose, points_body: Float[Array, "... n 3"]
+    ) -> Float[Array, "... n 2"]:
+        """Pixels of body-frame points seen at ``pose``."""
+        return self.project(pose.apply(points_body))
+
+    @staticmethod
+    def in_front(points_cam: Float[Array, "... 3"], min_depth: float = 1e-9) -> Bool[Array, "..."]:
+        return points_cam[..., 2] > min_depth
+
+    def normalize(
+        self, pixels: Float[Array, "... 2"], undistort: bool = True
+    ) -> Float[Array, "... 2"]:
+        """Pixels to normalised coordinates ``(X/Z, Y/Z)`` (undistorted unless told not to)."""
+        xy = jnp.stack(
+            [(pixels[..., 0] - self.cx) / self.fx, (pixels[..., 1] - self.cy) / self.fy], -1
+        )
+        return self.undistort(xy) if undistort else xy
+
+    def undistort_pixels(self, pixels: Float[Array, "... 2"]) -> Float[Array, "... 2"]:
+        """Pixels of the same rays in the ideal (distortion-free) camera with the same ``K``."""
+        xy = self.normalize(pixels)
+        return jnp.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], -1)
+
+    def bearing(self, pixels: Float[Array, "... 2"]) -> Float[Array, "... 3"]:
+        """Unit ray directions in the camera frame."""
+        xy = self.normalize(pixels)
+        v = jnp.concatenate([xy, jnp.ones_like(xy[..., :1])], -1)
+        return v / jnp.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def as_camera(camera) -> PinholeCamera:
+    """Accept a :class:`PinholeCamera` or a ``3x3`` ``K`` matrix."""
+    if isinstance(camera, PinholeCamera):
+        return camera
+    K = np.asarray(camera) if not isinstance(camera, jax.Array) else camera
+    if getattr(K, "shape", None) == (3, 3):
+        return PinholeCamera.from_K(K)
+    raise ValueError(
+        f"camera must be a PinholeCamera or a 3x3 K matrix; got {type(camera).__name__}"
+    )
+
+
+# ============================================================================ stereo rig
+
+
+class StereoCamera(eqx.Module):
+    """A calibrated stereo rig: two :class:`PinholeCamera` and the pose of the right one.
+
+    OpenCV's ``stereoCalibrate`` convention: a point ``x_left`` in the left camera frame is
+    ``x_right = R_rl @ x_left + t_rl`` in the right camera frame. For a side-by-side rig with the
+    right camera ``b`` metres to the right of the left one, ``R_rl = I`` and ``t_rl = (-b, 0, 0)``.
+    The left camera frame is the rig frame: triangulated points are returned in it, and a pose
+    estimated by the stereo tracker is the target pose in the left camera.
+
+    Attributes:
+        left, right: the two cameras (intrinsics, distortion, image size).
+        R_rl: ``(3, 3)`` rotation from the left to the right camera frame.
+        t_rl: ``(3,)`` left camera origin expressed in the right frame, metres.
+
+    Yang et al. 2024 (seed 001), Sec. 3: stereo correspondences are triangulated with the
+    distortion-corrected stereo model (:meth:`triangulate`).
+    """
+
+    left: PinholeCamera
+    right: PinholeCamera
+    R_rl: Float[Array, "3 3"]
+    t_rl: Float[Array, "3"]
+
+    def __init__(self, left: PinholeCamera, right: PinholeCamera, R_rl=None, t_rl=None):
+        if not isinstance(left, PinholeCamera) or not isinstance(right, PinholeCamera):
+            raise ValueError("StereoCamera needs two PinholeCamera instances (left, right)")
+        R_rl = jnp.eye(3, dtype=left.fx.dtype) if R_rl is None else _scalar(R_rl)
+        if t_rl is None:
+            raise ValueError("t_rl (left camera origin in the right frame, metres) is required")
+        t_rl = _scalar(t_rl)
+        if R_rl.shape != (3, 3) or t_rl.shape != (3,):
+            raise ValueError(
+                f"R_rl must be 3x3 and t_rl of shape (3,); got {R_rl.shape}, {t_rl.shape}"
+            )
+        if not isinstance(t_rl, jax.core.Tracer) and float(jnp.linalg.norm(t_rl)) <= 0.0:
+            raise ValueError("the stereo baseline |t_rl| must be positive")
+        self.left, self.right, self.R_rl, self.t_rl = left, right, R_rl, t_rl
+
+    @classmethod
+    def from_baseline(
+        cls, camera: PinholeCamera, baseline_m: float, right: PinholeCamera | None = None
+    ):
+        """A rectified side-by-side rig: identical cameras (unless ``right`` is given), the right
+        camera ``baseline_m`` metres along the left camera's +x axis."""
+        if not baseline_m > 0:
+            raise ValueError(f"baseline_m must be positive; got {baseline_m}")
+        zero = jnp.zeros_like(camera.fx)
+        return cls(
+            camera,
+            camera if right is None else right,
+            None,
+            jnp.stack([-baseline_m + zero, zero, zero]),
+        )
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def baseline(self) -> Float[Array, ""]:
+        """Distance between the two optical centres, metres."""
+        return jnp.linalg.norm(self.t_rl)
+
+    @property
+    def pose_right_left(self) -> Pose:
+        """The right camera's pose of the left camera frame (``x_right = R_rl x_left + t_rl``)."""
+        return Pose(self.R_rl, self.t_rl)
+
+    def to_right(self, points_left: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+        """Left-camera-frame points expressed in the right camera frame."""
+        return jnp.einsum("ij,...j->...i", self.R_rl, points_left) + self.t_rl
+
+    def project(
+        self, points_left: Float[Array, "... 3"]
+    ) -> tuple[Float[Array, "... 2"], Float[Array, "... 2"]]:
+        """Pixels ``(left, right)`` of points given in the left camera frame (with distortion)."""
+        return self.left.project(points_left), self.right.project(self.to_right(points_left))
+
+    def projection_matrices(self) -> tuple[Float[Array, "3 4"], Float[Array, "3 4"]]:
+        """OpenCV ``P_left = K_l [I | 0]`` and ``P_right = K_r [R_rl | t_rl]`` (ideal pinholes)."""
+        eye = jnp.eye(3, dtype=self.R_rl.dtype)
+        P_l = self.left.K @ jnp.concatenate([eye, jnp.zeros((3, 1), eye.dtype)], axis=1)
+        P_r = self.right.K @ jnp.concatenate([self.R_rl, self.t_rl[:, None]], axis=1)
+        return P_l, P_r
+
+    # ------------------------------------------------------------------ triangulation
+    def triangulate(
+        self,
+        pixels_left: Float[Array, "... 2"],
+        pixels_right: Float[Array, "... 2"],
+        *,
+        method: str = "linear",
+    ) -> Float[Array, "... 3"]:
+        """Points in the left camera frame from their pixels in both images (distortion removed).
+
+        ``method="linear"``: the homogeneous DLT of Hartley and Zisserman (Sec. 12.2, what
+        ``cv2.triangulatePoints`` does) in normalised coordinates, solved by SVD.
+        ``method="midpoint"``: the midpoint of the common perpendicular of the two rays.
+        Both are exact for noise-free correspondences. Points at infinity (parallel rays) come
+        out with a huge or non-finite depth; mask them with :meth:`PinholeCamera.in_front` and a
+        depth limit.
+        """
+        pixels_left, pixels_right = _scalar(pixels_left), _scalar(pixels_right)
+        if pixels_left.shape[-1:] != (2,) or pixels_left.shape != pixels_right.shape:
+            raise ValueError(
+                f"pixels_left and pixels_right must have the same shape (..., 2); got "
+                f"{pixels_left.shape} and {pixels_right.shape}"
+            )
+        if method not in ("linear", "midpoint"):
+            raise ValueError(f"method must be 'linear' or 'midpoint'; got {method!r}")
+        shape = pixels_left.shape[:-1]
+        undistort = _maybe_distorted(self.left) or _maybe_distorted(self.right)
+        flat = _triangulate(
+            self, pixels_left.reshape(-1, 2), pixels_right.reshape(-1, 2), method, undistort
+        )
+        return flat.reshape(*shape, 3)
+
+    def triangulate_segments(
+        self,
+        segments_left: Float[Array, "... 2 2"],
+        segments_right: Float[Array, "... 2 2"],
+        *,
+        method: str = "linear",
+    ) -> Float[Array, "... 2 3"]:
+        """3-D endpoints (left camera frame) of segments whose endpoints correspond in both images.
+
+        ``segments_*[..., k, :]`` is endpoint ``k`` (start, end) in pixels; the right endpoints
+        must already be cut to the left ones (Yang et al. 2024 Sec. 3: the right line is cut where
+        it meets the epipolar lines of the left endpoints, see
+        :func:`jaxpose.vision.stereo_match.match_lines`).
+        """
+        segments_left, segments_right = _scalar(segments_left), _scalar(segments_right)
+        if segments_left.shape[-2:] != (2, 2) or segments_left.shape != segments_right.shape:
+            raise ValueError(
+                f"segments must have the same shape (..., 2, 2); got {segments_left.shape} and "
+                f"{segments_right.shape}"
+            )
+        return self.triangulate(segments_left, segments_right, method=method)
+
+
+def _maybe_distorted(camera: PinholeCamera) -> bool:
+    """False only when the distortion is known (concrete) to be zero: no Newton undistortion."""
+    if isinstance(camera.dist, jax.core.Tracer):
+        return True
+    return camera.has_distortion()
+
+
+@eqx.filter_jit
+def _triangulate(rig: StereoCamera, pixels_left, pixels_right, method: str, undistort: bool):
+    xl = rig.left.normalize(pixels_left, undistort=undistort)
+    xr = rig.right.normalize(pixels_right, undistort=undistort)
+    if method == "linear":
+        return _triangulate_dlt(xl, xr, rig.R_rl, rig.t_rl)
+    return _triangulate_midpoint(xl, xr, rig.R_rl, rig.t_rl)
+
+
+def _triangulate_dlt(xl, xr, R, t):
+    """Homogeneous DLT on normalised coordinates ``(n, 2)``; returns ``(n, 3)``."""
+    eye = jnp.eye(3, dtype=R.dtype)
+    P1 = jnp.concatenate([eye, jnp.zeros((3, 1), R.dtype)], axis=1)
+    P2 = jnp.concatenate([R, t[:, None]], axis=1)
+
+    def one(a, b):
+        A = jnp.stack(
+            [a[0] * P1[2] - P1[0], a[1] * P1[2] - P1[1], b[0] * P2[2] - P2[0], b[1] * P2[2] - P2[1]]
+        )
+        _, _, vt = jnp.linalg.svd(A)
+        X = vt[-1]
+        return X[:3] / X[3]
+
+    return jax.vmap(one)(xl, xr)
+
+
+def _triangulate_midpoint(xl, xr, R, t):
+    """Midpoint of the common perpendicular of the two rays, in the left frame."""
+    ones = jnp.ones_like(xl[..., :1])
+    d1 = jnp.concatenate([xl, ones], -1)
+    d2 = jnp.einsum("ji,...j->...i", R, jnp.concatenate([xr, ones], -1))  # right ray in left frame
+    c2 = -R.T @ t  # right optical centre in the left frame
+    # minimise |s d1 - (c2 + u d2)|^2 over (s, u)
+    a, b, c = jnp.sum(d1 * d1, -1), jnp.sum(d1 * d2, -1), jnp.sum(d2 * d2, -1)
+    d, e = jnp.sum(d1 * c2, -1), jnp.sum(d2 * c2, -1)
+    den = a * c - b * b
+    den = jnp.where(jnp.abs(den) > 0, den, jnp.finfo(den.dtype).tiny)
+    s = (c * d - b * e) / den
+    u = (b * d - a * e) / den
+    return 0.5 * (s[..., None] * d1 + c2 + u[..., None] * d2)

@@ -1,0 +1,293 @@
+"""Dilution of precision (DOP) of a vision navigation system (Ning, Zhang, Wang 2018, Sec. 3).
+
+Feature ``i`` at ``p_i`` (body frame, metres) is seen at ``rho_i = R(eps) p_i + T`` (eq. 1) and
+measured as the pixel ``(u_i, v_i)`` of the camera model (eq. 3, plus the principal point and, if
+the camera has one, OpenCV distortion). The state is ``x = (T, eps)`` with ``T`` in metres and the
+attitude ``eps`` in radians, so that
+
+* ``H`` (``2n x 6``) is the Jacobian of all pixels with respect to ``x`` at the true pose (eq. 7),
+  computed here by forward-mode autodiff;
+* ``Q = (H^T W H)^-1`` (eq. 14) with ``W = diag(1 / sigma_i^2)``; with unit weights ``Q`` is the
+  DOP matrix and ``sigma^2 Q`` the covariance of the least-squares estimate (eq. 13);
+* ``PDOP = sqrt(trace(Q[:3, :3]))`` (metres per pixel) and ``ADOP = sqrt(trace(Q[3:, 3:]))``
+  (radians per pixel): the square-root-of-trace of the GNSS convention (eq. 15, whose exact form
+  is lost; see ``docs/methods.md``).
+
+The attitude ``eps`` is parameterised by Euler angles in a chosen ``sequence``
+(``parameterization="euler"``, the paper's choice; ADOP depends on it) or by a small rotation
+vector ``delta`` in the camera frame, ``R = exp([delta]_x) R_true`` (``"tangent"``, the natural
+choice for covariance propagation). PDOP does not depend on the choice.
+
+A DOP is computed from the sum of per-point ``6 x 6`` information blocks ``A_i = H_i^T H_i /
+sigma_i^2``; this is what makes subset search cheap (:mod:`jaxpose.core.select`).
+
+Bad geometry never gives a silent NaN: the figures are ``inf`` and a :class:`~jaxpose.core.status.Status`
+says why (fewer than 4 points, a point behind the camera, a singular ``H^T H``, NaN input).
+Eager calls with ``throw=True`` (the default) raise ``ValueError`` instead.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int
+
+from jaxpose.core.camera import PinholeCamera, as_camera
+from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose, dcm_to_euler, euler_to_dcm, so3_exp
+from jaxpose.core.status import Status, throw_for_status
+
+__all__ = [
+    "DOPResult",
+    "MIN_POINTS",
+    "dop",
+    "dop_from_information",
+    "information_blocks",
+    "observation_jacobian",
+    "point_jacobians",
+]
+
+MIN_POINTS = 4
+"""At least four coplanar points make ``H^T H`` non-singular (Ning et al., Sec. 5.1.2)."""
+
+
+class DOPResult(eqx.Module):
+    """DOP of one geometry (leading batch axes under ``vmap``).
+
+    Attributes:
+        pdop: position DOP, metres per pixel of measurement noise (``inf`` when not computable).
+        adop: attitude DOP, radians per pixel.
+        Q: ``(6, 6)`` ``(H^T W H)^-1``, state order ``(T, eps)``; ``inf`` when not computable.
+        status: ``int32`` :class:`~jaxpose.core.status.Status` code, 0 when fine.
+    """
+
+    pdop: Float[Array, ...]
+    adop: Float[Array, ...]
+    Q: Float[Array, "... 6 6"]
+    status: Int[Array, ...]
+
+
+def _validate(points_body, pose: Pose) -> Array:
+    points_body = jnp.asarray(points_body)
+    if not jnp.issubdtype(points_body.dtype, jnp.floating):
+        points_body = points_body.astype(jnp.result_type(float))
+    if points_body.ndim != 2 or points_body.shape[-1] != 3:
+        raise ValueError(
+            f"points_body must have shape (n, 3) (one problem; use jax.vmap for batches); got "
+            f"{points_body.shape}"
+        )
+    if jnp.shape(pose.R) != (3, 3) or jnp.shape(pose.t) != (3,):
+        raise ValueError(
+            f"pose must hold one rotation (3, 3) and one translation (3,); got {jnp.shape(pose.R)} "
+            f"and {jnp.shape(pose.t)} (use jax.vmap for batches)"
+        )
+    return points_body
+
+
+def _state_to_pixels(pose: Pose, camera: PinholeCamera, sequence: str, parameterization: str):
+    """Return ``(x0, f)`` with ``f(x, p)`` the pixel of body point ``p`` at state ``x``."""
+    if parameterization == "euler":
+        eps0 = dcm_to_euler(pose.R, sequence)
+
+        def rotation(eps):
+            return euler_to_dcm(eps, sequence)
+
+    elif parameterization == "tangent":
+        eps0 = jnp.zeros(3, dtype=pose.R.dtype)
+
+        def rotation(eps):
+            return so3_exp(eps) @ pose.R
+
+    else:
+        raise ValueError(f"parameterization must be 'euler' or 'tangent'; got {parameterization!r}")
+
+    def pixels(x, p):
+        rho = rotation(x[3:]) @ p + x[:3]
+        return camera.project(rho)
+
+    return jnp.concatenate([pose.t, eps0]), pixels
+
+
+def point_jacobians(
+    points_body: Float[Array, "n 3"],
+    pose: Pose,
+    camera: PinholeCamera | Array,
+    *,
+    sequence: str = DEFAULT_EULER_SEQUENCE,
+    parameterization: str = "euler",
+) -> Float[Array, "n 2 6"]:
+    """Per-point blocks ``H_i = d(u_i, v_i) / d(T, eps)`` (pixels per metre, pixels per radian)."""
+    points_body = _validate(points_body, pose)
+    camera = as_camera(camera)
+    x0, pixels = _state_to_pixels(pose, camera, sequence, parameterization)
+    return jax.vmap(lambda p: jax.jacfwd(pixels)(x0, p))(points_body)
+
+
+def observation_jacobian(
+    points_body: Float[Array, "n 3"],
+    pose: Pose,
+    camera: PinholeCamera | Array,
+    *,
+    sequence: str = DEFAULT_EULER_SEQUENCE,
+    parameterization: str = "euler",
+) -> Float[Array, "2n 6"]:
+    """The ``2n x 6`` observation matrix ``H`` of Ning et al. eq. 7, rows ``(u_1, v_1, ...)``."""
+    H = point_jacobians(
+        points_body, pose, camera, sequence=sequence, parameterization=parameterization
+    )
+    return H.reshape(-1, 6)
+
+
+def information_blocks(
+    points_body: Float[Array, "n 3"],
+    pose: Pose,
+    camera: PinholeCamera | Array,
+    *,
+    sigma: Float[Array, " n"] | float | None = None,
+    mask: Array | None = None,
+    sequence: str = DEFAULT_EULER_SEQUENCE,
+    parameterization: str = "euler",
+) -> Float[Array, "n 6 6"]:
+    """Per-point information ``A_i = H_i^T H_i / sigma_i^2`` (zero for masked-out points).
+
+    ``sigma`` is the pixel noise per axis, one per point or shared; ``None`` means unit weights
+    (the plain DOP). ``mask`` (``(n,)`` bool) marks valid points of a padded set.
+    """
+    H = point_jacobians(
+        points_body, pose, camera, sequence=sequence, parameterization=parameterization
+    )
+    w = _weights(points_body.shape[0], H.dtype, sigma, mask)
+    return jnp.einsum("nki,nkj,n->nij", H, H, w)
+
+
+def _weights(n, dtype, sigma, mask):
+    w = jnp.ones(n, dtype=dtype)
+    if sigma is not None:
+        sigma = jnp.broadcast_to(jnp.asarray(sigma, dtype=dtype), (n,))
+        w = w / sigma**2
+    if mask is not None:
+        mask = jnp.asarray(mask)
+        if mask.shape != (n,):
+            raise ValueError(f"mask must have shape ({n},); got {mask.shape}")
+        w = jnp.where(mask, w, 0.0)
+    return w
+
+
+def _singular_tolerance(dtype) -> float:
+    return 1e3 * float(jnp.finfo(dtype).eps)
+
+
+def dop_from_information(A: Float[Array, "6 6"]) -> DOPResult:
+    """PDOP, ADOP and ``Q`` of an information matrix ``A = H^T W H`` (Ning et al. eqs. 14-15).
+
+    Singularity is judged on the Jacobi-scaled matrix ``D^-1/2 A D^-1/2`` (metres and radians have
+    different scales): the smallest eigenvalue below ``1e3 * eps(dtype)`` times the largest gives
+    ``Status.SINGULAR`` and ``inf``.
+    """
+    A = jnp.asarray(A)
+    if A.shape[-2:] != (6, 6):
+        raise ValueError(f"information matrix must be (6, 6); got {A.shape}")
+    diag = jnp.diagonal(A)
+    positive = jnp.all(diag > 0)
+    d = jnp.sqrt(jnp.where(diag > 0, diag, 1.0))
+    S = A / (d[:, None] * d[None, :])
+    evals = jnp.linalg.eigvalsh(S)
+    finite = jnp.all(jnp.isfinite(A))
+    singular = ~finite | ~positive | (evals[0] <= _singular_tolerance(A.dtype) * evals[-1])
+    # A safe matrix and scale for the solve so that the singular branch produces no NaN, not even
+    # in gradients (double-where: the unselected branch must itself be finite).
+    S_safe = jnp.where(singular, jnp.eye(6, dtype=A.dtype), S)
+    d_safe = jnp.where(singular, 1.0, d)
+    Qs = jnp.linalg.inv(S_safe)
+    Qs = 0.5 * (Qs + Qs.T)
+    Q = Qs / (d_safe[:, None] * d_safe[None, :])
+    pdop = jnp.sqrt(jnp.trace(Q[:3, :3]))
+    adop = jnp.sqrt(jnp.trace(Q[3:, 3:]))
+    inf = jnp.asarray(jnp.inf, dtype=A.dtype)
+    status = jnp.where(
+        finite, jnp.where(singular, Status.SINGULAR, Status.OK), Status.NONFINITE_INPUT
+    ).astype(jnp.int32)
+    return DOPResult(
+        pdop=jnp.where(singular, inf, pdop),
+        adop=jnp.where(singular, inf, adop),
+        Q=jnp.where(singular, inf, Q),
+        status=status,
+    )
+
+
+def dop(
+    points_body: Float[Array, "n 3"],
+    pose: Pose,
+    camera: PinholeCamera | Array,
+    *,
+    sigma: Float[Array, " n"] | float | None = None,
+    mask: Array | None = None,
+    sequence: str = DEFAULT_EULER_SEQUENCE,
+    parameterization: str = "euler",
+    throw: bool = True,
+) -> DOPResult:
+    """DOP of a set of feature points seen at ``pose`` by ``camera``.
+
+    Args:
+        points_body: ``(n, 3)`` feature points in the target body frame, metres.
+        pose: true relative pose (``x_cam = R p + t``).
+        camera: :class:`PinholeCamera` or ``3x3`` ``K``.
+        sigma: pixel noise per point (weighted DOP, Won et al.) or shared; ``None`` for unit.
+        mask: ``(n,)`` bool, valid points of a padded set.
+        sequence: Euler sequence of the attitude state (see :mod:`jaxpose.core.geometry`).
+        parameterization: ``"euler"`` (the paper's) or ``"tangent"``.
+        throw: raise ``ValueError`` (eager) or an ``EquinoxRuntimeError`` (under jit) for bad
+            geometry. Pass ``throw=False`` under ``vmap`` to get ``inf`` and a status per problem.
+
+    Returns:
+        :class:`DOPResult`. Units: PDOP in metres per pixel, ADOP in radians per pixel.
+    """
+    points_body = _validate(points_body, pose)
+    camera = as_camera(camera)
+    n = points_body.shape[0]
+    dtype = points_body.dtype
+    valid = jnp.ones(n, dtype=bool) if mask is None else jnp.asarray(mask, dtype=bool)
+    finite_in = (
+        jnp.all(jnp.isfinite(points_body) | ~valid[:, None])
+        & jnp.all(jnp.isfinite(pose.R))
+        & jnp.all(jnp.isfinite(pose.t))
+    )
+    points_safe = jnp.where(valid[:, None] & finite_in, points_body, 0.0)
+    pose_safe = Pose(
+        jnp.where(finite_in, pose.R, jnp.eye(3, dtype=dtype)),
+        jnp.where(finite_in, pose.t, jnp.array([0.0, 0.0, 1.0], dtype=dtype)),
+    )
+    depth = (points_safe @ pose_safe.R.T + pose_safe.t)[:, 2]
+    behind = jnp.any(valid & (depth <= 0))
+    # Points behind the camera are removed from the sum (their projection is meaningless).
+    use = valid & (depth > 0)
+    A = jnp.sum(
+        information_blocks(
+            points_safe,
+            pose_safe,
+            camera,
+            sigma=sigma,
+            mask=use,
+            sequence=sequence,
+            parameterization=parameterization,
+        ),
+        axis=0,
+    )
+    res = dop_from_information(A)
+    count = jnp.sum(valid)
+    status = jnp.select(
+        [~finite_in, count < MIN_POINTS, behind],
+        [Status.NONFINITE_INPUT, Status.TOO_FEW_POINTS, Status.BEHIND_CAMERA],
+        res.status,
+    ).astype(jnp.int32)
+    bad = status != Status.OK
+    inf = jnp.asarray(jnp.inf, dtype=res.pdop.dtype)
+    res = DOPResult(
+        pdop=jnp.where(bad, inf, res.pdop),
+        adop=jnp.where(bad, inf, res.adop),
+        Q=jnp.where(bad, inf, res.Q),
+        status=status,
+    )
+    if throw:
+        res = throw_for_status(res, "DOP", "pdop")
+    return res

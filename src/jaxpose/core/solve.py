@@ -1,0 +1,483 @@
+"""``solve_pnp``: OpenCV's ``solvePnP``, batched, with statuses (the eager entry point).
+
+``jaxpose.solve_pnp(points_body, pixels, camera)`` takes ``(..., n, 3)`` body points and their
+``(..., n, 2)`` measured pixels with any leading batch axes, solves every problem with one
+compiled function (EPnP, DLT or RANSAC over EPnP from :mod:`jaxpose.core.pnp`, then
+:func:`jaxpose.core.refine.refine_pose`) and returns a :class:`~jaxpose.core.pnp.PnPResult` with the same
+leading axes.
+
+Planar targets far away are two-fold ambiguous; when a batch holds planar problems and
+``refine`` is on, each planar problem is refined from both the EPnP pose and its mirror
+(:func:`jaxpose.core.pnp.planar_flip`) and the lower reprojection error wins.
+
+Errors, in the house style: wrong shapes and options raise ``ValueError`` at once; bad values
+(NaN, fewer than four valid points, collinear points, points behind the camera in the solution,
+no convergence) give a :class:`~jaxpose.core.status.Status` per problem, and with ``throw=True`` (the
+default) a ``ValueError`` naming each failure and where it happened. Pass ``throw=False`` for
+batches so that one bad problem does not cost the others.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import functools
+import os
+import threading
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from jaxpose.core import pnp
+from jaxpose.core.camera import PinholeCamera
+from jaxpose.core.geometry import Pose
+from jaxpose.core.status import Status, throw_for_status
+
+__all__ = ["METHODS", "REFINE_METHODS", "ROBUST_KERNELS", "solve_pnp"]
+
+METHODS = ("epnp", "dlt", "ransac")
+REFINE_METHODS = ("lm", "gauss-newton", "newton-raphson")
+ROBUST_KERNELS = ("huber", "cauchy", "tukey")
+CHUNK = 256
+"""Batches larger than this run as a loop over chunks of this many problems (``lax.map``): the
+working set of a chunk stays in cache, which is faster on a CPU than one pass over everything."""
+
+
+def _check_options(method, refine, robust):
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}; got {method!r}")
+    if refine is not None and refine not in REFINE_METHODS:
+        raise ValueError(f"refine must be None or one of {REFINE_METHODS}; got {refine!r}")
+    if robust is not None and robust not in ROBUST_KERNELS:
+        raise ValueError(f"robust must be None or one of {ROBUST_KERNELS}; got {robust!r}")
+    if robust is not None and refine is None:
+        raise ValueError("robust kernels act in the refinement: pass refine='lm' (or another)")
+
+
+def _batch_shape(points_body, pixels, mask) -> tuple[tuple[int, ...], int]:
+    ps, xs = np.shape(points_body), np.shape(pixels)
+    if len(ps) < 2 or ps[-1] != 3:
+        raise ValueError(f"points_body must have shape (..., n, 3); got {ps}")
+    if len(xs) < 2 or xs[-1] != 2:
+        raise ValueError(f"pixels must have shape (..., n, 2); got {xs}")
+    n = ps[-2]
+    if xs[-2] != n:
+        raise ValueError(f"points_body {ps} and pixels {xs} must hold the same number of points n")
+    shapes = [ps[:-2], xs[:-2]]
+    if mask is not None:
+        ms = np.shape(mask)
+        if len(ms) < 1 or ms[-1] != n:
+            raise ValueError(f"mask must have shape (..., {n}); got {ms}")
+        shapes.append(ms[:-1])
+    try:
+        batch = np.broadcast_shapes(*shapes)
+    except ValueError:
+        raise ValueError(
+            f"leading (batch) axes do not broadcast: points_body {ps}, pixels {xs}"
+            + ("" if mask is None else f", mask {np.shape(mask)}")
+        ) from None
+    if n < pnp.MIN_POINTS:
+        raise ValueError(f"PnP needs at least {pnp.MIN_POINTS} points; got n = {n}")
+    return batch, n
+
+
+def _map(fn, args, chunk: int, single: bool):
+    """``vmap`` over the leading axis, as a loop over chunks when the batch is large; a single
+    problem is solved as it is."""
+    if single:
+        return fn(*args)
+    size = jax.tree.leaves(args)[0].shape[0]
+    if size <= chunk:
+        return jax.vmap(fn)(*args)
+    pad = -size % chunk
+    args = jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[:1], pad, axis=0)]), args)
+    out = jax.lax.map(lambda a: fn(*a), args, batch_size=chunk)
+    return jax.tree.map(lambda a: a[:size], out)
+
+
+class _Initial(eqx.Module):
+    result: pnp.PnPResult
+    centroid: Array  # (3,) body frame, of the points used
+    normal: Array  # (3,) body frame, their least-spread direction (the plane's normal if planar)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Static:
+    """Everything that is fixed at compile time (hashable)."""
+
+    method: str
+    planar_tol: float
+    ransac: tuple | None  # sorted (name, value) pairs of pnp._ransac_options
+    refine: tuple | None  # (method, robust, max_steps, rtol, atol)
+    undistort: bool
+    chunk: int
+
+
+def _camera(intrinsics) -> PinholeCamera:
+    return PinholeCamera(intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3], intrinsics[4:])
+
+
+def _cast(points_body, pixels, mask, intrinsics):
+    """One float dtype for every input (that of the points), and the camera."""
+    dtype = pnp._float_dtype(points_body)
+    camera = _camera(jnp.asarray(intrinsics).astype(dtype))
+    return points_body.astype(dtype), pixels.astype(dtype), mask.astype(bool), camera
+
+
+def _initial(points_body, pixels, mask, keys, camera, cfg: _Static) -> _Initial:
+    """The closed-form (or RANSAC) solution of every problem, with the plane for a mirror pose.
+
+    ``keys``: RANSAC's PRNG key per problem (``None`` for the other methods)."""
+    ransac = None if cfg.ransac is None else dict(cfg.ransac)
+
+    def one(p, x, m, k=None):
+        prob = pnp._problem(p, x, camera, m, "solve_pnp", cfg.undistort)
+        res, out = pnp._solve(prob, cfg.method, cfg.planar_tol, key=k, ransac=ransac)
+        return _Initial(res, out.centroid, out.normal)
+
+    args = (points_body, pixels, mask) + (() if keys is None else (keys,))
+    return _map(one, args, cfg.chunk, pixels.ndim == 2)
+
+
+def _refined(init: _Initial, points_body, pixels, camera, cfg: _Static, two: bool) -> pnp.PnPResult:
+    """Refine every problem from its closed-form pose (and, if ``two``, from its mirror)."""
+    from jaxpose.core.refine import refine_pose
+
+    method, robust, max_steps, rtol, atol = cfg.refine
+
+    def one(init, p, x):
+        # The refined pose's derivatives come from implicit differentiation at the optimum;
+        # the starting pose carries none (and EPnP's own are not defined everywhere).
+        init = jax.lax.stop_gradient(init)
+        res = init.result
+        ok = res.status == Status.OK
+
+        def run(pose):
+            return refine_pose(
+                pose,
+                p,
+                x,
+                camera,
+                mask=res.inliers,
+                robust=robust,
+                method=method,
+                max_steps=max_steps,
+                rtol=rtol,
+                atol=atol,
+            )
+
+        ref = run(res.pose)
+        if two:
+            flipped = pnp.planar_flip(res.pose, init.centroid, init.normal)
+            flipped = jax.tree.map(lambda a, b: jnp.where(res.planar, a, b), flipped, res.pose)
+            alt = run(flipped)
+            better = (ref.status != Status.OK) | (alt.rms_px < ref.rms_px)
+            take = res.planar & (alt.status == Status.OK) & better
+            ref = jax.tree.map(lambda a, b: jnp.where(take, a, b), alt, ref)
+        status = jnp.where(ok, ref.status, res.status).astype(jnp.int32)
+        keep = pnp._kept(status)
+        dtype = ref.pose.R.dtype
+        pose = Pose(
+            jnp.where(keep, ref.pose.R, jnp.eye(3, dtype=dtype)), jnp.where(keep, ref.pose.t, 0.0)
+        )
+        rms = jnp.where(keep, ref.rms_px, jnp.inf)
+        return pnp.PnPResult(pose, status, rms, res.inliers, res.planar)
+
+    return _map(one, (init, points_body, pixels), cfg.chunk, pixels.ndim == 2)
+
+
+def _solve_fused(points_body, pixels, mask, keys, intrinsics, *, cfg: _Static, two: bool):
+    """Closed form and refinement in one call (from both candidates of planar problems when
+    ``two``)."""
+    points_body, pixels, mask, camera = _cast(points_body, pixels, mask, intrinsics)
+    init = _initial(points_body, pixels, mask, keys, camera, cfg)
+    if cfg.refine is None:
+        return init.result
+    return _refined(init, points_body, pixels, camera, cfg, two)
+
+
+def _solve_stage1(points_body, pixels, mask, keys, intrinsics, *, cfg: _Static):
+    points_body, pixels, mask, camera = _cast(points_body, pixels, mask, intrinsics)
+    return _initial(points_body, pixels, mask, keys, camera, cfg)
+
+
+def _solve_stage2(init, points_body, pixels, mask, intrinsics, *, cfg: _Static, two: bool):
+    points_body, pixels, mask, camera = _cast(points_body, pixels, mask, intrinsics)
+    return _refined(init, points_body, pixels, camera, cfg, two)
+
+
+COMPILER_OPTIONS_CPU = {"xla_cpu_use_fusion_emitters": False}
+"""XLA options of the compiled solvers on a CPU. XLA's older element-wise emitters compile this
+code (hundreds of small fused kernels) about 1.6x faster than its MLIR fusion emitters for the
+same run time (EPnP alone: 4.5 s -> 2.8 s of CPU time)."""
+
+
+@functools.cache
+def _compiled(name: str, cfg: _Static, two: bool, devices: int):
+    """A jitted stage for one configuration, built on first use (importing jaxpose picks no
+    backend). With several devices the batch axis is split over them (``shard_map``), the
+    convention of :mod:`jaxpose.studies.selection`: on a CPU, run with
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>`` to use every core."""
+    if name == "stage1":
+        fn = functools.partial(_solve_stage1, cfg=cfg)
+    else:
+        fn = functools.partial(
+            {"fused": _solve_fused, "stage2": _solve_stage2}[name], cfg=cfg, two=two
+        )
+    if devices > 1:
+        from jax.sharding import Mesh, PartitionSpec
+
+        mesh = Mesh(np.asarray(jax.local_devices()[:devices]), ("batch",))
+        split, whole = PartitionSpec("batch"), PartitionSpec()
+        fn = jax.shard_map(
+            fn,
+            mesh=mesh,
+            in_specs=(split, split, split, split, whole),
+            out_specs=split,
+            check_vma=False,  # the problems are independent; nothing is reduced over devices
+        )
+    options = COMPILER_OPTIONS_CPU if jax.default_backend() == "cpu" else None
+    return jax.jit(fn, compiler_options=options)
+
+
+FUSED_MAX = 64
+"""Batches up to this size refine planar problems from both candidates in one compiled call;
+larger ones first check (one device-to-host read) whether any problem is planar, so that
+batches of non-planar problems are refined once."""
+
+
+def solve_pnp(
+    points_body: Float[Array, "... n 3"],
+    pixels: Float[Array, "... n 2"],
+    camera: PinholeCamera | Float[Array, "3 3"],
+    *,
+    method: str = "epnp",
+    refine: str | None = "lm",
+    robust: str | None = None,
+    mask: Bool[Array, "... n"] | None = None,
+    throw: bool = True,
+    key: Array | None = None,
+    ransac_threshold_px: float = 8.0,
+    ransac_confidence: float = 0.999,
+    max_outlier_fraction: float = 0.5,
+    num_hypotheses: int | None = None,
+    max_steps: int = 50,
+    rtol: float = 1e-6,
+    atol: float = 1e-9,
+    planar_tol: float = pnp.PLANAR_TOL,
+    chunk: int = CHUNK,
+    workers: int | None = None,
+) -> pnp.PnPResult:
+    """Pose of a target from 3-D/2-D point correspondences, for one problem or a batch.
+
+    Args:
+        points_body: ``(..., n, 3)`` model points in the body frame, metres (``n >= 4``).
+        pixels: ``(..., n, 2)`` their measured (distorted) pixels. Leading axes of
+            ``points_body``, ``pixels`` and ``mask`` broadcast (one model for many images works).
+        camera: :class:`~jaxpose.core.camera.PinholeCamera` (with its distortion) or a ``3 x 3`` ``K``;
+            one camera for the whole batch.
+        method: ``"epnp"`` (:func:`jaxpose.core.pnp.epnp`), ``"dlt"`` (``>= 6`` non-coplanar points)
+            or ``"ransac"`` (:func:`jaxpose.core.pnp.ransac_pnp`: RANSAC over EPnP for outliers).
+        refine: ``"lm"``, ``"gauss-newton"``, ``"newton-raphson"`` (seed 002 eqs. 23-29) or
+            ``None`` (closed-form pose only); :func:`jaxpose.core.refine.refine_pose`.
+        robust: ``None``, ``"huber"``, ``"cauchy"`` or ``"tukey"`` kernel in the refinement.
+        mask: ``(..., n)`` bool, the valid points of padded sets.
+        throw: raise ``ValueError`` when any problem fails (leave ``True`` for one problem; pass
+            ``False`` for batches and read ``status``).
+        key: PRNG key of RANSAC (default ``jax.random.key(0)``), split over the batch.
+        ransac_threshold_px: inlier threshold in pixels (OpenCV's default, 8).
+        ransac_confidence, max_outlier_fraction: fix the number of hypotheses through Sharma et
+            al. eq. 35 (:func:`jaxpose.core.pnp.ransac_iterations`), or give ``num_hypotheses``.
+        max_steps: iteration budget of the refinement.
+        rtol, atol: the refinement stops after an accepted step with ``|dt| <= atol + rtol |t|``
+            (metres) and ``|dw| <= atol + rtol`` (radians). Convergence is quadratic, so the
+            pose is then much closer than that to the optimum: the defaults give the same errors
+            as ``refine_pose``'s tighter ones to 1e-12 relative, with one step fewer on average.
+        planar_tol: planarity threshold of EPnP (:data:`jaxpose.core.pnp.PLANAR_TOL`).
+        chunk: batches larger than this run as a loop over chunks of this size.
+        workers: host threads that share a large batch on a CPU (each runs the same compiled
+            solver on an equal part). ``None``: one per CPU core available to this process, at
+            most one per :data:`THREAD_MIN_PROBLEMS` problems, and 1 on accelerators or with
+            several JAX devices (the batch is then split over the devices instead).
+
+    Returns:
+        :class:`~jaxpose.core.pnp.PnPResult` with the batch's leading axes: ``pose`` (``R``, ``t``
+        with ``x_cam = R @ x_body + t``), ``status``, ``reprojection_error`` (RMS pixels over
+        the points used), ``inliers`` and ``planar``. Failed problems have ``R = I``, ``t = 0``,
+        an infinite error and a non-zero status.
+
+    Raises:
+        ValueError: shapes that do not match, fewer than 4 points, an unknown option; with
+            ``throw=True``, any problem whose status is not ``OK`` (NaN input, too few valid
+            points, collinear or otherwise degenerate points, points behind the camera, ...).
+    """
+    _check_options(method, refine, robust)
+    if workers is not None and (not isinstance(workers, int | np.integer) or workers < 1):
+        raise ValueError(f"workers must be a positive integer or None; got {workers!r}")
+    batch, n = _batch_shape(points_body, pixels, mask)
+    if method == "ransac" and n < 6:
+        raise ValueError(f"method='ransac' draws 6-point samples; got n = {n}")
+    if method == "dlt" and n < pnp.DLT_MIN_POINTS:
+        raise ValueError(f"method='dlt' needs at least {pnp.DLT_MIN_POINTS} points; got n = {n}")
+    intrinsics, undistort = _intrinsics(camera)
+    ransac = None
+    if method == "ransac":
+        opts = pnp._ransac_options(
+            ransac_threshold_px, ransac_confidence, max_outlier_fraction, 6, num_hypotheses
+        )
+        ransac = tuple(sorted(opts.items()))
+    cfg = _Static(
+        method=method,
+        planar_tol=float(planar_tol),
+        ransac=ransac,
+        refine=None
+        if refine is None
+        else (refine, robust, int(max_steps), float(rtol), float(atol)),
+        undistort=undistort,
+        chunk=int(chunk),
+    )
+    size = int(np.prod(batch, dtype=int))
+    flat = () if batch == () else (size,)
+    points_body = _flat(points_body, batch, flat, (n, 3))
+    pixels = _flat(pixels, batch, flat, (n, 2))
+    mask = np.ones(flat + (n,), bool) if mask is None else _flat(mask, batch, flat, (n,))
+    traced = any(isinstance(a, jax.core.Tracer) for a in (points_body, pixels, mask, intrinsics))
+    keys = None
+    if method == "ransac":
+        key = jax.random.key(0) if key is None else key
+        keys = key if batch == () else jax.random.split(key, size)
+    two = refine is not None
+    if traced:  # inside the caller's jit: trace the stages into it
+        res = _solve_fused(points_body, pixels, mask, keys, intrinsics, cfg=cfg, two=two)
+    else:
+        devices = jax.local_device_count() if size >= 2 * jax.local_device_count() else 1
+        parts = _thread_parts(size, devices, workers)
+        args = _pad((points_body, pixels, mask, keys), size, devices * parts)
+        if parts == 1:
+            res = _solve_eager(args, intrinsics, cfg, two, devices, size)
+        else:
+            step = args[0].shape[0] // parts
+            pieces = [
+                tuple(None if a is None else a[i * step : (i + 1) * step] for a in args)
+                for i in range(parts)
+            ]
+            res = _in_threads(
+                lambda piece: _solve_eager(piece, intrinsics, cfg, two, devices, step), pieces
+            )
+            res = jax.tree.map(lambda *a: jnp.concatenate(a)[:size], *res)
+    if len(batch) > 1:
+        res = jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), res)
+    if throw:
+        res = throw_for_status(res, f"solve_pnp(method={method!r})", "reprojection_error")
+    return res
+
+
+def _pad(args, size: int, devices: int):
+    """Repeat the first problem so that the batch splits evenly over ``devices``."""
+    pad = -size % devices
+    if devices == 1 or pad == 0:
+        return args
+
+    def one(a):
+        xp = jnp if isinstance(a, jax.Array) else np
+        return xp.concatenate([a, xp.repeat(a[:1], pad, axis=0)])
+
+    return tuple(None if a is None else one(a) for a in args)
+
+
+def _solve_eager(args, intrinsics, cfg: _Static, two: bool, devices: int, size: int):
+    """One compiled solve of a flat batch (``args`` padded to a multiple of ``devices``)."""
+    if cfg.refine is None or size <= FUSED_MAX:
+        res = _compiled("fused", cfg, two, devices)(*args, intrinsics)
+    else:
+        init = _compiled("stage1", cfg, False, devices)(*args, intrinsics)
+        planar = np.asarray(init.result.planar) & (np.asarray(init.result.status) == 0)
+        stage2 = _compiled("stage2", cfg, bool(planar.any()), devices)
+        res = stage2(init, *args[:3], intrinsics)
+    if res.status.ndim and res.status.shape[0] != size:
+        res = jax.tree.map(lambda a: a[:size], res)
+    return res
+
+
+THREAD_MIN_PROBLEMS = 2048
+"""Each thread of a CPU solve gets at least this many problems (below, the split costs more than
+it saves)."""
+
+
+def _cpu_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def _thread_parts(size: int, devices: int, workers: int | None) -> int:
+    """How many host threads share a batch. XLA runs one execution of these solvers on about one
+    CPU core, so a large batch on a single CPU device is cut into equal parts solved by
+    concurrent executions of the same compiled function (measured in ``bench/pnp.py``: 1.6x at
+    B = 10 000 on 2 cores). Not used on accelerators, nor with several devices (``shard_map``
+    already splits the batch)."""
+    if workers is not None:
+        return max(1, min(int(workers), size))
+    if devices > 1 or jax.default_backend() != "cpu":
+        return 1
+    return max(1, min(_cpu_cores(), size // THREAD_MIN_PROBLEMS))
+
+
+_POOL: concurrent.futures.ThreadPoolExecutor | None = None
+_POOL_SIZE = 0
+_POOL_LOCK = threading.Lock()
+
+
+def _in_threads(fn, pieces: list) -> list:
+    """``[fn(p) for p in pieces]`` on a shared thread pool, each result ready. (JAX compiles a
+    function once when several threads call it first at the same time.)"""
+    global _POOL, _POOL_SIZE
+    with _POOL_LOCK:
+        if _POOL_SIZE < len(pieces):
+            _POOL_SIZE = len(pieces)
+            _POOL = concurrent.futures.ThreadPoolExecutor(
+                max_workers=len(pieces), thread_name_prefix="jaxpose-solve"
+            )
+        pool = _POOL
+    futures = [pool.submit(lambda p: jax.block_until_ready(fn(p)), p) for p in pieces]
+    return [f.result() for f in futures]
+
+
+def _flat(x, batch, flat, tail):
+    """Broadcast the leading axes to ``batch`` and flatten them (eagerly; NumPy stays NumPy)."""
+    xp = jnp if isinstance(x, jax.Array) else np
+    x = x if xp is jnp else np.asarray(x)
+    if x.shape[: x.ndim - len(tail)] == flat:
+        return x
+    return xp.broadcast_to(x, batch + tail).reshape(flat + tail)
+
+
+def _intrinsics(camera) -> tuple[Array, bool]:
+    """``(fx, fy, cx, cy, k1, k2, p1, p2, k3)`` of a camera or ``K``, and whether to undistort."""
+    if isinstance(camera, PinholeCamera):
+        leaves = (camera.fx, camera.fy, camera.cx, camera.cy)
+        if any(np.ndim(leaf) for leaf in leaves):
+            raise ValueError("solve_pnp takes one camera for the batch (scalar intrinsics)")
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves + (camera.dist,)):
+            return jnp.concatenate([jnp.stack(leaves), camera.dist]), True
+        values = np.concatenate(
+            [np.asarray(leaves, dtype=float), np.asarray(camera.dist, dtype=float)]
+        )
+        return values, bool(np.any(values[4:] != 0))
+    if isinstance(camera, jax.core.Tracer) and camera.shape == (3, 3):
+        return jnp.concatenate(
+            [camera[[0, 1, 0, 1], [0, 1, 2, 2]], jnp.zeros(5, camera.dtype)]
+        ), False
+    K = np.asarray(camera, dtype=float) if np.shape(camera) == (3, 3) else None
+    if K is None:
+        raise ValueError(
+            f"camera must be a PinholeCamera or a 3x3 K matrix; got {type(camera).__name__} "
+            f"of shape {np.shape(camera)}"
+        )
+    if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError(f"K must be finite with positive fx, fy; got {K.tolist()}")
+    return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], 0, 0, 0, 0, 0], dtype=float), False

@@ -1,0 +1,283 @@
+"""Body-frame landmark map of the stereo tracker (points and line segments with descriptors).
+
+The tracker of :mod:`jaxpose.pipelines.stereo` no longer chains frame-to-keyframe increments: it
+tracks every frame against a map of 3-D landmarks fixed in the *target* (body) frame, as
+feature-based visual odometry does (ORB-SLAM's local map). A landmark is created from a stereo
+triangulation of a keyframe, transformed to the body frame with that keyframe's estimated pose, and
+refined at later keyframes by a running mean of its body-frame triangulations. Because the map is
+attached to the body, a face that rotates away and back (the target turns twice) is tracked against
+the landmarks seen the first time instead of a chain of new increments, so the error stays bounded
+rather than growing as a random walk.
+
+Visibility: a landmark keeps the mean direction from which it was observed (body frame); it is a
+candidate only when the current viewing direction is within ``max_view_deg`` of it (a face seen
+from behind, or at grazing incidence, is not searched) and it projects inside the image. Landmarks
+that are predicted visible but rarely found (ORB-SLAM's found/visible ratio) are culled.
+
+Pure NumPy (application side); the pose solve stays in :func:`jaxpose.core.refine.refine_pose`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["LandmarkMap", "LandmarkSet"]
+
+
+@dataclass
+class LandmarkSet:
+    """One kind of landmark (``points``: ``X`` is ``(M, 3)``; ``lines``: ``(M, 2, 3)``).
+
+    Attributes:
+        X: body-frame positions (point or segment endpoints), metres.
+        desc: ``(M, 32)`` uint8 binary descriptors (ORB or LBD), the latest observation's.
+        view: ``(M, 3)`` unit mean viewing direction (from the landmark towards the camera, body
+            frame).
+        n_obs: keyframe observations (stereo pairs) of the landmark.
+        ids: stable identifiers (increasing; indices change when landmarks are culled).
+        M, b: normal equations of the multi-view triangulation of a point (``X = M^-1 b``, the
+            point nearest to all its observation rays in the weighted least-squares sense).
+        visible, found: times predicted visible / matched as an inlier (culling).
+        last_seen: frame index of the last inlier match.
+    """
+
+    X: np.ndarray
+    desc: np.ndarray = field(default_factory=lambda: np.zeros((0, 32), np.uint8))
+    view: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    n_obs: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    visible: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    found: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    last_seen: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    M: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    b: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def __len__(self) -> int:
+        return len(self.X)
+
+    def centres(self) -> np.ndarray:
+        """``(M, 3)`` points, or segment midpoints."""
+        return self.X if self.X.ndim == 2 else self.X.mean(axis=1)
+
+    def _keep(self, keep: np.ndarray) -> None:
+        for name in (
+            "X",
+            "desc",
+            "view",
+            "n_obs",
+            "visible",
+            "found",
+            "last_seen",
+            "M",
+            "b",
+            "ids",
+        ):
+            setattr(self, name, getattr(self, name)[keep])
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 0, n, 1.0)
+
+
+class LandmarkMap:
+    """Points and line segments in the body frame (module docstring).
+
+    Args:
+        max_view_deg: a landmark is searched only within this angle of its mean viewing direction.
+        max_obs: cap of the running mean (later triangulations keep a weight ``1 / max_obs``).
+        cull_after, cull_ratio: a landmark predicted visible at least ``cull_after`` times and
+            found in fewer than ``cull_ratio`` of them is removed, unless it was triangulated
+            ``keep_obs`` times or more (such a landmark is kept for the next turn of the target:
+            ORB finds a given corner again only in a fraction of the frames that see it).
+        max_points, max_lines: map sizes; beyond them the least recently seen are removed.
+    """
+
+    def __init__(
+        self,
+        *,
+        max_view_deg: float = 60.0,
+        max_obs: int = 10,
+        cull_after: int = 8,
+        cull_ratio: float = 0.25,
+        keep_obs: int = 3,
+        max_points: int = 20000,
+        max_lines: int = 2000,
+    ):
+        if not 0 < max_view_deg <= 180:
+            raise ValueError(f"max_view_deg must be in (0, 180]; got {max_view_deg}")
+        if max_obs < 1 or cull_after < 1 or not 0 <= cull_ratio <= 1:
+            raise ValueError("max_obs and cull_after must be >= 1 and cull_ratio in [0, 1]")
+        self.cos_view = float(np.cos(np.radians(max_view_deg)))
+        self.max_obs, self.cull_after, self.cull_ratio = int(max_obs), int(cull_after), cull_ratio
+        self.keep_obs = int(keep_obs)
+        self.max_size = {"points": int(max_points), "lines": int(max_lines)}
+        self._next_id = {"points": 0, "lines": 0}
+        self.sets = {
+            "points": LandmarkSet(np.zeros((0, 3))),
+            "lines": LandmarkSet(np.zeros((0, 2, 3))),
+        }
+
+    @property
+    def points(self) -> LandmarkSet:
+        return self.sets["points"]
+
+    @property
+    def lines(self) -> LandmarkSet:
+        return self.sets["lines"]
+
+    # ------------------------------------------------------------------ queries
+    def candidates(self, kind: str, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Indices of the ``kind`` landmarks in front of the camera at pose ``(R, t)`` (body to
+        camera) and seen from within ``max_view_deg`` of their mean viewing direction."""
+        s = self.sets[kind]
+        if len(s) == 0:
+            return np.zeros(0, int)
+        c = s.centres()
+        centre_body = -R.T @ t  # camera centre in the body frame
+        d = _unit(centre_body[None] - c)
+        z = c @ R[2] + t[2]
+        return np.nonzero((np.einsum("ij,ij->i", d, s.view) >= self.cos_view) & (z > 1e-3))[0]
+
+    # ------------------------------------------------------------------ updates
+    def add(self, kind: str, X_body, desc, R, t, frame: int) -> np.ndarray:
+        """Append landmarks observed from the camera at ``(R, t)``; returns their indices."""
+        s = self.sets[kind]
+        X_body = np.asarray(X_body, float)
+        n = len(X_body)
+        if n == 0:
+            return np.zeros(0, int)
+        c = X_body if X_body.ndim == 2 else X_body.mean(axis=1)
+        view = _unit((-R.T @ t)[None] - c)
+        start = len(s)
+        s.X = np.concatenate([s.X, X_body])
+        s.desc = np.concatenate([s.desc, np.asarray(desc, np.uint8).reshape(n, -1)])
+        s.view = np.concatenate([s.view, view])
+        s.n_obs = np.concatenate([s.n_obs, np.ones(n, np.int64)])
+        s.visible = np.concatenate([s.visible, np.zeros(n, np.int64)])
+        s.found = np.concatenate([s.found, np.zeros(n, np.int64)])
+        s.last_seen = np.concatenate([s.last_seen, np.full(n, frame, np.int64)])
+        s.M = np.concatenate([s.M, np.zeros((n, 3, 3))])
+        s.b = np.concatenate([s.b, np.zeros((n, 3))])
+        s.ids = np.concatenate([s.ids, self._next_id[kind] + np.arange(n, dtype=np.int64)])
+        self._next_id[kind] += n
+        return np.arange(start, start + n)
+
+    def index_of(self, kind: str, ids) -> np.ndarray:
+        """Current indices of the landmarks with identifiers ``ids`` (-1 for culled ones)."""
+        s = self.sets[kind]
+        ids = np.asarray(ids, np.int64)
+        pos = np.searchsorted(s.ids, ids)
+        ok = (pos < len(s.ids)) & (s.ids[np.minimum(pos, max(len(s.ids) - 1, 0))] == ids)
+        return np.where(ok, pos, -1) if len(s.ids) else np.full(len(ids), -1)
+
+    def set_points(self, idx, X_body) -> None:
+        """Overwrite point positions (e.g. after a bundle adjustment), keeping the information
+        of their triangulations: ``b`` is re-centred so that ``M^-1 b`` is the new position."""
+        s = self.points
+        idx = np.asarray(idx, int)
+        s.X[idx] = X_body
+        s.b[idx] = np.einsum("nij,nj->ni", s.M[idx], s.X[idx])
+
+    def observe(self, idx, origins, directions, weights=None) -> None:
+        """Add observation rays of points ``idx`` (body frame: camera centres ``origins`` and
+        directions, ``(n, 3)`` each) to their triangulations and re-solve them: ``X`` becomes the
+        weighted least-squares point nearest to all the rays seen so far, ``sum w (I - d d^T)
+        (X - c) = 0``. The rays of a stereo pair alone give the stereo triangulation; the rays of
+        later frames add the parallax of the target's rotation, far wider than the stereo
+        baseline. A point whose rays are still too close to parallel keeps its position.
+        ``weights``: ``(n,)``, e.g. ``1 / depth^2`` to weight by the pixel error."""
+        s = self.points
+        idx = np.asarray(idx, int)
+        if len(idx) == 0:
+            return
+        d = _unit(np.asarray(directions, float))
+        c = np.asarray(origins, float)
+        w = np.ones(len(idx)) if weights is None else np.asarray(weights, float)
+        P = w[:, None, None] * (np.eye(3)[None] - d[:, :, None] * d[:, None, :])
+        np.add.at(s.M, idx, P)
+        np.add.at(s.b, idx, np.einsum("nij,nj->ni", P, c))
+        u = np.unique(idx)
+        ev = np.linalg.eigvalsh(s.M[u])
+        ok = ev[:, 0] > 1e-4 * ev[:, 2]
+        u = u[ok]
+        if len(u):
+            s.X[u] = np.linalg.solve(s.M[u], s.b[u][..., None])[..., 0]
+
+    def observe_lines(self, idx, normals, offsets, weights=None) -> None:
+        """Add observation planes ``normals . X = offsets`` (body frame; ``(n, 3)`` and ``(n,)``:
+        the plane through a camera centre and an image segment) of line landmarks ``idx`` and
+        re-solve them: the line is the weighted least-squares intersection of all its planes
+        (``sum w n n^T``, ``sum w d n`` kept in ``M``, ``b``), and each endpoint moves
+        perpendicularly to that line onto it (the planes say nothing of where a segment ends).
+        A line whose planes are still nearly parallel (a second eigenvalue below ``1e-4`` of the
+        largest) keeps its endpoints."""
+        s = self.lines
+        idx = np.asarray(idx, int)
+        if len(idx) == 0:
+            return
+        n = np.asarray(normals, float)
+        norm = np.linalg.norm(n, axis=1)
+        norm = np.where(norm > 0, norm, 1.0)
+        n, d = n / norm[:, None], np.asarray(offsets, float) / norm
+        w = np.ones(len(idx)) if weights is None else np.asarray(weights, float)
+        np.add.at(s.M, idx, w[:, None, None] * n[:, :, None] * n[:, None, :])
+        np.add.at(s.b, idx, (w * d)[:, None] * n)
+        u = np.unique(idx)
+        ev, V = np.linalg.eigh(s.M[u])
+        ok = ev[:, 1] > 1e-4 * ev[:, 2]
+        u, ev, V = u[ok], ev[ok], V[ok]
+        if len(u):
+            V2 = V[:, :, 1:]  # the two directions across the line
+            X = s.X[u]  # (k, 2, 3)
+            r = s.b[u][:, None] - np.einsum("kij,kej->kei", s.M[u], X)  # (k, 2, 3)
+            y = np.einsum("kia,kei->kea", V2, r) / ev[:, None, 1:]
+            s.X[u] = X + np.einsum("kia,kea->kei", V2, y)
+
+    def refine(self, kind: str, idx, X_body, desc, R, t, frame: int) -> None:
+        """Fold new body-frame triangulations ``X_body`` of landmarks ``idx`` into their running
+        means (``X_body=None``: keep the positions, update descriptor and viewing direction; the
+        tracker does so for segments, whose endpoints differ from one detection to the next, and
+        for points, whose positions come from :meth:`observe`)."""
+        s = self.sets[kind]
+        idx = np.asarray(idx, int)
+        if len(idx) == 0:
+            return
+        w = 1.0 / (np.minimum(s.n_obs[idx], self.max_obs - 1) + 1.0)
+        if X_body is not None:
+            X_body = np.asarray(X_body, float)
+            s.X[idx] = s.X[idx] + w.reshape((-1,) + (1,) * (X_body.ndim - 1)) * (X_body - s.X[idx])
+        c = s.centres()[idx]
+        v = _unit((-R.T @ t)[None] - c)
+        s.view[idx] = _unit(s.view[idx] + w[:, None] * (v - s.view[idx]))
+        s.desc[idx] = np.asarray(desc, np.uint8).reshape(len(idx), -1)
+        np.add.at(s.n_obs, idx, 1)
+        s.last_seen[idx] = frame
+
+    def record(self, kind: str, searched, found, frame: int) -> None:
+        """Count the landmarks ``searched`` (predicted visible) and those ``found`` (inliers)."""
+        s = self.sets[kind]
+        s.visible[np.asarray(searched, int)] += 1
+        found = np.asarray(found, int)
+        s.found[found] += 1
+        s.last_seen[found] = frame
+
+    def cull(self) -> None:
+        """Remove the landmarks rarely found when predicted visible, then the least recently seen
+        beyond the size caps."""
+        for kind, s in self.sets.items():
+            bad = (
+                (s.visible >= self.cull_after)
+                & (s.found < self.cull_ratio * s.visible)
+                & (s.n_obs < self.keep_obs)
+            )
+            keep = ~bad
+            if keep.sum() > self.max_size[kind]:
+                order = np.argsort(-s.last_seen[keep], kind="stable")
+                sel = np.nonzero(keep)[0][order[: self.max_size[kind]]]
+                keep = np.zeros(len(s), bool)
+                keep[sel] = True
+            if not keep.all():
+                s._keep(keep)
