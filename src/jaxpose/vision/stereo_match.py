@@ -2,8 +2,8 @@
 
 The images must be rectified (epipolar lines are image rows: an ideal side-by-side rig such as
 :meth:`jaxpose.core.camera.StereoCamera.from_baseline`, or images warped with
-:meth:`~jaxpose.core.camera.StereoCamera.rectify` and its ``rectified_camera()``). For a left feature
-at ``(u, v)`` the right match is searched on row ``v`` over the integer disparities
+:func:`jaxpose.vision.stereo_rectify.rectify` and its ``rectified_camera()``). For a left
+feature at ``(u, v)`` the right match is searched on row ``v`` over the integer disparities
 ``d_min..d_max`` (from the depth range, :func:`disparity_range`):
 
 * eq. 4: zero-mean NCC between the ``w x w`` left patch and each right patch; the best score
