@@ -63,13 +63,15 @@ def true_pose_score(res, pose, model, opts) -> float:
     """Score (``l_ROI`` units) that the pipeline's ranking gives the true pose after the same
     edge fit as the hypotheses (from the truth): below ``res.score`` when the ranking would
     prefer the truth to the chosen pose."""
-    import jaxpose.pipelines.monocular as mono
+    from jaxpose.pipelines.monocular.fit import _chamfer_fit
+    from jaxpose.pipelines.monocular.scene import _edge_scene
+    from jaxpose.pipelines.monocular.score import _chamfer
     from jaxpose.vision.roi import roi_diagonal
 
-    sc = mono._edge_scene(res.detection, model, opts)
+    sc = _edge_scene(res.detection, model, opts)
     R0, t0 = jnp.asarray(np.asarray(pose.R)), jnp.asarray(np.asarray(pose.t))
-    Rf, tf = mono._chamfer_fit(R0, t0, sc, steps=12)
-    return float(mono._chamfer(Rf, tf, sc)[0]) / roi_diagonal(res.detection.roi)
+    Rf, tf = _chamfer_fit(R0, t0, sc, steps=12)
+    return float(_chamfer(Rf, tf, sc)[0]) / roi_diagonal(res.detection.roi)
 
 
 def _mean(values) -> float | None:
