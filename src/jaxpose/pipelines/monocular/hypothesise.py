@@ -101,7 +101,7 @@ def _hypotheses(det: Detection, model: WireframeModel, opts: InitOptions):
     )
 
 
-def _svd_candidates(det, model, opts, cam, sc: _EdgeScene):
+def _svd_candidates(det, model, opts, cam, sc: _EdgeScene, trace=None):
     hyp = _hypotheses(det, model, opts)
     if hyp is None:
         return None
@@ -110,7 +110,7 @@ def _svd_candidates(det, model, opts, cam, sc: _EdgeScene):
     fitted = opts.shortlist_fit and opts.rank_by == "chamfer"
     grid = _grid_poses(det, model, opts, sc) if fitted else None
     R_all, t_all, ok, key = _solve_and_score(
-        P, Q, M, cam, sc, opts.rank_by, det.roi, fit=fitted, extra=grid
+        P, Q, M, cam, sc, opts.rank_by, det.roi, fit=fitted, extra=grid, trace=trace
     )
     if not ok.any():
         return None
@@ -151,7 +151,7 @@ def _svd_candidates(det, model, opts, cam, sc: _EdgeScene):
     return poses, tried, np.asarray(seg_idx), kind
 
 
-def _ransac_candidates(det, model, opts, cam, sc: _EdgeScene):
+def _ransac_candidates(det, model, opts, cam, sc: _EdgeScene, trace=None):
     """Test 4 baseline: 3 image segments and 3 model edges at random (random endpoint order),
     EPnP of the 6 endpoint pairs, score by the chamfer distance; the best ``top_k`` go on."""
     segs = det.segments
@@ -172,7 +172,7 @@ def _ransac_candidates(det, model, opts, cam, sc: _EdgeScene):
     P = p.reshape(k, 6, 3)
     Q = q.reshape(k, 6, 2)
     M = np.ones((k, 6), bool)
-    R_all, t_all, ok, key = _solve_and_score(P, Q, M, cam, sc, "chamfer", det.roi)
+    R_all, t_all, ok, key = _solve_and_score(P, Q, M, cam, sc, "chamfer", det.roi, trace=trace)
     order = np.argsort(key, kind="stable")[: opts.top_k]
     order = order[np.isfinite(key[order])]
     if not len(order):
@@ -181,7 +181,7 @@ def _ransac_candidates(det, model, opts, cam, sc: _EdgeScene):
     return poses, k, np.asarray(ii[order[0]]), "ransac"
 
 
-def _solve_and_score(P, Q, M, cam, sc: _EdgeScene, rank_by, roi, fit=False, extra=None):
+def _solve_and_score(P, Q, M, cam, sc: _EdgeScene, rank_by, roi, fit=False, extra=None, trace=None):
     """EPnP of every hypothesis (``jax.vmap(epnp)``, fixed-size chunks) and its ranking key.
 
     ``chamfer``: a quick model-side score ranks all hypotheses, the best ``_SHORTLIST`` get the
@@ -213,6 +213,8 @@ def _solve_and_score(P, Q, M, cam, sc: _EdgeScene, rank_by, roi, fit=False, extr
             ok.append(np.ones(len(Re), bool))
             key.append(np.asarray(k)[: len(Re)])
     R_all, t_all, ok = np.concatenate(Rs), np.concatenate(ts), np.concatenate(ok)
+    if trace is not None:  # every hypothesis and grid pose before the shortlist's fit
+        trace["hypotheses"] = (R_all.copy(), t_all.copy(), ok.copy())
     key = np.where(ok, np.concatenate(key), np.inf)
     key = np.where(np.isfinite(key), key, np.inf)
     if rank_by == "chamfer":
@@ -228,6 +230,8 @@ def _solve_and_score(P, Q, M, cam, sc: _EdgeScene, rank_by, roi, fit=False, extr
             full, _, _ = _batched_rank()(Rs_, ts_, sc)
             new = np.full(len(key), np.inf)  # hypotheses and extra poses
             new[short] = np.asarray(full)[: len(short)]
+            if trace is not None:  # the shortlist after its fit
+                trace["shortlist"] = (R_all[short].copy(), t_all[short].copy())
             key = new
     return R_all, t_all, ok, key
 

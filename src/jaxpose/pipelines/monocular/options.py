@@ -91,6 +91,7 @@ class InitOptions:
     ransac_iterations: int | None = None
     ransac_seed: int = 0
     confidence: dict = field(default_factory=lambda: dict(CONFIDENCE))
+    trace: bool = False  # keep the poses of every stage in InitResult.trace (diagnostics)
 
 
 @dataclass
@@ -113,6 +114,8 @@ class InitResult:
     # IoU of the model's silhouette at the final pose and the image's (None: no silhouette)
     silhouette_iou: float | None = None
     used_segments: np.ndarray | None = None  # indices of the segments of the winning group
+    # with InitOptions(trace=True): the poses of each stage (jaxpose.pipelines.monocular.diagnose)
+    trace: dict | None = None
 
     def to_json(self) -> dict:
         """The fields printed by ``jaxpose init``."""

@@ -49,6 +49,7 @@ def initialise_pose(
     if isinstance(g, bool) or not isinstance(g, int | np.integer) or g < 0:
         raise ValueError(f"attitude_grid must be an integer >= 0 (0 turns it off); got {g!r}")
     timings = {}
+    trace = {} if options.trace else None
     t0 = time.perf_counter()
     L_C = model.characteristic_length * ROI_LENGTH_FACTOR
     det = detect(image, camera, L_C, options.detection)
@@ -62,6 +63,7 @@ def initialise_pose(
         coverage=0.0,
         detection=det,
         timings=timings,
+        trace=trace,
     )
     if det.roi is None:
         return InitResult(confidence="none", message="no target found: no strong gradients", **base)
@@ -76,10 +78,10 @@ def initialise_pose(
 
     t1 = time.perf_counter()
     if options.method == "ransac":
-        cand = _ransac_candidates(det, model, options, cam, sc)
+        cand = _ransac_candidates(det, model, options, cam, sc, trace)
         kind_used = "ransac"
     else:
-        cand = _svd_candidates(det, model, options, cam, sc)
+        cand = _svd_candidates(det, model, options, cam, sc, trace)
         kind_used = cand[-1] if cand is not None else None
     timings["hypotheses_epnp_s"] = time.perf_counter() - t1
     if cand is None:
@@ -88,6 +90,8 @@ def initialise_pose(
 
     # Refinement by re-matching visible model edges to detected segments.
     t1 = time.perf_counter()
+    if trace is not None:
+        trace["candidates"] = list(poses)
     poses = _rematch_refine(poses, det, model, cam, l_roi, options.rematch_rounds)
     timings["refine_rematch_s"] = time.perf_counter() - t1
     t1 = time.perf_counter()
@@ -99,6 +103,8 @@ def initialise_pose(
             confidence="position-only", message="no pose in front of the camera", **base
         )
     best = int(np.argmin(np.where(good, key, np.inf)))
+    if trace is not None:
+        trace.update(refined=list(poses), keys=np.where(good, key, np.inf), chosen=best)
     pose = poses[best]
     vis = visible_edges(model, pose, cam, shape=(H, W), buffer_scale=0.25)
     e2d, coverage = _e2d(vis, det, l_roi)
@@ -127,6 +133,7 @@ def initialise_pose(
         if conf != "position-only"
         else "pose rejected: the model does not fit the edges",
         timings=timings,
+        trace=trace,
         projected=vis.segments,
         used_segments=used,
         silhouette_iou=sil_iou,
