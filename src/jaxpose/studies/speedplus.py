@@ -61,6 +61,11 @@ def evaluate_image(result, truth: Pose) -> dict:
     )
     row["reprojection_error_px"] = result.to_json()["reprojection_error_px"]
     row["silhouette_iou"] = result.silhouette_iou  # None without a silhouette (Earth behind)
+    # the evidence the confidence class reads (jaxpose.pipelines.monocular.classify)
+    row["score"] = _finite_or_none(result.score)
+    row["coverage"] = float(result.coverage)
+    row["orientation_agreement"] = result.orientation_agreement
+    row["margin"] = _finite_or_none(result.margin)
     guess = result.pose
     if guess is not None:
         row["translation_error_m"] = float(jnp.linalg.norm(guess.t - truth.t))
@@ -75,6 +80,10 @@ def evaluate_image(result, truth: Pose) -> dict:
         s, e_q, e_t = competition_score(guess, truth)
         row.update(esa_score=s, esa_orientation=e_q, esa_position=e_t)
     return row
+
+
+def _finite_or_none(x):
+    return float(x) if x is not None and np.isfinite(x) else None
 
 
 def summarise(rows: list[dict]) -> dict:

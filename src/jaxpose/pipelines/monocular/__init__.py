@@ -28,6 +28,8 @@ from jaxpose.pipelines.monocular.demo import demo_report as demo_report
 from jaxpose.pipelines.monocular.options import ANTENNA_WEIGHT as ANTENNA_WEIGHT
 from jaxpose.pipelines.monocular.options import ATTITUDE_GRID as ATTITUDE_GRID
 from jaxpose.pipelines.monocular.options import CONFIDENCE as CONFIDENCE
+from jaxpose.pipelines.monocular.options import GRID_WITHOUT_SILHOUETTE as GRID_WITHOUT_SILHOUETTE
+from jaxpose.pipelines.monocular.options import ORIENTATION_WEIGHT as ORIENTATION_WEIGHT
 from jaxpose.pipelines.monocular.options import REGION_WEIGHT as REGION_WEIGHT
 from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR as ROI_LENGTH_FACTOR
 from jaxpose.pipelines.monocular.options import SILHOUETTE_WEIGHT as SILHOUETTE_WEIGHT
@@ -40,6 +42,8 @@ __all__ = [
     "ANTENNA_WEIGHT",
     "ATTITUDE_GRID",
     "CONFIDENCE",
+    "GRID_WITHOUT_SILHOUETTE",
+    "ORIENTATION_WEIGHT",
     "REGION_WEIGHT",
     "ROI_LENGTH_FACTOR",
     "SILHOUETTE_WEIGHT",

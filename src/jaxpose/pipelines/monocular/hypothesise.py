@@ -272,15 +272,24 @@ def _grid_poses(det, model: WireframeModel, opts: InitOptions, sc: _EdgeScene):
     when the grid is off or the image has no silhouette term (the edges alone cannot rank an
     attitude that no feature group proposed: a grid ranked without the silhouette was tried
     earlier and gave no gain, README)."""
-    if opts.attitude_grid <= 0 or sc.sil_pts is None or det.coarse_t_cam is None:
+    if opts.attitude_grid <= 0 or det.coarse_t_cam is None:
+        return None
+    on_roi = sc.sil_pts is None
+    if on_roi and not opts.grid_without_silhouette:
         return None
     R = _attitudes(int(opts.attitude_grid))
-    centre = np.asarray(sc.face_poly).reshape(-1, 3).mean(0)
+    if on_roi:
+        centre = np.asarray(sc.geom[1]).reshape(-1, 3).mean(0)
+    else:
+        centre = np.asarray(sc.face_poly).reshape(-1, 3).mean(0)
     t = np.asarray(det.coarse_t_cam, dtype=float)[None] - R @ centre
     out = []
     for a in range(0, len(R), _CHUNK):
         Rp, tp = _pad_batch([R[a : a + _CHUNK], t[a : a + _CHUNK]], _CHUNK)
-        tp = _batched_place()(jnp.asarray(Rp), jnp.asarray(tp), sc)
+        if on_roi:
+            tp = _batched_place_roi()(jnp.asarray(Rp), jnp.asarray(tp), sc, jnp.asarray(det.roi))
+        else:
+            tp = _batched_place()(jnp.asarray(Rp), jnp.asarray(tp), sc)
         out.append(np.asarray(tp)[: len(R[a : a + _CHUNK])])
     return R, np.concatenate(out)
 
@@ -322,6 +331,35 @@ def _place_on_silhouette(R, t, sc: _EdgeScene):
 @functools.lru_cache(maxsize=4)
 def _batched_place():
     return jax.jit(jax.vmap(_place_on_silhouette, in_axes=(0, 0, None)))
+
+
+def _place_on_roi(R, t, sc: _EdgeScene, roi):
+    """Translation that puts the box of the model's projected edge samples at attitude ``R`` on
+    the ROI ``[u0, v0, u1, v1]``: the range scaled by the box's diagonal over the ROI's (a
+    projected length falls as the inverse of the range) and the position moved so that the box
+    centre lands on the ROI centre (the box centre's offset from the projected model centre
+    scaled by the range ratio). Returns ``t`` unchanged when the model is behind the camera."""
+    samples = sc.geom[1].reshape(-1, 3)
+    centre = jnp.mean(samples, axis=0)
+    pc = samples @ R.T + t
+    pix = _project(pc, sc.cam4)
+    lo, hi = jnp.min(pix, axis=0), jnp.max(pix, axis=0)
+    diag = jnp.linalg.norm(hi - lo)
+    roi_diag = jnp.linalg.norm(roi[2:] - roi[:2])
+    c = R @ centre + t
+    k = diag / jnp.maximum(roi_diag, 1e-9)
+    z = c[2] * k
+    uv = 0.5 * (roi[:2] + roi[2:]) - (0.5 * (lo + hi) - _project(c, sc.cam4)) / k
+    c_new = jnp.stack(
+        [(uv[0] - sc.cam4[2]) / sc.cam4[0] * z, (uv[1] - sc.cam4[3]) / sc.cam4[1] * z, z]
+    )
+    ok = jnp.all(pc[:, 2] > 1e-3) & (diag > 0) & (roi_diag > 0)
+    return jnp.where(ok, c_new - R @ centre, t)
+
+
+@functools.lru_cache(maxsize=4)
+def _batched_place_roi():
+    return jax.jit(jax.vmap(_place_on_roi, in_axes=(0, 0, None, None)))
 
 
 def _distinct(R, t, order, k, angle_deg=5.0, rel_dist=0.05):

@@ -17,6 +17,8 @@ __all__ = [
     "REGION_WEIGHT",
     "ROI_LENGTH_FACTOR",
     "SILHOUETTE_WEIGHT",
+    "GRID_WITHOUT_SILHOUETTE",
+    "ORIENTATION_WEIGHT",
     "InitOptions",
     "InitResult",
 ]
@@ -73,6 +75,14 @@ SILHOUETTE_WEIGHT = 1.0
 ATTITUDE_GRID = 4096
 
 
+#: Weight of the orientation term (:func:`~jaxpose.pipelines.monocular.score._orientation_term`)
+#: in the quick score and the ranking key: ``+ ORIENTATION_WEIGHT * tau * (1 - mean LINE-2D
+#: similarity of the image's gradient orientations at the projected model edges)`` (pixels).
+ORIENTATION_WEIGHT = 1.0
+#: Attitude grid placed on the ROI (its box and centre) when the image has no silhouette.
+GRID_WITHOUT_SILHOUETTE = True
+
+
 @dataclass(frozen=True)
 class InitOptions:
     """Options of :func:`initialise_pose`."""
@@ -87,7 +97,10 @@ class InitOptions:
     region_weight: float = REGION_WEIGHT  # rank by chamfer + this x tau x _region_energy
     antenna_weight: float = ANTENNA_WEIGHT  # + this x _antenna_term (0: off)
     silhouette_weight: float = SILHOUETTE_WEIGHT  # + this x tau x _silhouette_term (0: off)
-    attitude_grid: int = ATTITUDE_GRID  # attitudes placed on the silhouette (0: off)
+    attitude_grid: int = ATTITUDE_GRID  # attitudes placed on the silhouette or ROI (0: off)
+    orientation_weight: float = ORIENTATION_WEIGHT  # + this x tau x _orientation_term (0: off)
+    # place the attitude grid on the ROI when the image has no silhouette (an Earth behind)
+    grid_without_silhouette: bool = GRID_WITHOUT_SILHOUETTE
     ransac_iterations: int | None = None
     ransac_seed: int = 0
     confidence: dict = field(default_factory=lambda: dict(CONFIDENCE))
@@ -114,6 +127,11 @@ class InitResult:
     # IoU of the model's silhouette at the final pose and the image's (None: no silhouette)
     silhouette_iou: float | None = None
     used_segments: np.ndarray | None = None  # indices of the segments of the winning group
+    # mean LINE-2D similarity at the projected edges of the final pose (None: term off)
+    orientation_agreement: float | None = None
+    # ranking key of the best candidate with an attitude > 10 deg away minus the chosen one's,
+    # over l_ROI (inf: no distinct candidate)
+    margin: float | None = None
     # with InitOptions(trace=True): the poses of each stage (jaxpose.pipelines.monocular.diagnose)
     trace: dict | None = None
 
@@ -139,6 +157,8 @@ class InitResult:
             "group": self.group_kind,
             "hypotheses": self.hypotheses,
             "silhouette_iou": self.silhouette_iou,
+            "orientation_agreement": self.orientation_agreement,
+            "margin": _finite_or_none(self.margin),
             "message": self.message,
         }
 

@@ -14,7 +14,11 @@ from jaxpose.pipelines.monocular.hypothesise import _ransac_candidates, _svd_can
 from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR, InitOptions, InitResult
 from jaxpose.pipelines.monocular.rematch import _e2d, _rematch_refine
 from jaxpose.pipelines.monocular.scene import _edge_scene
-from jaxpose.pipelines.monocular.score import _jit_silhouette_term, _score_poses
+from jaxpose.pipelines.monocular.score import (
+    _jit_orientation_term,
+    _jit_silhouette_term,
+    _score_poses,
+)
 from jaxpose.vision.features import detect
 from jaxpose.vision.models import WireframeModel, tango
 from jaxpose.vision.render import visible_edges
@@ -41,7 +45,12 @@ def initialise_pose(
         raise ValueError(f"method must be 'svd' or 'ransac'; got {options.method!r}")
     if options.rank_by not in ("chamfer", "e2d"):
         raise ValueError(f"rank_by must be 'chamfer' or 'e2d'; got {options.rank_by!r}")
-    for name in ("region_weight", "antenna_weight", "silhouette_weight"):
+    for name in (
+        "region_weight",
+        "antenna_weight",
+        "silhouette_weight",
+        "orientation_weight",
+    ):
         w = getattr(options, name)
         if not np.isfinite(w) or w < 0:
             raise ValueError(f"{name} must be finite and >= 0 (0 turns its term off); got {w}")
@@ -111,6 +120,10 @@ def initialise_pose(
     sil_iou = None
     if sc.sil_pts is not None:
         sil_iou = 1.0 - float(_jit_silhouette_term()(jnp.asarray(pose.R), jnp.asarray(pose.t), sc))
+    ori = None
+    if sc.ori is not None:
+        ori = 1.0 - float(_jit_orientation_term()(jnp.asarray(pose.R), jnp.asarray(pose.t), sc))
+    margin = _margin(poses, np.where(good, key, np.inf), best) / l_roi
     timings["select_s"] = time.perf_counter() - t1
     s_rel = float(score[best]) / l_roi
     conf = classify(s_rel, coverage, options.confidence)
@@ -137,4 +150,22 @@ def initialise_pose(
         projected=vis.segments,
         used_segments=used,
         silhouette_iou=sil_iou,
+        orientation_agreement=ori,
+        margin=margin,
     )
+
+
+#: Candidates whose attitudes differ by more than this are distinct answers for the margin.
+_DISTINCT_DEG = 10.0
+
+
+def _margin(poses, key, best) -> float:
+    """Ranking key of the best candidate whose attitude differs from the chosen one by more than
+    ``_DISTINCT_DEG``, minus the chosen one's (pixels; ``inf`` when there is none)."""
+    Rb = np.asarray(poses[best].R)
+    alt = np.inf
+    for i, p in enumerate(poses):
+        c = (np.trace(np.asarray(p.R) @ Rb.T) - 1.0) / 2.0
+        if np.isfinite(key[i]) and c < np.cos(np.deg2rad(_DISTINCT_DEG)):
+            alt = min(alt, float(key[i]))
+    return alt - float(key[best])

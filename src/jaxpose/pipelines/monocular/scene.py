@@ -31,7 +31,9 @@ class _EdgeScene(NamedTuple):
     of :func:`jaxpose.vision.image_maps.rod_map` and its ``[u_origin, v_origin, scale]``, for the
     antenna term; ``sil_pts (P, 2)``, ``sil_val (P,)``:
     :func:`jaxpose.vision.image_maps.silhouette_grid`, for the silhouette term (``None`` without a
-    silhouette: an Earth behind the target, or the weight 0)."""
+    silhouette: an Earth behind the target, or the weight 0); ``ori (B, S, S)``, ``ori_frame (3,)``:
+    :func:`jaxpose.vision.image_maps.orientation_maps` and its frame, for the orientation term
+    (``None`` when its weight is 0)."""
 
     geom: tuple
     img_pts: jax.Array
@@ -49,6 +51,9 @@ class _EdgeScene(NamedTuple):
     sil_pts: jax.Array | None = None
     sil_val: jax.Array | None = None
     silhouette_weight: float = 0.0
+    ori: jax.Array | None = None
+    ori_frame: jax.Array | None = None
+    orientation_weight: float = 0.0
 
     def chamfer_inputs(self):
         """``(geom, img_pts, img_mask, dt, tau, cam4)``: the fields the chamfer terms use."""
@@ -63,6 +68,7 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
     region = options.region_weight > 0
     antennas = options.antenna_weight > 0 and len(model.antennas) > 0
     sil = options.silhouette_weight > 0 and det.silhouette is not None and len(model.faces) > 0
+    ori = options.orientation_weight > 0
     return _EdgeScene(
         _model_geometry(model),
         img_pts,
@@ -81,6 +87,8 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
             else (None, None)
         ),
         float(options.silhouette_weight),
+        *(_as_jax(image_maps.orientation_maps(det.image, det.roi)) if ori else (None, None)),
+        float(options.orientation_weight),
     )
 
 

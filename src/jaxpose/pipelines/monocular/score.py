@@ -145,6 +145,36 @@ def _antenna_term(R, t, sc: _EdgeScene):
     return sc.tau * (1.0 - jnp.sum(val * m) / jnp.maximum(jnp.sum(m), 1.0))
 
 
+def _orientation_term(R, t, sc: _EdgeScene):
+    """``1 -`` the mean LINE-2D similarity (Hinterstoisser et al. 2012) at the projected visible
+    model edges, in ``[0, 1]``: each edge sample reads the spread orientation map
+    (:func:`jaxpose.vision.image_maps.orientation_maps`) of its edge's projected normal, 1 where a
+    strong image gradient nearby points the same way (modulo 180 deg), 0 where none does. Only the
+    model's edges are read, so background texture away from them does not vote; ``1`` when no
+    sample falls on the map."""
+    _, samples, _, _, _ = sc.geom
+    B = sc.ori.shape[0]
+    S = sc.ori.shape[1]
+    vis = _visible_edges(R, t, sc.geom)
+    pc = samples @ R.T + t
+    pix = _project(pc, sc.cam4)  # (E, K, 2)
+    d = pix[:, -1] - pix[:, 0]
+    phi = jnp.mod(jnp.arctan2(d[:, 1], d[:, 0]) + 0.5 * jnp.pi, jnp.pi)
+    o = jnp.mod(jnp.round(phi / (jnp.pi / B)).astype(jnp.int32), B)  # (E,)
+    uv = (pix - sc.ori_frame[:2]) * sc.ori_frame[2]
+    inside = jnp.all((uv >= 0) & (uv <= S - 1), axis=-1)
+    ij = jnp.clip(jnp.round(uv).astype(jnp.int32), 0, S - 1)
+    val = sc.ori[o[:, None], ij[..., 1], ij[..., 0]]
+    m = (vis[:, None] & inside & (pc[..., 2] > 1e-3)).astype(val.dtype)
+    n = jnp.sum(m)
+    return jnp.where(n > 0, 1.0 - jnp.sum(val * m) / jnp.maximum(n, 1.0), 1.0)
+
+
+@functools.lru_cache(maxsize=4)
+def _jit_orientation_term():
+    return jax.jit(_orientation_term)
+
+
 def _quick_score(R, t, sc: _EdgeScene, roi):
     """Cheap ranking score of many hypotheses: the model side of :func:`_chamfer` plus a penalty
     when the projected model's box does not match the ROI in size (a small, far-away projection
@@ -173,6 +203,8 @@ def _quick_score(R, t, sc: _EdgeScene, roi):
         out = out + sc.antenna_weight * _antenna_term(R, t, sc)
     if sc.sil_pts is not None:
         out = out + sc.silhouette_weight * tau * _silhouette_term(R, t, sc, coarse=True)
+    if sc.ori is not None:
+        out = out + sc.orientation_weight * tau * _orientation_term(R, t, sc)
     return out
 
 
@@ -225,6 +257,8 @@ def _rank_key(R, t, sc: _EdgeScene):
         key = key + sc.antenna_weight * _antenna_term(R, t, sc)
     if sc.sil_pts is not None:
         key = key + sc.silhouette_weight * sc.tau * _silhouette_term(R, t, sc)
+    if sc.ori is not None:
+        key = key + sc.orientation_weight * sc.tau * _orientation_term(R, t, sc)
     return key, ch, near
 
 
