@@ -32,7 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "run the monocular initialisation on a labelled SPEED+ folder and score it",
     ),
     "select-study": (
-        "jaxpose.studies.selection",
+        "jaxpose.commands.select_study",
         "reproduce Ning et al. 2018 Sec. 5: quasi-optimal vs optimal feature selection",
     ),
     "pose-study": (

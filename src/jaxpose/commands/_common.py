@@ -8,7 +8,8 @@
 * :func:`progress` and :func:`stage`: tqdm bars on stderr (stdout stays clean for ``--json``).
 * One spelling for the shared options: :func:`add_out_argument` (``--out``, default
   ``./jaxpose-out/<command>``), :func:`add_progress_argument` (``--no-progress``),
-  :func:`add_figures_argument` (``--no-figures``).
+  :func:`add_figures_argument` (``--no-figures``), :func:`add_image_size_argument`
+  (``--image-size W H``, ``WxH`` accepted).
 * ``argparse`` types that refuse bad values naming the option: :func:`positive_float`,
   :func:`nonnegative_float`, :func:`finite_float`, :func:`positive_int`, :func:`nonnegative_int`.
 * :class:`HelpFormatter`: every option's help ends with its default.
@@ -30,6 +31,7 @@ __all__ = [
     "CommandError",
     "HelpFormatter",
     "add_figures_argument",
+    "add_image_size_argument",
     "add_out_argument",
     "add_progress_argument",
     "cache_dir",
@@ -168,6 +170,35 @@ def add_progress_argument(parser: argparse.ArgumentParser) -> None:
 def add_figures_argument(parser: argparse.ArgumentParser) -> None:
     """``--no-figures``: skip the PNG figures."""
     parser.add_argument("--no-figures", action="store_true", help="do not write the PNG figures")
+
+
+class _ImageSize(argparse.Action):
+    def __call__(self, parser, namespace, values, option_string=None):
+        parts = values[0].lower().split("x") if len(values) == 1 else list(values)
+        try:
+            size = [int(p) for p in parts]
+        except ValueError:
+            size = []
+        if len(size) != 2 or min(size) < 1:
+            parser.error(
+                f"argument {option_string}: expected two positive integers W H (or WxH); "
+                f"got {' '.join(values)!r}"
+            )
+        setattr(namespace, self.dest, tuple(size))
+
+
+def add_image_size_argument(
+    parser, default: tuple[int, int], help: str = "image size in pixels"
+) -> None:
+    """``--image-size W H`` (``WxH`` accepted too), parsed to a tuple ``(W, H)`` of ints >= 1."""
+    parser.add_argument(
+        "--image-size",
+        nargs="+",
+        action=_ImageSize,
+        default=tuple(default),
+        metavar=("W", "H"),
+        help=help,
+    )
 
 
 # ----------------------------------------------------------------------------- argparse types
