@@ -36,7 +36,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "reproduce Ning et al. 2018 Sec. 5: quasi-optimal vs optimal feature selection",
     ),
     "pose-study": (
-        "jaxpose.studies.pose",
+        "jaxpose.commands.pose_study",
         "predicted pose covariance vs Monte Carlo scatter of refined poses "
         "(noise levels, geometries)",
     ),
