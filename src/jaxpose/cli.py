@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
 from jaxpose.commands._common import CommandError, CommandParser, HelpFormatter
 
@@ -86,6 +87,18 @@ def _fail(prog: str, err: BaseException) -> int:
     return 2
 
 
+def _one_line_warning(prog: str):
+    """Warnings of the package (a recomputed chunk, ...) as ``jaxpose COMMAND: warning: ...``."""
+    previous = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if not issubclass(category, UserWarning) or "jaxpose" not in str(filename):
+            return previous(message, category, filename, lineno, file, line)
+        print(f"{prog}: warning: {message}", file=sys.stderr if file is None else file)
+
+    return show
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``jaxpose ARGV``; returns the exit status (0, or 2 for a user's mistake)."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -116,10 +129,12 @@ def main(argv: list[str] | None = None) -> int:
 
     jax.config.update("jax_enable_x64", True)
     enable_compilation_cache()
-    try:
-        return int(module.run(args) or 0)
-    except (CommandError, ValueError, OSError) as err:
-        return _fail(prog, err)
+    with warnings.catch_warnings():
+        warnings.showwarning = _one_line_warning(prog)
+        try:
+            return int(module.run(args) or 0)
+        except (CommandError, ValueError, OSError) as err:
+            return _fail(prog, err)
 
 
 if __name__ == "__main__":  # pragma: no cover

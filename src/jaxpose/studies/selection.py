@@ -228,6 +228,32 @@ def _shard(x, sharding):
     return jax.device_put(x, sharding) if sharding is not None else x
 
 
+def _behind_camera(z_min: float) -> ValueError:
+    return ValueError(
+        f"the scenario puts feature points behind the camera (z = {z_min:.3g} m): increase "
+        "range_m (--range-m) or decrease plane_size_m (--plane-size-m), "
+        "plane_centre_m (--plane-centre-m) or attitude_deg (--attitude-deg)"
+    )
+
+
+def _check_in_front(scenario: Scenario) -> None:
+    """Refuse before any work a fixed attitude that puts a corner of the feature square (the
+    square's deepest and shallowest points are corners) at or behind the camera's z = 0."""
+    if scenario.random_attitude:  # checked per chunk on the drawn attitudes
+        return
+    half = scenario.plane_size_m / 2.0
+    cx, cy = scenario.plane_centre_m
+    corners = np.array([[cx + a, cy + b, 0.0] for a in (-half, half) for b in (-half, half)])
+    pose = Pose.from_euler(
+        jnp.deg2rad(jnp.asarray(scenario.attitude_deg, dtype=float)),
+        jnp.asarray(_translation(scenario)),
+        scenario.sequence,
+    )
+    z_min = float(np.min(np.asarray(pose.apply(jnp.asarray(corners)))[:, 2]))
+    if not z_min > 0:
+        raise _behind_camera(z_min)
+
+
 def _run_chunk(scenario: Scenario, m: int, points, angles, sharding, compiled: dict):
     """One chunk: returns per-case arrays and the run times of the two selection methods."""
     points, angles = _shard(points, sharding), _shard(angles, sharding)
@@ -235,11 +261,7 @@ def _run_chunk(scenario: Scenario, m: int, points, angles, sharding, compiled: d
     jax.block_until_ready(blocks)
     z_min = float(jnp.min(points_cam[..., 2]))
     if not z_min > 0:
-        raise ValueError(
-            f"the scenario puts feature points behind the camera (z = {z_min:.3g} m): increase "
-            "range_m (--range-m) or decrease plane_size_m (--plane-size-m), "
-            "plane_centre_m (--plane-centre-m) or attitude_deg (--attitude-deg)"
-        )
+        raise _behind_camera(z_min)
     # Compile outside the timed region (AOT, once per shape), then time each method.
     key = (blocks.shape, m)
     if key not in compiled:
@@ -359,6 +381,7 @@ def run_study(
     chunk_size: int = 250,
     out_dir: str | Path | None = None,
     progress: bool = True,
+    progress_desc: str = "select-study",
 ) -> StudyResult:
     """Run the selection study; resumable when ``out_dir`` is given.
 
@@ -369,7 +392,8 @@ def run_study(
         seed: master seed.
         chunk_size: cases per chunk (the unit of resumption and of device sharding).
         out_dir: where chunks are kept (``out_dir/chunks``); ``None`` keeps nothing on disk.
-        progress: show a tqdm progress bar.
+        progress: show a progress bar (tqdm, on stderr).
+        progress_desc: the bar's label.
     """
     from jaxpose.commands._common import progress as progress_bar
 
@@ -384,6 +408,7 @@ def run_study(
         raise ValueError(f"chunk_size (--chunk-size) must be an integer >= 1; got {chunk_size!r}")
     for n, m in groups:
         check_group(n, m)
+    _check_in_front(scenario)
     sharding, ndev = _device_sharding()
     chunk_size = max(ndev, int(math.ceil(min(chunk_size, cases) / ndev)) * ndev)
     fp = scenario.fingerprint(seed)
@@ -393,42 +418,44 @@ def run_study(
 
     starts = list(range(0, cases, chunk_size))
     bar = progress_bar(
-        total=len(groups) * len(starts), desc="select-study", unit="chunk", enabled=progress
+        total=len(groups) * len(starts), desc=progress_desc, unit="chunk", enabled=progress
     )
     per_group: dict[tuple[int, int], dict[str, np.ndarray]] = {}
     timings: dict[tuple[int, int], list[float]] = {}
     compiled: dict = {}
-    for n, m in groups:
-        parts, t_quasi, t_opt = [], 0.0, 0.0
-        bar.set_postfix(n=n, m=m)
-        for start in starts:
-            stop = min(start + chunk_size, cases)
-            path = chunk_dir / f"n{n}_m{m}_c{start:06d}_{stop:06d}.npz" if chunk_dir else None
-            saved = _load_chunk(path, fp) if path is not None else None
-            if saved is not None:
-                parts.append(saved[0])
-                t_quasi += saved[1]
-                t_opt += saved[2]
+    try:
+        for n, m in groups:
+            parts, t_quasi, t_opt = [], 0.0, 0.0
+            bar.set_postfix(n=n, m=m)
+            for start in starts:
+                stop = min(start + chunk_size, cases)
+                path = chunk_dir / f"n{n}_m{m}_c{start:06d}_{stop:06d}.npz" if chunk_dir else None
+                saved = _load_chunk(path, fp) if path is not None else None
+                if saved is not None:
+                    parts.append(saved[0])
+                    t_quasi += saved[1]
+                    t_opt += saved[2]
+                    bar.update(1)
+                    continue
+                idx = list(range(start, stop))
+                padded = idx + [idx[-1]] * (chunk_size - len(idx))  # equal chunk shape: one compile
+                points, angles = make_cases(scenario, n, padded, seed)
+                out, tq, te = _run_chunk(scenario, m, points, angles, sharding, compiled)
+                out = {k: v[: len(idx)] for k, v in out.items()}
+                frac = len(idx) / chunk_size
+                tq, te = tq * frac, te * frac
+                if path is not None:
+                    tmp = path.with_suffix(".tmp.npz")
+                    np.savez(tmp, fingerprint=fp, times=np.array([tq, te]), **out)
+                    tmp.replace(path)
+                parts.append(out)
+                t_quasi += tq
+                t_opt += te
                 bar.update(1)
-                continue
-            idx = list(range(start, stop))
-            padded = idx + [idx[-1]] * (chunk_size - len(idx))  # equal chunk shape: one compile
-            points, angles = make_cases(scenario, n, padded, seed)
-            out, tq, te = _run_chunk(scenario, m, points, angles, sharding, compiled)
-            out = {k: v[: len(idx)] for k, v in out.items()}
-            frac = len(idx) / chunk_size
-            tq, te = tq * frac, te * frac
-            if path is not None:
-                tmp = path.with_suffix(".tmp.npz")
-                np.savez(tmp, fingerprint=fp, times=np.array([tq, te]), **out)
-                tmp.replace(path)
-            parts.append(out)
-            t_quasi += tq
-            t_opt += te
-            bar.update(1)
-        per_group[(n, m)] = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        timings[(n, m)] = [t_quasi / cases, t_opt / cases]
-    bar.close()
+            per_group[(n, m)] = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+            timings[(n, m)] = [t_quasi / cases, t_opt / cases]
+    finally:
+        bar.close()
     results = _summarise(scenario, seed, per_group, timings, ndev)
     return StudyResult(results, per_group)
 
