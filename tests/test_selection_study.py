@@ -262,7 +262,11 @@ def test_failed_cases_give_null_statistics_never_nan():
     }
     failed = {k: v[1:] for k, v in group.items()}
     res = study._summarise(
-        study.Scenario(), 0, {(18, 8): group, (18, 9): failed}, {(18, 8): [1, 1], (18, 9): [1, 1]}, 1
+        study.Scenario(),
+        0,
+        {(18, 8): group, (18, 9): failed},
+        {(18, 8): [1, 1], (18, 9): [1, 1]},
+        1,
     )
     text = json.dumps(res, allow_nan=False)  # raises on NaN or inf
     g8, g9 = res["groups"]
