@@ -128,7 +128,7 @@ def test_block_is_psd_rank_two_and_below_its_endpoints_as_points():
 
 
 def _line_motions(segment, pose):
-    """State motions (T, delta) that keep the 3-D line on itself: slide along it, rotate about it."""
+    """State motions (T, delta) keeping the 3-D line on itself: slide along it, rotate about it."""
     R = np.asarray(pose.R)
     u = R @ (segment[1] - segment[0])
     u = u / np.linalg.norm(u)
@@ -330,7 +330,7 @@ def test_exhaustive_and_branch_and_bound_on_mixed_blocks_equal_brute_force(seed)
 
 
 def test_optimal_mixed_subsets_use_lines_and_beat_points_only():
-    """Non-trivial cases: the optimum takes lines, and is better than the best points-only subset."""
+    """Non-trivial cases: the optimum takes lines and beats the best points-only subset."""
     with_lines = 0
     for seed in range(4):
         blocks = mixed_blocks(seed)
