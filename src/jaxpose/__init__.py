@@ -18,6 +18,7 @@ from jaxpose.core.dilution import dop_from_information as dop_from_information
 from jaxpose.core.dilution import information_blocks as information_blocks
 from jaxpose.core.dilution import observation_jacobian as observation_jacobian
 from jaxpose.core.geometry import Pose as Pose
+from jaxpose.core.line_dop import line_information_blocks as line_information_blocks
 from jaxpose.core.pnp import PnPResult as PnPResult
 from jaxpose.core.pnp import dlt as dlt
 from jaxpose.core.pnp import epnp as epnp
