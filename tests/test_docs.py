@@ -35,3 +35,51 @@ def test_mkdocs_build_strict(tmp_path):
     for name in ("jaxpose.dop", "jaxpose.solve_pnp", "jaxpose.refine_pose", "jaxpose.Pose"):
         assert f'id="{name}"' in api, name
     shutil.rmtree(site)
+
+
+_LAYERS = {"core": 1, "vision": 2, "pipelines": 3, "studies": 3, "commands": 3, "io": 3, "cli": 3}
+
+
+def _layer(module: str) -> int | None:
+    """Layer of a ``jaxpose.<top>...`` module as the design page defines it (None: the package
+    root, which re-exports from every layer)."""
+    parts = module.split(".")
+    return _LAYERS.get(parts[1]) if len(parts) > 1 else None
+
+
+def test_imports_go_only_downward():
+    """The design page's rule: core never imports vision or the applications, vision never
+    imports the applications (checked on every module's import statements)."""
+    import ast
+
+    src = ROOT / "src" / "jaxpose"
+    bad = []
+    for path in sorted(src.rglob("*.py")):
+        rel = path.relative_to(src.parent).with_suffix("")
+        module = ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
+        own = _layer(module)
+        if own is None:
+            continue
+        package = module if rel.name == "__init__" else module.rsplit(".", 1)[0]
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    targets = [".".join(base + ([node.module] if node.module else []))]
+                else:
+                    targets = [node.module or ""]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            else:
+                continue
+            for target in targets:
+                if target.startswith("jaxpose.") and (_layer(target) or 0) > own:
+                    bad.append(f"{module}:{node.lineno} imports {target}")
+    assert not bad, "\n".join(bad)
+
+
+def test_no_page_points_outside_the_repository():
+    for path in [ROOT / "README.md", ROOT / "mkdocs.yml", *sorted((ROOT / "docs").rglob("*.md"))]:
+        text = path.read_text()
+        assert "../shared" not in text and "shared/docs" not in text, path
+        assert "seed 00" not in text.lower(), path
