@@ -83,3 +83,53 @@ def test_no_page_points_outside_the_repository():
         text = path.read_text()
         assert "../shared" not in text and "shared/docs" not in text, path
         assert "seed 00" not in text.lower(), path
+
+
+def _code_blocks() -> list[tuple[str, str]]:
+    """Every ``python`` block of the README and the docs pages, with where it comes from."""
+    import re
+
+    blocks = []
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]:
+        for i, code in enumerate(re.findall(r"```python\n(.*?)```", path.read_text(), re.S)):
+            blocks.append((f"{path.relative_to(ROOT)} block {i}", code))
+    return blocks
+
+
+def test_code_blocks_name_only_what_exists():
+    """The examples follow the API: every module they import, every name they import from it,
+    and every ``jp.<name>`` (and ``jp.<module>.<name>``) they use exists in this checkout."""
+    import ast
+    import importlib
+
+    import jaxpose as jp
+
+    missing = []
+    for where, code in _code_blocks():
+        try:
+            tree = ast.parse(code)
+        except SyntaxError:  # a fragment such as "res.R, res.t": names only, no statements
+            tree = ast.parse("\n".join(line for line in code.splitlines() if "=" in line) or "0")
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("jaxpose"):
+                module = importlib.import_module(node.module)
+                missing += [f"{where}: {node.module}.{a.name}" for a in node.names
+                            if not hasattr(module, a.name)]
+            elif isinstance(node, ast.Import):
+                for a in node.names:
+                    if a.name.startswith("jaxpose"):
+                        importlib.import_module(a.name)
+            elif isinstance(node, ast.Attribute):
+                chain = []
+                inner = node
+                while isinstance(inner, ast.Attribute):
+                    chain.append(inner.attr)
+                    inner = inner.value
+                if isinstance(inner, ast.Name) and inner.id == "jp":
+                    obj = jp
+                    for attr in reversed(chain):
+                        if not hasattr(obj, attr):
+                            missing.append(f"{where}: jp.{'.'.join(reversed(chain))}")
+                            break
+                        obj = getattr(obj, attr)
+    assert not missing, "\n".join(sorted(set(missing)))

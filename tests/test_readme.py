@@ -91,3 +91,34 @@ def test_readme_is_short_and_self_contained():
     for needle in ("jp.dop(", "solve_pnp(", "initialise_pose(", "StereoTracker(", "calibration.json",
                    "cameraMatrix", "## Current results"):
         assert needle in text, needle
+
+
+@pytest.mark.slow
+def test_stereo_block_tracks_a_folder_in_the_layout_shown(tmp_path):
+    """The README's stereo folder (its calibration.json as shown, three rendered pairs) and its
+    Python block: every frame tracked on tens of points."""
+    import json
+
+    import cv2
+    from jaxpose.core.camera import PinholeCamera, StereoCamera
+    from jaxpose.vision.stereo_render import StereoScene, render_sequence
+
+    text = README.read_text()
+    calibration = next(b for b in re.findall(r"```json\n(.*?)```", text, re.S) if '"t_rl"' in b)
+    data = json.loads(calibration)
+    folder = tmp_path / "my_sequence"
+    for side in ("left", "right"):
+        (folder / side).mkdir(parents=True)
+    (folder / "calibration.json").write_text(calibration)
+    left = PinholeCamera.from_K(data["left"]["cameraMatrix"], width=data["left"]["Nu"],
+                                height=data["left"]["Nv"])
+    rig = StereoCamera.from_baseline(left, -float(data["t_rl"][0]))
+    for frame in render_sequence(StereoScene(frames=3), rig):
+        cv2.imwrite(str(folder / "left" / f"{frame.index:06d}.png"), frame.left)
+        cv2.imwrite(str(folder / "right" / f"{frame.index:06d}.png"), frame.right)
+    block = next(b for b in _python_blocks(text) if "StereoTracker(" in b)
+    proc = _run(block.replace("print(i, ", "print('FRAME', i, "), tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    frames = [line.split() for line in proc.stdout.splitlines() if line.startswith("FRAME")]
+    assert [f[1:3] for f in frames] == [["0", "OK"], ["1", "OK"], ["2", "OK"]]
+    assert all(int(f[3]) > 50 for f in frames)  # points used by the pose, each frame
