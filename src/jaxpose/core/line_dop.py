@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from jaxpose.core.camera import PinholeCamera, as_camera
-from jaxpose.core.dop import _state_to_pixels
+from jaxpose.core.dilution import _state_to_pixels
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
 from jaxpose.core.residuals import line_from_segment
 
