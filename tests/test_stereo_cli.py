@@ -185,4 +185,4 @@ def test_help_shows_every_option_with_a_default(capsys):
         "--no-progress",
     ):
         assert option in text
-    assert text.count("default") >= 14
+    assert text.count("default") >= 11  # every option that takes a value

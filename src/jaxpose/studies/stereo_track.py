@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import math
 import time
 from pathlib import Path
 
@@ -61,123 +60,69 @@ _RENDER_DEFAULTS = {
 }
 
 
-def _number(text: str, kind=float):
-    try:
-        value = kind(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected {'an integer' if kind is int else 'a number'}; got {text!r}"
-        ) from None
-    if kind is float and not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be a finite number; got {text!r}")
-    return value
-
-
-def _positive(text: str) -> float:
-    value = _number(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be positive; got {text!r}")
-    return value
-
-
-def _nonnegative(text: str) -> float:
-    value = _number(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be zero or positive; got {text!r}")
-    return value
-
-
-def _seed(text: str) -> int:
-    value = _number(text, int)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be zero or positive; got {text!r}")
-    return value
-
-
-def _frames(text: str) -> int:
-    value = _number(text, int)
-    if not 2 <= value <= MAX_FRAMES:
-        raise argparse.ArgumentTypeError(f"must be between 2 and {MAX_FRAMES}; got {text!r}")
-    return value
-
-
-def _image_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in str(text).lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH, e.g. 1024x768; got {text!r}") from None
-    if w < 64 or h < 48:
-        raise argparse.ArgumentTypeError(f"must be at least 64x48; got {text!r}")
-    return w, h
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from jaxpose.commands._common import (
+        add_figures_argument,
+        add_image_size_argument,
+        add_out_argument,
+        add_progress_argument,
+        finite_float,
+        nonnegative_float,
+        nonnegative_int,
+        positive_float,
+        positive_int,
+    )
+
     d = _RENDER_DEFAULTS
     parser.add_argument(
         "--frames",
-        type=_frames,
+        type=positive_int,
         default=None,
-        help="frames to track (default: two full turns; with --images: all pairs, else the "
-        f"first N); at most {MAX_FRAMES}",
+        help=f"frames to track, 2 to {MAX_FRAMES} (default: two full turns; with --images: all "
+        "pairs, else the first N)",
     )
     parser.add_argument(
         "--rate-deg-s",
-        type=_number,
-        default=None,
-        help=f"spin rate of the rendered target, deg/s (default: {d['rate_deg_s']}); two turns "
-        f"must fit in {MAX_FRAMES} frames",
+        type=finite_float,
+        default=d["rate_deg_s"],
+        help=f"spin rate of the rendered target, deg/s; two turns must fit in {MAX_FRAMES} frames",
     )
     parser.add_argument(
         "--range-m",
-        type=_positive,
-        default=None,
-        help=f"chaser-target range of the rendering, m, above 0.5 (default: {d['range_m']})",
+        type=positive_float,
+        default=d["range_m"],
+        help="chaser-target range of the rendering, m, above 0.5",
     )
     parser.add_argument(
         "--blur",
-        type=_nonnegative,
-        default=None,
-        help="motion blur of the rendering: exposure / frame interval, 0 to 1.5 "
-        f"(default: {d['blur']})",
+        type=nonnegative_float,
+        default=d["blur"],
+        help="motion blur of the rendering: exposure / frame interval, 0 to 1.5",
     )
     parser.add_argument(
         "--glints",
-        type=_nonnegative,
-        default=None,
-        help=f"specular glint strength of the rendering, 0: none, 1.5: strong (default: "
-        f"{d['glints']})",
+        type=nonnegative_float,
+        default=d["glints"],
+        help="specular glint strength of the rendering (0: none, 1.5: strong)",
     )
     parser.add_argument(
-        "--frame-rate-hz",
-        type=_positive,
-        default=5.0,
-        help="camera frame rate, Hz (default: 5.0)",
+        "--frame-rate-hz", type=positive_float, default=5.0, help="camera frame rate, Hz"
     )
     parser.add_argument(
-        "--seed",
-        type=_seed,
-        default=None,
-        help=f"sensor-noise seed of the rendering, >= 0 (default: {d['seed']})",
+        "--seed", type=nonnegative_int, default=d["seed"], help="sensor-noise seed of the rendering"
     )
-    parser.add_argument(
-        "--image-size",
-        type=_image_size,
-        default=None,
-        metavar="WxH",
-        help="rendered image size (default: 1024x768)",
-    )
+    add_image_size_argument(parser, d["image_size"], help="rendered image size, pixels")
     parser.add_argument(
         "--init",
         choices=("truth", "identity"),
         default=None,
-        help="first pose: the rendered truth, or the identity (target frame = first left "
-        "camera frame; errors after aligning the first frame) (default: truth; identity "
-        "with --images)",
+        help="first pose: the rendered truth, or the identity (target frame = first left camera "
+        "frame; errors after aligning the first frame) (default: truth; identity with --images)",
     )
     parser.add_argument(
         "--points-only",
         action="store_true",
-        help="track with ORB points only (the paper's comparison) (default: points and lines)",
+        help="track with ORB points only (the paper's comparison)",
     )
     parser.add_argument(
         "--images",
@@ -186,18 +131,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a stereo folder: calibration.json, left/*.png, right/*.png, optional poses.csv "
         "(default: render a sequence)",
     )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=Path("jaxpose-out/stereo-track"),
-        help="output folder (default: jaxpose-out/stereo-track)",
-    )
-    parser.add_argument(
-        "--no-figures", action="store_true", help="do not write the PNG figures (default: write)"
-    )
-    parser.add_argument(
-        "--no-progress", action="store_true", help="no progress bar on stderr (default: shown)"
-    )
+    add_out_argument(parser, "stereo-track", "trajectory, figures and summary")
+    add_figures_argument(parser)
+    add_progress_argument(parser)
     parser.add_argument(
         "--json", action="store_true", help="print the summary as a JSON last line on stdout"
     )
@@ -347,10 +283,7 @@ def _rendered(args):
     """Scene, rig and frames of a rendered run; ``ValueError`` naming the option."""
     from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
 
-    d = {
-        k: (getattr(args, k) if getattr(args, k) is not None else v)
-        for k, v in _RENDER_DEFAULTS.items()
-    }
+    d = {k: getattr(args, k) for k in _RENDER_DEFAULTS}
     if d["range_m"] <= 0.5:
         raise ValueError(
             f"--range-m must exceed 0.5 m (the target is 1 m across); got {d['range_m']}"
@@ -386,11 +319,18 @@ def run(args: argparse.Namespace) -> int:
     from jaxpose.core.geometry import Pose
     from jaxpose.pipelines.stereo import TrackerOptions
 
+    if args.frames is not None and not 2 <= args.frames <= MAX_FRAMES:
+        raise ValueError(f"--frames must be between 2 and {MAX_FRAMES}; got {args.frames}")
+    w, h = args.image_size
+    if w < 64 or h < 48:
+        raise ValueError(f"--image-size must be at least 64x48; got {w}x{h}")
     use_lines = not args.points_only
     dt = 1.0 / args.frame_rate_hz
     if args.images is not None:
         given = [
-            "--" + k.replace("_", "-") for k in _RENDER_DEFAULTS if getattr(args, k) is not None
+            "--" + k.replace("_", "-")
+            for k, v in _RENDER_DEFAULTS.items()
+            if tuple(np.atleast_1d(getattr(args, k))) != tuple(np.atleast_1d(v))
         ]
         if given:
             raise ValueError(
