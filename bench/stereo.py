@@ -136,6 +136,7 @@ def run_scene(name: str, frames: int | None, modes=MODES, seed: int = 0, options
     rig = default_rig()
     depth = (0.3, max(8.0, 3 * scene.range_m))
     trackers, logs = {}, {m: ([], [], []) for m in modes}
+    cpu = {m: [] for m in modes}
     render_s = 0.0
     t_render = time.perf_counter()
     for fr in render_sequence(scene, rig):
@@ -145,10 +146,11 @@ def run_scene(name: str, frames: int | None, modes=MODES, seed: int = 0, options
                 base = TrackerOptions() if options is None else options
                 opts = replace(base, use_lines=mode == "points+lines", depth_range_m=depth)
                 trackers[mode] = StereoTracker(rig, fr.pose, options=opts)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             res = trackers[mode].process(fr.left, fr.right)
             results, truths, seconds = logs[mode]
             seconds.append(time.perf_counter() - t0)
+            cpu[mode].append(time.process_time() - c0)
             results.append(res)
             truths.append(fr.pose)
         t_render = time.perf_counter()
@@ -177,6 +179,9 @@ def run_scene(name: str, frames: int | None, modes=MODES, seed: int = 0, options
             "keyframes": int(sum(r.keyframe for r in results)),
             "mean_stage_s": stage,
             "mean_frame_s": float(np.mean(seconds[2:])) if len(seconds) > 2 else None,
+            # CPU seconds of this process a frame (all its threads): steadier than wall time on
+            # a shared machine, for ratios between versions
+            "mean_frame_cpu_s": float(np.mean(cpu[mode][2:])) if len(seconds) > 2 else None,
         }
     if set(MODES) <= set(modes):
         a, b = out["points+lines"], out["points-only"]
@@ -283,7 +288,7 @@ def main(argv=None) -> int:
         m = r["points+lines"]
         print(
             f"done {name}: {m['rms_position_mm']} mm, {m['rms_attitude_deg']} deg, "
-            f"lost {m['lost_frames']}, {m['fps']} fps",
+            f"lost {m['lost_frames']}, {m['fps']} fps, {m['mean_frame_cpu_s']} CPU s a frame",
             file=sys.stderr,
             flush=True,
         )
