@@ -24,14 +24,24 @@ __all__ = [
 ]
 
 
-#: Confidence thresholds (calibrated on rendered Tango images; README, section monocular). The
-#: score is the symmetric truncated chamfer distance at the final pose divided by ``l_ROI``; the
-#: coverage the share of visible model edges with a detected endpoint nearby.
-#: ``high``: score at most ``high_score`` and coverage at least ``high_coverage``;
-#: ``low``: score at most ``low_score``; otherwise ``position-only`` (the coarse position from the
-#: ROI). The range of the pose is *not* checked against the ROI's coarse range: an Earth
-#: background inflates the ROI and would reject good poses.
-CONFIDENCE = {"high_score": 0.018, "high_coverage": 0.9, "low_score": 0.04}
+#: Confidence thresholds (:func:`~jaxpose.pipelines.monocular.classify.classify`). The score is
+#: the symmetric truncated chamfer distance at the final pose divided by ``l_ROI``; the coverage
+#: the share of visible model edges with a detected endpoint nearby; the orientation agreement
+#: the mean LINE-2D similarity at the projected edges; the margin the ranking key of the best
+#: candidate with an attitude more than 10 deg away minus the chosen one's, over ``l_ROI``.
+#: ``high``: score at most ``high_score``, coverage at least ``high_coverage``, orientation
+#: agreement at least ``high_orientation`` and margin at least ``high_margin`` (chosen by
+#: ``bench/monocular_confidence.py``, leave-one-out, docs: monocular evaluation);
+#: ``low``: any other pose whose score is at most ``low_score`` (a pose that fits the edges at
+#: all); otherwise ``position-only`` (the coarse position from the ROI). The range of the pose is
+#: *not* checked against the ROI's coarse range: an Earth background inflates the ROI.
+CONFIDENCE = {
+    "high_score": 0.018,
+    "high_coverage": 0.9,
+    "high_orientation": 0.0,
+    "high_margin": 0.0,
+    "low_score": 0.1,
+}
 
 #: Effective characteristic length factor: ``L_C`` of eq. 6 is the model's largest vertex distance
 #: times this factor, the median of ``true range x l_ROI / (f L_C)`` over the 100 rendered images

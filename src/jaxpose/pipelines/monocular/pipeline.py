@@ -126,7 +126,7 @@ def initialise_pose(
     margin = _margin(poses, np.where(good, key, np.inf), best) / l_roi
     timings["select_s"] = time.perf_counter() - t1
     s_rel = float(score[best]) / l_roi
-    conf = classify(s_rel, coverage, options.confidence)
+    conf = classify(s_rel, coverage, options.confidence, orientation=ori, margin=margin)
     timings["total_s"] = 0.0
     total = time.perf_counter() - t0
     timings = {k: v for k, v in timings.items() if k != "total_s"}
