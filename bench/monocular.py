@@ -1,4 +1,5 @@
-"""Benchmark and evaluation of the monocular initialisation (seed 002) on rendered Tango images.
+"""Benchmark and evaluation of the monocular initialisation (Sharma, Ventura, D'Amico 2018) on
+rendered Tango images.
 
     python bench/monocular.py --images 200 --out runs/monocular_rendered.json [--method ransac]
 

@@ -200,7 +200,8 @@ def test_bad_scenario_options_are_refused_naming_the_option(argv, option, tmp_pa
 
 
 @pytest.mark.parametrize(
-    "field, value", [("range_m", 0.0), ("range_m", -10.0), ("plane_size_m", 0.0), ("sigma_px", -1)]
+    "field, value",
+    [("range_m", 0.0), ("range_m", -10.0), ("plane_size_m", 0.0), ("sigma_px", -1.0)],
 )
 def test_scenario_refuses_bad_values_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
