@@ -126,7 +126,7 @@ def _fig9_10(groups: list[dict], out_dir: Path) -> Path:
         t_opt = [g["time_s"]["optimal_per_case"] for g in gs]
         t_quasi = [g["time_s"]["quasi_per_case"] for g in gs]
         ax.plot(xs, t_opt, "o" + style, label="optimal (exhaustive)")
-        ax.plot(xs, t_quasi, "s-" if key else "s", ls="--" if key else "", label="quasi-optimal")
+        ax.plot(xs, t_quasi, "s--" if key else "s", label="quasi-optimal")
         ax.set_yscale("log")
         ax.set_xlabel(label)
         ax.grid(True, which="major", alpha=0.3)
