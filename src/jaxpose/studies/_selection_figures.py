@@ -25,8 +25,10 @@ def _pyplot():
 
 
 def _ratio_bins(ratios: list[np.ndarray]) -> np.ndarray:
-    """Bins from 1 to the largest ratio of a row of panels (about 40 of them, at least 0.005)."""
-    top = max(float(np.max(r)) for r in ratios if r.size) if ratios else 1.0
+    """About 40 bins (at least 0.005 wide) from 1 to the largest 99th percentile of a row of
+    panels: a few far outliers would otherwise squeeze every other case into one bin."""
+    tops = [float(np.quantile(r, 0.99)) for r in ratios if r.size]
+    top = max(tops + [1.0])
     width = max((top - 1.0) / 40.0, 0.005)
     return 1.0 + width * np.arange(int(np.ceil((top - 1.0) / width)) + 2)
 
@@ -46,10 +48,24 @@ def _fig6(result, groups: list[dict], out_dir: Path) -> Path:
             ok = c["status"] == 0
             ratios.append(c[f"{key}_quasi"][ok] / c[f"{key}_opt"][ok])
         bins = _ratio_bins(ratios)
+        last = bins[-1]
         for j, (g, ratio) in enumerate(zip(groups, ratios, strict=True)):
             ax = axes[i, j]
-            ax.hist(ratio, bins=bins, color=f"C{i}")
-            ax.set_xlim(bins[0], bins[-1])
+            over = ratio >= last
+            # Cases beyond the axis are counted in the last bin and named on the panel.
+            ax.hist(np.minimum(ratio, (bins[-2] + last) / 2), bins=bins, color=f"C{i}")
+            if over.any():
+                ax.text(
+                    0.97,
+                    0.95,
+                    f"{int(over.sum())} case(s) >= {last:.2f}\n"
+                    f"(max {ratio.max():.2f}) in the last bin",
+                    transform=ax.transAxes,
+                    ha="right",
+                    va="top",
+                    fontsize=7,
+                )
+            ax.set_xlim(bins[0], last)
             ax.yaxis.set_major_locator(MaxNLocator(integer=True))
             ax.set_title(f"n = {g['n']}, m = {g['m']}: {key.upper()}", fontsize=9)
             ax.set_xlabel(f"{key.upper()} quasi / optimal", fontsize=9)
@@ -60,6 +76,18 @@ def _fig6(result, groups: list[dict], out_dir: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _plain_log_labels(axis, limits) -> None:
+    """Log-axis labels as plain numbers (``0.01``, not ``10^-2``); with less than two decades
+    in view the minor ticks are labelled too."""
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    plain = FuncFormatter(lambda v, _: f"{v:g}")
+    axis.set_major_formatter(plain)
+    lo, hi = np.log10(limits)
+    decades = int(np.floor(hi)) - int(np.ceil(lo)) + 1
+    axis.set_minor_formatter(plain if decades < 2 else NullFormatter())
 
 
 def _fig8(n18: list[dict], out_dir: Path) -> Path:
@@ -75,6 +103,7 @@ def _fig8(n18: list[dict], out_dir: Path) -> Path:
         ax.set_xlabel("selected points m (of n = 18)")
         ax.set_ylabel(f"mean {key.upper()} ({unit})")
         ax.set_yscale("log")
+        _plain_log_labels(ax.yaxis, ax.get_ylim())
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.legend()
     fig.suptitle("Mean DOP against the number of selected points (Ning et al. 2018, Fig. 8)")
