@@ -38,7 +38,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxpose.core.camera import PinholeCamera
-from jaxpose.core.dop import dop_from_information, information_blocks
+from jaxpose.core.dilution import dop_from_information, information_blocks
 from jaxpose.core.geometry import Pose
 from jaxpose.studies import _selection_figures as _figures
 from jaxpose.studies._selection_figures import format_report
