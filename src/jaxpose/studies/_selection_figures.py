@@ -12,16 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxpose.studies._plotting import plain_log_labels, pyplot
+
 __all__ = ["figures", "format_report"]
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _ratio_bins(ratios: list[np.ndarray]) -> np.ndarray:
@@ -34,7 +27,7 @@ def _ratio_bins(ratios: list[np.ndarray]) -> np.ndarray:
 
 
 def _fig6(result, groups: list[dict], out_dir: Path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.ticker import MaxNLocator
 
     k = len(groups)
@@ -78,20 +71,8 @@ def _fig6(result, groups: list[dict], out_dir: Path) -> Path:
     return path
 
 
-def _plain_log_labels(axis, limits) -> None:
-    """Log-axis labels as plain numbers (``0.01``, not ``10^-2``); with less than two decades
-    in view the minor ticks are labelled too."""
-    from matplotlib.ticker import FuncFormatter, NullFormatter
-
-    plain = FuncFormatter(lambda v, _: f"{v:g}")
-    axis.set_major_formatter(plain)
-    lo, hi = np.log10(limits)
-    decades = int(np.floor(hi)) - int(np.ceil(lo)) + 1
-    axis.set_minor_formatter(plain if decades < 2 else NullFormatter())
-
-
 def _fig8(n18: list[dict], out_dir: Path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.ticker import MaxNLocator
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), layout="constrained")
@@ -103,7 +84,7 @@ def _fig8(n18: list[dict], out_dir: Path) -> Path:
         ax.set_xlabel("selected points m (of n = 18)")
         ax.set_ylabel(f"mean {key.upper()} ({unit})")
         ax.set_yscale("log")
-        _plain_log_labels(ax.yaxis, ax.get_ylim())
+        plain_log_labels(ax.yaxis, ax.get_ylim())
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.legend()
     fig.suptitle("Mean DOP against the number of selected points (Ning et al. 2018, Fig. 8)")
@@ -130,7 +111,7 @@ def _timing_panels(groups: list[dict]) -> list[tuple[list[dict], str, str]]:
 
 
 def _fig9_10(groups: list[dict], out_dir: Path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.ticker import MaxNLocator
 
     panels = _timing_panels(groups)
