@@ -209,7 +209,7 @@ def bench_grid(sizes, counts, loop_max, repeats):
             m = min(B, loop_max)
             entry = {"B": B, "n": n, "loop_problems": m, "methods": {}}
             variants = [("jaxpose EPnP", None, None), ("jaxpose EPnP+LM", "lm", None)]
-            if B >= 2 * jaxpose.core.solve.THREAD_MIN_PROBLEMS and jax.local_device_count() == 1:
+            if B >= 2 * jaxpose.core.pnp.THREAD_MIN_PROBLEMS and jax.local_device_count() == 1:
                 # solve_pnp's default splits this batch over host threads: show one thread too
                 variants.append(("jaxpose EPnP+LM (1 thread)", "lm", 1))
             for name, refine, workers in variants:

@@ -39,7 +39,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxpose import select as sel  # noqa: E402
-from jaxpose.core.dop import information_blocks  # noqa: E402
+from jaxpose.core.dilution import information_blocks  # noqa: E402
 from jaxpose.core.geometry import Pose  # noqa: E402
 from jaxpose.core.select import bnb as bnb_module  # noqa: E402
 from jaxpose.studies.selection import Scenario, make_cases  # noqa: E402

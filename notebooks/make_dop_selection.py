@@ -8,7 +8,7 @@ code = lambda s: cells.append(nbf.v4.new_code_cell(s))  # noqa: E731
 
 md("""# DOP and feature-point selection
 
-A walk through `jaxpose.core.dop` and `jaxpose.core.select`, after Ning, Zhang and Wang, *A
+A walk through `jaxpose.core.dilution` and `jaxpose.core.select`, after Ning, Zhang and Wang, *A
 Non-Cooperative Satellite Feature Point Selection Method for Vision-Based Navigation System*,
 Sensors 18(3):854, 2018.
 

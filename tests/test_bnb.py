@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxpose.core.camera import PinholeCamera
-from jaxpose.core.dop import information_blocks
+from jaxpose.core.dilution import information_blocks
 from jaxpose.core.geometry import Pose
 from jaxpose.core.select import bnb as bnb_module
 from jaxpose.core.select import branch_and_bound

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxpose import PinholeCamera, Pose, Status, dop, observation_jacobian
-from jaxpose.core.dop import dop_from_information, information_blocks
+from jaxpose.core.dilution import dop_from_information, information_blocks
 from jaxpose.core.geometry import elementary_rotation
 
 AXIS = {"x": 0, "y": 1, "z": 2}

@@ -12,7 +12,7 @@ import pytest
 import jaxpose
 from jaxpose import PinholeCamera, Pose
 from jaxpose import select as sel
-from jaxpose.core.dop import dop_from_information, information_blocks, point_jacobians
+from jaxpose.core.dilution import dop_from_information, information_blocks, point_jacobians
 from jaxpose.core.geometry import so3_exp
 from jaxpose.core.line_dop import line_information_blocks, line_jacobians
 from jaxpose.core.residuals import line_from_segment, line_residuals

@@ -13,6 +13,7 @@ from pnp_scenes import BATCH, K, N, angle, scenes
 
 from jaxpose import PinholeCamera, Pose, Status, dlt, epnp, ransac_pnp
 from jaxpose.core import pnp
+from jaxpose.core.pnp import _linalg
 from jaxpose.core.geometry import rotation_angle
 
 CAM = PinholeCamera.from_K(K)
@@ -231,7 +232,7 @@ def test_small_eigensolver_and_solve(rng):
     mats = [rng.normal(size=(4, 4)) for _ in range(20)]
     mats = [m + m.T for m in mats]
     mats += [np.eye(4), np.diag([1.0, 1.0, 2.0, 1e-12]), np.zeros((4, 4))]
-    w, V = jax.jit(jax.vmap(pnp._eigh_small))(jnp.asarray(np.stack(mats)))
+    w, V = jax.jit(jax.vmap(_linalg._eigh_small))(jnp.asarray(np.stack(mats)))
     w, V = np.asarray(w), np.asarray(V)
     for A, wi, Vi in zip(mats, w, V, strict=True):
         tol = 1e-12 * (1 + np.abs(A).max())
@@ -240,10 +241,10 @@ def test_small_eigensolver_and_solve(rng):
         np.testing.assert_allclose(Vi.T @ Vi, np.eye(4), atol=1e-12)
     B = rng.normal(size=(3, 3))
     B = B @ B.T
-    w3, _ = pnp._eigh_small(jnp.asarray(B), descending=True)
+    w3, _ = _linalg._eigh_small(jnp.asarray(B), descending=True)
     np.testing.assert_allclose(np.asarray(w3), np.linalg.eigvalsh(B)[::-1], rtol=1e-12)
     N = rng.normal(size=(5, 5))
     N = N @ N.T + np.eye(5)
     b = rng.normal(size=(5, 2))
-    x = pnp._spd_solve(jnp.asarray(N), jnp.asarray(b))
+    x = _linalg._spd_solve(jnp.asarray(N), jnp.asarray(b))
     np.testing.assert_allclose(np.asarray(x), np.linalg.solve(N, b), rtol=1e-10)

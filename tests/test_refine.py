@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from jaxpose import PinholeCamera, Pose, Status, dop, pose_covariance, refine_pose, sensitivity
-from jaxpose.core.dop import point_jacobians
+from jaxpose.core.dilution import point_jacobians
 from jaxpose.core.geometry import rotation_angle, so3_exp, so3_log
-from jaxpose.core.refine import _Config, _pixel_rows, _rotation_generators
+from jaxpose.core.refine._model import _pixel_rows, _rotation_generators
+from jaxpose.core.refine._options import _Config
 from jaxpose.core.residuals import line_from_segment
 
 CAM = PinholeCamera(800.0, 800.0, 320.0, 240.0)

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from jaxpose import PinholeCamera, Pose, Status, dop
 from jaxpose import select as sel
-from jaxpose.core.dop import information_blocks
+from jaxpose.core.dilution import information_blocks
 from jaxpose.core.select._kernel import PAIRS, traces
 
 N, M = 9, 5  # the small problem most tests share (126 subsets): one compilation each

@@ -13,16 +13,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from jaxpose.core._checks import as_float
 from jaxpose.core.geometry import Pose
 
 __all__ = ["PinholeCamera", "StereoCamera", "as_camera"]
-
-
-def _scalar(x) -> Array:
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return x
 
 
 class PinholeCamera(eqx.Module):
@@ -47,10 +41,10 @@ class PinholeCamera(eqx.Module):
     height: int = eqx.field(static=True, default=0)
 
     def __init__(self, fx, fy, cx, cy, dist=None, *, width: int = 0, height: int = 0):
-        self.fx, self.fy, self.cx, self.cy = (_scalar(v) for v in (fx, fy, cx, cy))
+        self.fx, self.fy, self.cx, self.cy = (as_float(v) for v in (fx, fy, cx, cy))
         if dist is None:
             dist = jnp.zeros(5, dtype=self.fx.dtype)
-        dist = _scalar(dist)
+        dist = as_float(dist)
         if dist.shape[-1:] != (5,):
             raise ValueError(
                 "dist must hold OpenCV's 5 coefficients (k1, k2, p1, p2, k3); "
@@ -248,7 +242,7 @@ class StereoCamera(eqx.Module):
         R_rl: ``(3, 3)`` rotation from the left to the right camera frame.
         t_rl: ``(3,)`` left camera origin expressed in the right frame, metres.
 
-    Yang et al. 2024 (seed 001), Sec. 3: stereo correspondences are triangulated with the
+    Yang et al. 2024, Sec. 3: stereo correspondences are triangulated with the
     distortion-corrected stereo model (:meth:`triangulate`).
     """
 
@@ -260,10 +254,10 @@ class StereoCamera(eqx.Module):
     def __init__(self, left: PinholeCamera, right: PinholeCamera, R_rl=None, t_rl=None):
         if not isinstance(left, PinholeCamera) or not isinstance(right, PinholeCamera):
             raise ValueError("StereoCamera needs two PinholeCamera instances (left, right)")
-        R_rl = jnp.eye(3, dtype=left.fx.dtype) if R_rl is None else _scalar(R_rl)
+        R_rl = jnp.eye(3, dtype=left.fx.dtype) if R_rl is None else as_float(R_rl)
         if t_rl is None:
             raise ValueError("t_rl (left camera origin in the right frame, metres) is required")
-        t_rl = _scalar(t_rl)
+        t_rl = as_float(t_rl)
         if R_rl.shape != (3, 3) or t_rl.shape != (3,):
             raise ValueError(
                 f"R_rl must be 3x3 and t_rl of shape (3,); got {R_rl.shape}, {t_rl.shape}"
@@ -333,7 +327,7 @@ class StereoCamera(eqx.Module):
         out with a huge or non-finite depth; mask them with :meth:`PinholeCamera.in_front` and a
         depth limit.
         """
-        pixels_left, pixels_right = _scalar(pixels_left), _scalar(pixels_right)
+        pixels_left, pixels_right = as_float(pixels_left), as_float(pixels_right)
         if pixels_left.shape[-1:] != (2,) or pixels_left.shape != pixels_right.shape:
             raise ValueError(
                 f"pixels_left and pixels_right must have the same shape (..., 2); got "
@@ -362,7 +356,7 @@ class StereoCamera(eqx.Module):
         it meets the epipolar lines of the left endpoints, see
         :func:`jaxpose.vision.stereo_match.match_lines`).
         """
-        segments_left, segments_right = _scalar(segments_left), _scalar(segments_right)
+        segments_left, segments_right = as_float(segments_left), as_float(segments_right)
         if segments_left.shape[-2:] != (2, 2) or segments_left.shape != segments_right.shape:
             raise ValueError(
                 f"segments must have the same shape (..., 2, 2); got {segments_left.shape} and "

@@ -1,6 +1,6 @@
 """Rotations and poses (pure JAX: jit, vmap and grad all work).
 
-Conventions (``../shared/docs/methods.md``):
+Conventions (the conventions page of the docs):
 
 * A pose is ``(R, t)`` with ``x_cam = R @ x_body + t``: ``R`` maps target-body vectors into the
   camera frame, ``t`` is the target origin in the camera frame (OpenCV's ``rvec/tvec`` meaning).
@@ -25,6 +25,8 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
+
+from jaxpose.core._checks import check_last, check_matrix
 
 __all__ = [
     "DEFAULT_EULER_SEQUENCE",
@@ -55,24 +57,6 @@ def _eps(x: Array) -> float:
     return 1e-6 if jnp.asarray(x).dtype == jnp.float32 else 1e-12
 
 
-def _check_last(x: Array, size: int, name: str) -> Array:
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    if x.ndim < 1 or x.shape[-1] != size:
-        raise ValueError(f"{name} must have shape (..., {size}); got {x.shape}")
-    return x
-
-
-def _check_matrix(R: Array, name: str = "R") -> Array:
-    R = jnp.asarray(R)
-    if not jnp.issubdtype(R.dtype, jnp.floating):
-        R = R.astype(jnp.result_type(float))
-    if R.ndim < 2 or R.shape[-2:] != (3, 3):
-        raise ValueError(f"{name} must have shape (..., 3, 3); got {R.shape}")
-    return R
-
-
 def _parse_sequence(sequence: str) -> tuple[int, int, int]:
     seq = sequence.lower()
     if len(seq) != 3 or any(c not in _AXES for c in seq) or len(set(seq)) != 3:
@@ -88,7 +72,7 @@ def _parse_sequence(sequence: str) -> tuple[int, int, int]:
 
 def hat(omega: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
     """Skew-symmetric matrix ``[omega]_x`` with ``hat(a) @ b == cross(a, b)``."""
-    omega = _check_last(omega, 3, "omega")
+    omega = check_last(omega, 3, "omega")
     x, y, z = omega[..., 0], omega[..., 1], omega[..., 2]
     zero = jnp.zeros_like(x)
     return jnp.stack(
@@ -103,7 +87,7 @@ def hat(omega: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
 
 def vee(omega_hat: Float[Array, "... 3 3"]) -> Float[Array, "... 3"]:
     """Inverse of :func:`hat` (uses the antisymmetric part)."""
-    W = _check_matrix(omega_hat, "omega_hat")
+    W = check_matrix(omega_hat, "omega_hat")
     return 0.5 * jnp.stack(
         [W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]],
         axis=-1,
@@ -115,7 +99,7 @@ def so3_exp(omega: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
 
     NaN-safe in value and gradient at ``omega = 0`` (Taylor branch).
     """
-    omega = _check_last(omega, 3, "omega")
+    omega = check_last(omega, 3, "omega")
     theta2 = jnp.sum(omega**2, axis=-1)
     small = theta2 < _eps(omega)
     theta2_safe = jnp.where(small, 1.0, theta2)
@@ -161,7 +145,7 @@ def se3_exp(xi: Float[Array, "... 6"]) -> tuple[Float[Array, "... 3 3"], Float[A
 
     ``t = V(omega) rho`` with the left Jacobian ``V``; NaN-safe at ``omega = 0``.
     """
-    xi = _check_last(xi, 6, "xi")
+    xi = check_last(xi, 6, "xi")
     rho, omega = xi[..., :3], xi[..., 3:]
     theta2 = jnp.sum(omega**2, axis=-1)
     small = theta2 < _eps(xi)
@@ -186,7 +170,7 @@ def se3_exp(xi: Float[Array, "... 6"]) -> tuple[Float[Array, "... 3 3"], Float[A
 
 def quat_normalize(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     """Unit quaternion with the same direction (scalar-first)."""
-    q = _check_last(q, 4, "q")
+    q = check_last(q, 4, "q")
     return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
 
 
@@ -213,7 +197,7 @@ def dcm_to_quat(R: Float[Array, "... 3 3"]) -> Float[Array, "... 4"]:
     All four candidate formulas are evaluated and the best-conditioned one is selected with
     ``jnp.where``; the square roots are guarded so that unselected branches give no NaN gradient.
     """
-    R = _check_matrix(R)
+    R = check_matrix(R)
     r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
     r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
     r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
@@ -241,8 +225,8 @@ def quat_multiply(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[A
     """Hamilton product ``p * q`` (scalar-first).
 
     ``quat_to_dcm(p * q) == quat_to_dcm(p) @ quat_to_dcm(q)``."""
-    p = _check_last(p, 4, "p")
-    q = _check_last(q, 4, "q")
+    p = check_last(p, 4, "p")
+    q = check_last(q, 4, "q")
     pw, pv = p[..., :1], p[..., 1:]
     qw, qv = q[..., :1], q[..., 1:]
     w = pw * qw - jnp.sum(pv * qv, axis=-1, keepdims=True)
@@ -252,7 +236,7 @@ def quat_multiply(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[A
 
 def quat_conjugate(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     """Conjugate (the inverse rotation of a unit quaternion)."""
-    q = _check_last(q, 4, "q")
+    q = check_last(q, 4, "q")
     return q * jnp.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
 
 
@@ -284,7 +268,7 @@ def euler_to_dcm(
     ``angles = (roll phi, pitch theta, yaw psi)``. Ning et al. 2018 eq. 2 (order lost; see module
     docstring).
     """
-    angles = _check_last(angles, 3, "angles")
+    angles = check_last(angles, 3, "angles")
     i, j, k = _parse_sequence(sequence)
     return (
         elementary_rotation(i, angles[..., 0])
@@ -301,7 +285,7 @@ def dcm_to_euler(
     The middle angle is in ``[-pi/2, pi/2]``, the others in ``(-pi, pi]``. At gimbal lock (middle
     angle at +-pi/2) the split between first and third angle is not unique.
     """
-    R = _check_matrix(R)
+    R = check_matrix(R)
     i, j, k = _parse_sequence(sequence)
     s = 1.0 if (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
     b = jnp.arcsin(jnp.clip(s * R[..., i, k], -1.0, 1.0))
@@ -314,8 +298,8 @@ def rotation_angle(
     R_a: Float[Array, "... 3 3"], R_b: Float[Array, "... 3 3"]
 ) -> Float[Array, "..."]:
     """Geodesic angle (radians, in ``[0, pi]``) of ``R_a @ R_b.T``."""
-    R_a = _check_matrix(R_a, "R_a")
-    R_b = _check_matrix(R_b, "R_b")
+    R_a = check_matrix(R_a, "R_a")
+    R_b = check_matrix(R_b, "R_b")
     return jnp.linalg.norm(so3_log(R_a @ jnp.swapaxes(R_b, -1, -2)), axis=-1)
 
 
@@ -397,7 +381,7 @@ class Pose(eqx.Module):
 
     def apply(self, points_body: Float[Array, "... n 3"]) -> Float[Array, "... n 3"]:
         """Body points to camera frame: ``R @ p + t`` for each point."""
-        points_body = _check_last(points_body, 3, "points_body")
+        points_body = check_last(points_body, 3, "points_body")
         return jnp.einsum("...ij,...nj->...ni", self.R, points_body) + self.t[..., None, :]
 
     def inverse(self) -> Pose:

@@ -9,13 +9,13 @@ and contributes the two signed distances, in pixels, of its projected endpoints 
     d_k(x) = (l_1 u_k(x) + l_2 v_k(x) + l_3) / sqrt(l_1^2 + l_2^2),    k = 1, 2,
 
 where ``(u_k, v_k)(x)`` is the pixel of ``P_k`` at the state ``x = (T, eps)`` of
-:mod:`jaxpose.core.dop` and the observed line ``l`` is held fixed at its value at the true pose
+:mod:`jaxpose.core.dilution` and the observed line ``l`` is held fixed at its value at the true pose
 (the projected endpoints lie on it there, so ``d_k = 0``). Its ``2 x 6`` Jacobian ``L`` at the
 true pose gives the information block ``A = L^T L / sigma^2`` in the same state, the same units
 and the same attitude parameterisation as the point blocks of
-:func:`jaxpose.core.dop.information_blocks`, so point and line blocks add:
+:func:`jaxpose.core.dilution.information_blocks`, so point and line blocks add:
 ``Q = (sum_points A_i + sum_lines A_j)^-1`` and ``PDOP``, ``ADOP`` as in Ning et al. eq. 15
-(:func:`jaxpose.core.dop.dop_from_information`); every DOP-based selection method of
+(:func:`jaxpose.core.dilution.dop_from_information`); every DOP-based selection method of
 :mod:`jaxpose.core.select` takes a stack of both kinds.
 
 In closed form, with ``n`` the unit normal of the image line and ``H_k = d(u_k, v_k) / dx`` the
@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from jaxpose.core.camera import PinholeCamera, as_camera
-from jaxpose.core.dop import _state_to_pixels
+from jaxpose.core.dilution import _state_to_pixels
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
 from jaxpose.core.residuals import line_from_segment
 
@@ -106,7 +106,7 @@ def line_jacobians(
         segments_body: ``(n, 2, 3)`` segment endpoints in the target body frame, metres.
         pose: true relative pose (``x_cam = R p + t``).
         camera: :class:`~jaxpose.core.camera.PinholeCamera` or ``3x3`` ``K``.
-        sequence, parameterization: attitude state, as in :func:`jaxpose.core.dop.dop`.
+        sequence, parameterization: attitude state, as in :func:`jaxpose.core.dilution.dop`.
 
     Returns:
         ``(n, 2, 6)``; zero rows for a segment seen end-on.
@@ -129,7 +129,7 @@ def line_information_blocks(
 ) -> Float[Array, "n 6 6"]:
     """Per-segment information ``A_j = L_j^T L_j / sigma_j^2`` (zero for masked-out segments).
 
-    The blocks live in the state of :func:`jaxpose.core.dop.information_blocks` (``(T, eps)``,
+    The blocks live in the state of :func:`jaxpose.core.dilution.information_blocks` (``(T, eps)``,
     metres and radians, the same ``sequence`` and ``parameterization``), so point and line
     blocks add, and a stack of both is the input of :func:`jaxpose.core.select.greedy`,
     :func:`~jaxpose.core.select.exhaustive` and :func:`~jaxpose.core.select.branch_and_bound`;
@@ -143,7 +143,7 @@ def line_information_blocks(
             ``None`` for unit weights (the plain DOP).
         mask: ``(n,)`` bool, valid segments of a padded set; masked-out ones give zero blocks
             whatever they hold (NaN included).
-        sequence, parameterization: attitude state, as in :func:`jaxpose.core.dop.dop`.
+        sequence, parameterization: attitude state, as in :func:`jaxpose.core.dilution.dop`.
 
     Returns:
         ``(n, 6, 6)`` symmetric positive semi-definite blocks of rank at most 2, state order

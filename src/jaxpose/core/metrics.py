@@ -4,7 +4,7 @@ Sharma, Ventura, D'Amico 2018, Sec. V: ``E_T = |t_true - t_est|`` per axis (eq. 
 Euler angles of ``R_diff = R_est R_true^T`` (eqs. 31-32), ``E_2D`` the mean reprojection distance
 (eq. 22), success ``||t_true - t_est|| < 0.30 m`` and rotation error ``< 10 deg``, endpoint and ROI
 true-positive rate and positive predictive value (eqs. 33-34, 5-pixel radius for endpoints). The
-ESA / Kelvins score of SPEED+ (``../shared/data/speedplus/README.md``):
+ESA / Kelvins score of SPEED+ (Park et al. 2022; the SPEED+ challenge rules):
 ``e_t = ||t_true - t_est|| / ||t_true||``, ``e_q = 2 arccos |<q_est, q_true>|``, score
 ``e_q + e_t``.
 """

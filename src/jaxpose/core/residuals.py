@@ -1,11 +1,11 @@
 """Point and line reprojection residuals, information matrices and robust kernels (pure JAX).
 
-Conventions (Yang et al. 2024, seed 001, eqs. 7-10):
+Conventions (Yang et al. 2024, eqs. 7-10):
 
 * **Point residual** (eq. 8): ``e_p = proj(R p + t) - p_obs`` in pixels, *projected minus
   observed*. The paper writes observed minus projected; the sign is flipped here so that the
   residual's Jacobian with respect to the pose is exactly the observation matrix ``H`` of
-  :mod:`jaxpose.core.dop` (``d e_p / d x = + d proj / d x``). Least-squares costs, weights and
+  :mod:`jaxpose.core.dilution` (``d e_p / d x = + d proj / d x``). Least-squares costs, weights and
   covariances do not depend on the sign.
 * **Line residual** (eqs. 7, 9): the observed image segment with endpoints ``s, e`` (pixels) gives
   the homogeneous line ``l = s_h x e_h`` (:func:`line_from_segment`, eq. 7). The residual of a
@@ -41,6 +41,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from jaxpose.core._checks import as_float, check_mask, check_pose, check_rows, check_same_length
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import Pose
 
@@ -66,34 +67,6 @@ whitened residual (ORB-SLAM's choice); Tukey at 4.6851 (95% efficiency in 1-D).
 """
 
 
-def _float(x) -> Array:
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    return x
-
-
-def _check(x, shape_tail: tuple[int, ...], name: str) -> Array:
-    x = _float(x)
-    if x.ndim != len(shape_tail) + 1 or x.shape[1:] != shape_tail:
-        want = ", ".join(["n", *map(str, shape_tail)])
-        raise ValueError(
-            f"{name} must have shape ({want}) (one problem; use jax.vmap for batches); "
-            f"got {x.shape}"
-        )
-    return x
-
-
-def _check_pose(pose: Pose) -> None:
-    if not isinstance(pose, Pose):
-        raise ValueError(f"pose must be a jaxpose.Pose; got {type(pose).__name__}")
-    if jnp.shape(pose.R) != (3, 3) or jnp.shape(pose.t) != (3,):
-        raise ValueError(
-            f"pose must hold one rotation (3, 3) and one translation (3,); got {jnp.shape(pose.R)} "
-            f"and {jnp.shape(pose.t)} (use jax.vmap for batches)"
-        )
-
-
 # ----------------------------------------------------------------------------- residuals
 
 
@@ -103,7 +76,7 @@ def point_residuals(
     pixels: Float[Array, "n 2"],
     camera: PinholeCamera | Array,
 ) -> Float[Array, "n 2"]:
-    """Reprojection errors ``proj(R p_i + t) - pixels_i`` in pixels (seed 001 eq. 8, sign flipped).
+    """Reprojection errors ``proj(R p_i + t) - pixels_i`` in pixels (Yang et al. 2024 eq. 8, sign flipped).
 
     Args:
         pose: body-to-camera pose (``x_cam = R p + t``).
@@ -111,24 +84,20 @@ def point_residuals(
         pixels: ``(n, 2)`` observed pixels ``(u, v)``.
         camera: :class:`~jaxpose.core.camera.PinholeCamera` or ``3x3`` ``K``.
     """
-    _check_pose(pose)
-    points_body = _check(points_body, (3,), "points_body")
-    pixels = _check(pixels, (2,), "pixels")
-    if pixels.shape[0] != points_body.shape[0]:
-        raise ValueError(
-            f"points_body and pixels must have the same length; got {points_body.shape[0]} and "
-            f"{pixels.shape[0]}"
-        )
+    check_pose(pose)
+    points_body = check_rows(points_body, (3,), "points_body")
+    pixels = check_rows(pixels, (2,), "pixels")
+    check_same_length(points_body, pixels, "points_body", "pixels")
     return as_camera(camera).project_body(pose, points_body) - pixels
 
 
 def line_from_segment(s: Float[Array, "... 2"], e: Float[Array, "... 2"]) -> Float[Array, "... 3"]:
-    """Homogeneous image line ``l = (s, 1) x (e, 1)`` through two pixels (seed 001 eq. 7).
+    """Homogeneous image line ``l = (s, 1) x (e, 1)`` through two pixels (Yang et al. 2024 eq. 7).
 
     Not normalised; ``l . (u, v, 1) / sqrt(l1^2 + l2^2)`` is the signed distance in pixels of
     ``(u, v)`` to the line (positive on the left of ``s -> e`` in the image, y down).
     """
-    s, e = _float(s), _float(e)
+    s, e = as_float(s), as_float(e)
     if s.shape[-1:] != (2,) or e.shape[-1:] != (2,):
         raise ValueError(f"segment endpoints must have shape (..., 2); got {s.shape} and {e.shape}")
     one = jnp.ones_like(s[..., :1])
@@ -153,7 +122,7 @@ def line_residuals(
 ) -> Float[Array, "k 2"]:
     """Signed pixel distances of the projected 3-D segment endpoints to the observed lines.
 
-    Seed 001 eqs. 7 and 9: ``d = l . (proj(R P + t), 1) / sqrt(l1^2 + l2^2)`` for the start and
+    Yang et al. 2024 eqs. 7 and 9: ``d = l . (proj(R P + t), 1) / sqrt(l1^2 + l2^2)`` for the start and
     end point of each segment. A degenerate observed line (``l1 = l2 = 0``) gives zeros.
 
     Args:
@@ -166,14 +135,10 @@ def line_residuals(
     Returns:
         ``(k, 2)`` signed distances in pixels (start, end).
     """
-    _check_pose(pose)
-    segments_body = _check(segments_body, (2, 3), "segments_body")
-    lines_img = _check(lines_img, (3,), "lines_img")
-    if lines_img.shape[0] != segments_body.shape[0]:
-        raise ValueError(
-            f"segments_body and lines_img must have the same length; got {segments_body.shape[0]} "
-            f"and {lines_img.shape[0]}"
-        )
+    check_pose(pose)
+    segments_body = check_rows(segments_body, (2, 3), "segments_body")
+    lines_img = check_rows(lines_img, (3,), "lines_img")
+    check_same_length(segments_body, lines_img, "segments_body", "lines_img")
     pix = as_camera(camera).project_body(pose, segments_body.reshape(-1, 3)).reshape(-1, 2, 2)
     return _line_distance(lines_img, pix)
 
@@ -187,7 +152,7 @@ def isotropic_information(sigma, count: int, dtype=None) -> Float[Array, "count 
     ``sigma`` is a scalar or one value per residual; ``None`` means 1 pixel.
     """
     dtype = dtype or jnp.result_type(float)
-    s = jnp.ones((count,), dtype) if sigma is None else jnp.broadcast_to(_float(sigma), (count,))
+    s = jnp.ones((count,), dtype) if sigma is None else jnp.broadcast_to(as_float(sigma), (count,))
     return jnp.eye(2, dtype=dtype) / (s**2)[:, None, None]
 
 
@@ -212,7 +177,7 @@ def robust_rho(
     :data:`DEFAULT_ROBUST_SCALE`). See the module docstring for the formulas.
     """
     _check_kind(kind)
-    s = _float(s)
+    s = as_float(s)
     if kind is None:
         return s
     c = _scale(kind, scale)
@@ -238,7 +203,7 @@ def robust_weight(
     ``kind=None`` gives ones.
     """
     _check_kind(kind)
-    r = _float(r)
+    r = as_float(r)
     if kind is None:
         return jnp.ones_like(r)
     return _weight_of_s(kind, r * r, scale)
@@ -268,15 +233,6 @@ def _mahalanobis2(residuals: Array, information: Array | None) -> Array:
     return jnp.einsum("ni,nij,nj->n", residuals, information, residuals)
 
 
-def _mask(mask, n):
-    if mask is None:
-        return jnp.ones((n,), bool)
-    mask = jnp.asarray(mask, bool)
-    if mask.shape != (n,):
-        raise ValueError(f"mask must have shape ({n},); got {mask.shape}")
-    return mask
-
-
 def joint_cost(
     pose: Pose,
     points_body: Float[Array, "n 3"],
@@ -292,16 +248,16 @@ def joint_cost(
     robust: str | None = None,
     robust_scale: float | None = None,
 ) -> Float[Array, ""]:
-    """Seed 001 eq. 10: ``sum rho(e_p^T Omega_p e_p) + sum rho(e_l^T Omega_l e_l)``.
+    """Yang et al. 2024 eq. 10: ``sum rho(e_p^T Omega_p e_p) + sum rho(e_l^T Omega_l e_l)``.
 
     Information matrices default to the identity (1-pixel noise); use
     :func:`isotropic_information` for ``I / sigma^2``. Masked-out points and lines add nothing
     (their inputs may hold anything finite or not).
     """
     _check_kind(robust)
-    points_body = _check(points_body, (3,), "points_body")
-    pixels = _check(pixels, (2,), "pixels")
-    m = _mask(mask, points_body.shape[0])
+    points_body = check_rows(points_body, (3,), "points_body")
+    pixels = check_rows(pixels, (2,), "pixels")
+    m = check_mask(mask, points_body.shape[0])
     pts = jnp.where(m[:, None], points_body, 0.0)
     pix = jnp.where(m[:, None], pixels, 0.0)
     s = _mahalanobis2(point_residuals(pose, pts, pix, camera), point_information)
@@ -309,9 +265,9 @@ def joint_cost(
     if segments_body is not None or lines_img is not None:
         if segments_body is None or lines_img is None:
             raise ValueError("segments_body and lines_img go together")
-        segments_body = _check(segments_body, (2, 3), "segments_body")
-        lines_img = _check(lines_img, (3,), "lines_img")
-        lm = _mask(line_mask, segments_body.shape[0])
+        segments_body = check_rows(segments_body, (2, 3), "segments_body")
+        lines_img = check_rows(lines_img, (3,), "lines_img")
+        lm = check_mask(line_mask, segments_body.shape[0], "line_mask")
         seg = jnp.where(lm[:, None, None], segments_body, 0.0)
         lin = jnp.where(lm[:, None], lines_img, jnp.array([1.0, 0.0, 0.0], lines_img.dtype))
         sl = _mahalanobis2(line_residuals(pose, seg, lin, camera), line_information)

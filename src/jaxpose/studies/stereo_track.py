@@ -1,6 +1,6 @@
 """``jaxpose stereo-track``: render (or read) a stereo sequence of a tumbling target and track it.
 
-Yang et al. 2024 (seed 001) end to end: :mod:`jaxpose.vision.stereo_render` draws the sequence
+Yang et al. 2024 end to end: :mod:`jaxpose.vision.stereo_render` draws the sequence
 (two turns at 10.2 deg/s by default, the paper's lab rate), :class:`jaxpose.pipelines.stereo.
 StereoTracker` tracks it, and this module writes
 

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxpose.core.camera import PinholeCamera, as_camera
-from jaxpose.core.dop import information_blocks
+from jaxpose.core.dilution import information_blocks
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
 from jaxpose.core.select._kernel import check_m
 from jaxpose.core.select.exhaustive import exhaustive
@@ -45,7 +45,7 @@ def select_features(
             ``"bnb"`` (exact branch and bound, :mod:`jaxpose.core.select.bnb`).
         criterion: ``"pdop"`` or ``"adop"``: what the DOP-based methods minimise (the quasi rules
             use geometry only and ignore it).
-        sequence, parameterization: attitude state of the DOP (:func:`jaxpose.core.dop.dop`).
+        sequence, parameterization: attitude state of the DOP (:func:`jaxpose.core.dilution.dop`).
         sigma: pixel noise per point or shared (weighted DOP); the quasi rules ignore it.
         mask: ``(n,)`` bool, valid points.
 

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jaxpose.core.dop import MIN_POINTS, dop_from_information
+from jaxpose.core.dilution import MIN_POINTS, dop_from_information
 
 __all__ = [
     "PAIRS",
@@ -190,11 +190,11 @@ def subset_dop(blocks: Float[Array, "n 6 6"], idx) -> tuple[Array, Array]:
 
     Args:
         blocks: ``(n, 6, 6)`` per-point information blocks from
-            :func:`jaxpose.core.dop.information_blocks`.
+            :func:`jaxpose.core.dilution.information_blocks`.
         idx: ``(m,)`` integer indices into the ``n`` points.
 
     Returns:
-        ``(pdop, adop)`` of ``sum_i blocks[idx_i]`` by :func:`jaxpose.core.dop.dop_from_information`
+        ``(pdop, adop)`` of ``sum_i blocks[idx_i]`` by :func:`jaxpose.core.dilution.dop_from_information`
         (metres and radians per pixel of noise).
     """
     blocks = check_blocks(blocks, "subset_dop")

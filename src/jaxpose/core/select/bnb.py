@@ -1,7 +1,7 @@
 """Exact DOP-optimal feature subset by branch and bound (no full enumeration).
 
 Problem (Ning, Zhang, Wang 2018, Sec. 4, "optimal method"): given per-point information blocks
-``A_i = H_i^T H_i / sigma_i^2`` (``(n, 6, 6)``, :func:`jaxpose.core.dop.information_blocks`), find the
+``A_i = H_i^T H_i / sigma_i^2`` (``(n, 6, 6)``, :func:`jaxpose.core.dilution.information_blocks`), find the
 ``m``-subset ``S`` minimising ``PDOP(S) = sqrt(trace(Q[:3, :3]))`` (or ``ADOP``, ``Q[3:, 3:]``) with
 ``Q = M_S^-1`` and ``M_S = sum_{i in S} A_i``. The exhaustive method visits all ``C(n, m)`` subsets
 (``C(60, 8) = 2.56e9``); this search visits a few dozen to a few hundred tree nodes for the paper's
@@ -110,7 +110,7 @@ Limits: the search is exponential in the worst case (exact ties, e.g. identical 
 explored); ``max_nodes`` bounds it and reports ``NOT_CONVERGED``. The answer is exact as long as a
 bound's rounding error is below ``rtol`` (the blocks are Jacobi-scaled first so the 6x6 Cholesky
 solves are well conditioned); subsets whose scaled Cholesky pivot falls below ``1e3 eps`` count as
-singular (``DOP = inf``), as in :func:`jaxpose.core.dop.dop_from_information`.
+singular (``DOP = inf``), as in :func:`jaxpose.core.dilution.dop_from_information`.
 """
 
 from __future__ import annotations
@@ -124,7 +124,7 @@ import jax.scipy.linalg as jsl
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from jaxpose.core.dop import MIN_POINTS, dop_from_information
+from jaxpose.core.dilution import MIN_POINTS, dop_from_information
 from jaxpose.core.status import Status, status_message, throw_for_status
 
 __all__ = ["BnBResult", "branch_and_bound"]
@@ -138,7 +138,7 @@ class BnBResult(eqx.Module):
 
     Attributes:
         idx: ``(m,)`` indices of the optimal subset, sorted ascending.
-        value: its PDOP or ADOP (the ``criterion``), from :func:`jaxpose.core.dop.dop_from_information`;
+        value: its PDOP or ADOP (the ``criterion``), from :func:`jaxpose.core.dilution.dop_from_information`;
             ``inf`` when the status is not OK.
         nodes: tree nodes whose bound (or exact value, for leaves) was evaluated, root included.
         iterations: Frank-Wolfe iterations summed over all bound evaluations.
@@ -416,7 +416,7 @@ def branch_and_bound(
 
     Args:
         blocks: ``(n, 6, 6)`` per-point information ``A_i = H_i^T H_i / sigma_i^2`` from
-            :func:`jaxpose.core.dop.information_blocks` (state order ``(T, eps)``).
+            :func:`jaxpose.core.dilution.information_blocks` (state order ``(T, eps)``).
         m: subset size, ``4 <= m <= n`` (static).
         criterion: ``"pdop"`` or ``"adop"``.
         bound: ``"relaxation"`` (default; Frank-Wolfe on the continuous relaxation),

@@ -17,7 +17,7 @@ How one chunk is scored (see :mod:`jaxpose.core.select._kernel`):
    on structure-of-arrays data.
 
 The winners are re-scored with :func:`jaxpose.core.select.subset_dop` (i.e.
-:func:`jaxpose.core.dop.dop_from_information`) so their DOP is exactly what every other method
+:func:`jaxpose.core.dilution.dop_from_information`) so their DOP is exactly what every other method
 reports for the same subset. Singular subsets score ``inf`` and never win; ties go to the subset
 first in lexicographic order.
 
@@ -382,7 +382,7 @@ def exhaustive(
 
     Args:
         blocks: ``(n, 6, 6)`` per-point information blocks
-            (:func:`jaxpose.core.dop.information_blocks`).
+            (:func:`jaxpose.core.dilution.information_blocks`).
         m: subset size (static), ``4 <= m <= n``.
         mask: ``(n,)`` bool, valid points of a padded set (subsets with an invalid point are
             skipped).

@@ -48,7 +48,7 @@ def greedy(
 
     Args:
         blocks: ``(n, 6, 6)`` per-point information blocks
-            (:func:`jaxpose.core.dop.information_blocks`).
+            (:func:`jaxpose.core.dilution.information_blocks`).
         m: number of points to keep (static), ``4 <= m <= n``.
         criterion: ``"pdop"`` or ``"adop"``.
         mask: ``(n,)`` bool, valid points (masked ones are removed first, never kept unless

@@ -19,11 +19,8 @@ batches so that one bad problem does not cost the others.
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
 import functools
-import os
-import threading
 
 import equinox as eqx
 import jax
@@ -31,19 +28,35 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from jaxpose.core import pnp
+from jaxpose.core._checks import float_dtype
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.geometry import Pose
+from jaxpose.core.pnp._batch import (
+    CHUNK,
+    _flat,
+    _in_threads,
+    _map,
+    _pad,
+    _thread_parts,
+)
+from jaxpose.core.pnp._dlt import _dlt_core
+from jaxpose.core.pnp._epnp import _epnp_core, planar_flip
+from jaxpose.core.pnp._problem import (
+    DLT_MIN_POINTS,
+    MIN_POINTS,
+    PLANAR_TOL,
+    _conclude,
+    _kept,
+    _Problem,
+    _problem,
+)
+from jaxpose.core.pnp._ransac import _ransac_core, _ransac_options
+from jaxpose.core.pnp._result import PnPResult
 from jaxpose.core.status import Status, throw_for_status
-
-__all__ = ["METHODS", "REFINE_METHODS", "ROBUST_KERNELS", "solve_pnp"]
 
 METHODS = ("epnp", "dlt", "ransac")
 REFINE_METHODS = ("lm", "gauss-newton", "newton-raphson")
 ROBUST_KERNELS = ("huber", "cauchy", "tukey")
-CHUNK = 256
-"""Batches larger than this run as a loop over chunks of this many problems (``lax.map``): the
-working set of a chunk stays in cache, which is faster on a CPU than one pass over everything."""
 
 
 def _check_options(method, refine, robust):
@@ -55,6 +68,19 @@ def _check_options(method, refine, robust):
         raise ValueError(f"robust must be None or one of {ROBUST_KERNELS}; got {robust!r}")
     if robust is not None and refine is None:
         raise ValueError("robust kernels act in the refinement: pass refine='lm' (or another)")
+
+
+def _solve(prob: _Problem, method: str, planar_tol: float, key=None, ransac=None):
+    """Run a solver core; returns the :class:`PnPResult` and the core's output (plane etc.)."""
+    weights = prob.valid.astype(prob.points_body.dtype)
+    if method == "epnp":
+        out = _epnp_core(prob.points_body, prob.xy, weights, prob.fxy, planar_tol)
+        return _conclude(prob, out, MIN_POINTS), out
+    if method == "dlt":
+        out = _dlt_core(prob.points_body, prob.xy, weights, prob.fxy, planar_tol)
+        return _conclude(prob, out, DLT_MIN_POINTS), out
+    out, inliers = _ransac_core(prob, key, planar_tol=planar_tol, **ransac)
+    return _conclude(prob, out, ransac["sample_size"], inliers), out
 
 
 def _batch_shape(points_body, pixels, mask) -> tuple[tuple[int, ...], int]:
@@ -79,27 +105,13 @@ def _batch_shape(points_body, pixels, mask) -> tuple[tuple[int, ...], int]:
             f"leading (batch) axes do not broadcast: points_body {ps}, pixels {xs}"
             + ("" if mask is None else f", mask {np.shape(mask)}")
         ) from None
-    if n < pnp.MIN_POINTS:
-        raise ValueError(f"PnP needs at least {pnp.MIN_POINTS} points; got n = {n}")
+    if n < MIN_POINTS:
+        raise ValueError(f"PnP needs at least {MIN_POINTS} points; got n = {n}")
     return batch, n
 
 
-def _map(fn, args, chunk: int, single: bool):
-    """``vmap`` over the leading axis, as a loop over chunks when the batch is large; a single
-    problem is solved as it is."""
-    if single:
-        return fn(*args)
-    size = jax.tree.leaves(args)[0].shape[0]
-    if size <= chunk:
-        return jax.vmap(fn)(*args)
-    pad = -size % chunk
-    args = jax.tree.map(lambda a: jnp.concatenate([a, jnp.repeat(a[:1], pad, axis=0)]), args)
-    out = jax.lax.map(lambda a: fn(*a), args, batch_size=chunk)
-    return jax.tree.map(lambda a: a[:size], out)
-
-
 class _Initial(eqx.Module):
-    result: pnp.PnPResult
+    result: PnPResult
     centroid: Array  # (3,) body frame, of the points used
     normal: Array  # (3,) body frame, their least-spread direction (the plane's normal if planar)
 
@@ -110,7 +122,7 @@ class _Static:
 
     method: str
     planar_tol: float
-    ransac: tuple | None  # sorted (name, value) pairs of pnp._ransac_options
+    ransac: tuple | None  # sorted (name, value) pairs of _ransac_options
     refine: tuple | None  # (method, robust, max_steps, rtol, atol)
     undistort: bool
     chunk: int
@@ -122,7 +134,7 @@ def _camera(intrinsics) -> PinholeCamera:
 
 def _cast(points_body, pixels, mask, intrinsics):
     """One float dtype for every input (that of the points), and the camera."""
-    dtype = pnp._float_dtype(points_body)
+    dtype = float_dtype(points_body)
     camera = _camera(jnp.asarray(intrinsics).astype(dtype))
     return points_body.astype(dtype), pixels.astype(dtype), mask.astype(bool), camera
 
@@ -134,15 +146,15 @@ def _initial(points_body, pixels, mask, keys, camera, cfg: _Static) -> _Initial:
     ransac = None if cfg.ransac is None else dict(cfg.ransac)
 
     def one(p, x, m, k=None):
-        prob = pnp._problem(p, x, camera, m, "solve_pnp", cfg.undistort)
-        res, out = pnp._solve(prob, cfg.method, cfg.planar_tol, key=k, ransac=ransac)
+        prob = _problem(p, x, camera, m, "solve_pnp", cfg.undistort)
+        res, out = _solve(prob, cfg.method, cfg.planar_tol, key=k, ransac=ransac)
         return _Initial(res, out.centroid, out.normal)
 
     args = (points_body, pixels, mask) + (() if keys is None else (keys,))
     return _map(one, args, cfg.chunk, pixels.ndim == 2)
 
 
-def _refined(init: _Initial, points_body, pixels, camera, cfg: _Static, two: bool) -> pnp.PnPResult:
+def _refined(init: _Initial, points_body, pixels, camera, cfg: _Static, two: bool) -> PnPResult:
     """Refine every problem from its closed-form pose (and, if ``two``, from its mirror)."""
     from jaxpose.core.refine import refine_pose
 
@@ -171,20 +183,20 @@ def _refined(init: _Initial, points_body, pixels, camera, cfg: _Static, two: boo
 
         ref = run(res.pose)
         if two:
-            flipped = pnp.planar_flip(res.pose, init.centroid, init.normal)
+            flipped = planar_flip(res.pose, init.centroid, init.normal)
             flipped = jax.tree.map(lambda a, b: jnp.where(res.planar, a, b), flipped, res.pose)
             alt = run(flipped)
             better = (ref.status != Status.OK) | (alt.rms_px < ref.rms_px)
             take = res.planar & (alt.status == Status.OK) & better
             ref = jax.tree.map(lambda a, b: jnp.where(take, a, b), alt, ref)
         status = jnp.where(ok, ref.status, res.status).astype(jnp.int32)
-        keep = pnp._kept(status)
+        keep = _kept(status)
         dtype = ref.pose.R.dtype
         pose = Pose(
             jnp.where(keep, ref.pose.R, jnp.eye(3, dtype=dtype)), jnp.where(keep, ref.pose.t, 0.0)
         )
         rms = jnp.where(keep, ref.rms_px, jnp.inf)
-        return pnp.PnPResult(pose, status, rms, res.inliers, res.planar)
+        return PnPResult(pose, status, rms, res.inliers, res.planar)
 
     return _map(one, (init, points_body, pixels), cfg.chunk, pixels.ndim == 2)
 
@@ -267,10 +279,10 @@ def solve_pnp(
     max_steps: int = 50,
     rtol: float = 1e-6,
     atol: float = 1e-9,
-    planar_tol: float = pnp.PLANAR_TOL,
+    planar_tol: float = PLANAR_TOL,
     chunk: int = CHUNK,
     workers: int | None = None,
-) -> pnp.PnPResult:
+) -> PnPResult:
     """Pose of a target from 3-D/2-D point correspondences, for one problem or a batch.
 
     Args:
@@ -281,7 +293,7 @@ def solve_pnp(
             one camera for the whole batch.
         method: ``"epnp"`` (:func:`jaxpose.core.pnp.epnp`), ``"dlt"`` (``>= 6`` non-coplanar points)
             or ``"ransac"`` (:func:`jaxpose.core.pnp.ransac_pnp`: RANSAC over EPnP for outliers).
-        refine: ``"lm"``, ``"gauss-newton"``, ``"newton-raphson"`` (seed 002 eqs. 23-29) or
+        refine: ``"lm"``, ``"gauss-newton"``, ``"newton-raphson"`` (Sharma et al. 2018 eqs. 23-29) or
             ``None`` (closed-form pose only); :func:`jaxpose.core.refine.refine_pose`.
         robust: ``None``, ``"huber"``, ``"cauchy"`` or ``"tukey"`` kernel in the refinement.
         mask: ``(..., n)`` bool, the valid points of padded sets.
@@ -296,7 +308,7 @@ def solve_pnp(
             (metres) and ``|dw| <= atol + rtol`` (radians). Convergence is quadratic, so the
             pose is then much closer than that to the optimum: the defaults give the same errors
             as ``refine_pose``'s tighter ones to 1e-12 relative, with one step fewer on average.
-        planar_tol: planarity threshold of EPnP (:data:`jaxpose.core.pnp.PLANAR_TOL`).
+        planar_tol: planarity threshold of EPnP (:data:`jaxpose.core.PLANAR_TOL`).
         chunk: batches larger than this run as a loop over chunks of this size.
         workers: host threads that share a large batch on a CPU (each runs the same compiled
             solver on an equal part). ``None``: one per CPU core available to this process, at
@@ -304,7 +316,7 @@ def solve_pnp(
             several JAX devices (the batch is then split over the devices instead).
 
     Returns:
-        :class:`~jaxpose.core.pnp.PnPResult` with the batch's leading axes: ``pose`` (``R``, ``t``
+        :class:`~jaxpose.core.PnPResult` with the batch's leading axes: ``pose`` (``R``, ``t``
         with ``x_cam = R @ x_body + t``), ``status``, ``reprojection_error`` (RMS pixels over
         the points used), ``inliers`` and ``planar``. Failed problems have ``R = I``, ``t = 0``,
         an infinite error and a non-zero status.
@@ -320,12 +332,12 @@ def solve_pnp(
     batch, n = _batch_shape(points_body, pixels, mask)
     if method == "ransac" and n < 6:
         raise ValueError(f"method='ransac' draws 6-point samples; got n = {n}")
-    if method == "dlt" and n < pnp.DLT_MIN_POINTS:
-        raise ValueError(f"method='dlt' needs at least {pnp.DLT_MIN_POINTS} points; got n = {n}")
+    if method == "dlt" and n < DLT_MIN_POINTS:
+        raise ValueError(f"method='dlt' needs at least {DLT_MIN_POINTS} points; got n = {n}")
     intrinsics, undistort = _intrinsics(camera)
     ransac = None
     if method == "ransac":
-        opts = pnp._ransac_options(
+        opts = _ransac_options(
             ransac_threshold_px, ransac_confidence, max_outlier_fraction, 6, num_hypotheses
         )
         ransac = tuple(sorted(opts.items()))
@@ -375,19 +387,6 @@ def solve_pnp(
     return res
 
 
-def _pad(args, size: int, devices: int):
-    """Repeat the first problem so that the batch splits evenly over ``devices``."""
-    pad = -size % devices
-    if devices == 1 or pad == 0:
-        return args
-
-    def one(a):
-        xp = jnp if isinstance(a, jax.Array) else np
-        return xp.concatenate([a, xp.repeat(a[:1], pad, axis=0)])
-
-    return tuple(None if a is None else one(a) for a in args)
-
-
 def _solve_eager(args, intrinsics, cfg: _Static, two: bool, devices: int, size: int):
     """One compiled solve of a flat batch (``args`` padded to a multiple of ``devices``)."""
     if cfg.refine is None or size <= FUSED_MAX:
@@ -400,60 +399,6 @@ def _solve_eager(args, intrinsics, cfg: _Static, two: bool, devices: int, size: 
     if res.status.ndim and res.status.shape[0] != size:
         res = jax.tree.map(lambda a: a[:size], res)
     return res
-
-
-THREAD_MIN_PROBLEMS = 2048
-"""Each thread of a CPU solve gets at least this many problems (below, the split costs more than
-it saves)."""
-
-
-def _cpu_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
-
-
-def _thread_parts(size: int, devices: int, workers: int | None) -> int:
-    """How many host threads share a batch. XLA runs one execution of these solvers on about one
-    CPU core, so a large batch on a single CPU device is cut into equal parts solved by
-    concurrent executions of the same compiled function (measured in ``bench/pnp.py``: 1.6x at
-    B = 10 000 on 2 cores). Not used on accelerators, nor with several devices (``shard_map``
-    already splits the batch)."""
-    if workers is not None:
-        return max(1, min(int(workers), size))
-    if devices > 1 or jax.default_backend() != "cpu":
-        return 1
-    return max(1, min(_cpu_cores(), size // THREAD_MIN_PROBLEMS))
-
-
-_POOL: concurrent.futures.ThreadPoolExecutor | None = None
-_POOL_SIZE = 0
-_POOL_LOCK = threading.Lock()
-
-
-def _in_threads(fn, pieces: list) -> list:
-    """``[fn(p) for p in pieces]`` on a shared thread pool, each result ready. (JAX compiles a
-    function once when several threads call it first at the same time.)"""
-    global _POOL, _POOL_SIZE
-    with _POOL_LOCK:
-        if _POOL_SIZE < len(pieces):
-            _POOL_SIZE = len(pieces)
-            _POOL = concurrent.futures.ThreadPoolExecutor(
-                max_workers=len(pieces), thread_name_prefix="jaxpose-solve"
-            )
-        pool = _POOL
-    futures = [pool.submit(lambda p: jax.block_until_ready(fn(p)), p) for p in pieces]
-    return [f.result() for f in futures]
-
-
-def _flat(x, batch, flat, tail):
-    """Broadcast the leading axes to ``batch`` and flatten them (eagerly; NumPy stays NumPy)."""
-    xp = jnp if isinstance(x, jax.Array) else np
-    x = x if xp is jnp else np.asarray(x)
-    if x.shape[: x.ndim - len(tail)] == flat:
-        return x
-    return xp.broadcast_to(x, batch + tail).reshape(flat + tail)
 
 
 def _intrinsics(camera) -> tuple[Array, bool]:

@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
+from jaxpose.core._checks import check_mask, check_pose, check_rows
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose, dcm_to_euler, euler_to_dcm, so3_exp
 from jaxpose.core.status import Status, throw_for_status
@@ -68,20 +69,8 @@ class DOPResult(eqx.Module):
 
 
 def _validate(points_body, pose: Pose) -> Array:
-    points_body = jnp.asarray(points_body)
-    if not jnp.issubdtype(points_body.dtype, jnp.floating):
-        points_body = points_body.astype(jnp.result_type(float))
-    if points_body.ndim != 2 or points_body.shape[-1] != 3:
-        raise ValueError(
-            f"points_body must have shape (n, 3) (one problem; use jax.vmap for batches); got "
-            f"{points_body.shape}"
-        )
-    if jnp.shape(pose.R) != (3, 3) or jnp.shape(pose.t) != (3,):
-        raise ValueError(
-            f"pose must hold one rotation (3, 3) and one translation (3,); got {jnp.shape(pose.R)} "
-            f"and {jnp.shape(pose.t)} (use jax.vmap for batches)"
-        )
-    return points_body
+    check_pose(pose)
+    return check_rows(points_body, (3,), "points_body")
 
 
 def _state_to_pixels(pose: Pose, camera: PinholeCamera, sequence: str, parameterization: str):
@@ -166,10 +155,7 @@ def _weights(n, dtype, sigma, mask):
         sigma = jnp.broadcast_to(jnp.asarray(sigma, dtype=dtype), (n,))
         w = w / sigma**2
     if mask is not None:
-        mask = jnp.asarray(mask)
-        if mask.shape != (n,):
-            raise ValueError(f"mask must have shape ({n},); got {mask.shape}")
-        w = jnp.where(mask, w, 0.0)
+        w = jnp.where(check_mask(mask, n), w, 0.0)
     return w
 
 
@@ -246,7 +232,7 @@ def dop(
     camera = as_camera(camera)
     n = points_body.shape[0]
     dtype = points_body.dtype
-    valid = jnp.ones(n, dtype=bool) if mask is None else jnp.asarray(mask, dtype=bool)
+    valid = check_mask(mask, n)
     finite_in = (
         jnp.all(jnp.isfinite(points_body) | ~valid[:, None])
         & jnp.all(jnp.isfinite(pose.R))

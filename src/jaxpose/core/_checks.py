@@ -1,0 +1,80 @@
+"""Input checks shared by the core entry points (shapes at trace time, ``ValueError`` naming the
+argument). Values (NaN, inf, degenerate geometry) are never checked here: they become statuses."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array
+
+ONE_PROBLEM = "one problem; use jax.vmap for batches"
+
+
+def as_float(x, dtype=None) -> Array:
+    """``x`` as a JAX array of ``dtype``, or of the default float dtype when it is not floating."""
+    x = jnp.asarray(x)
+    if dtype is not None:
+        return x.astype(dtype)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    return x
+
+
+def float_dtype(x) -> jnp.dtype:
+    """The dtype of ``x`` if floating, else the default float dtype."""
+    dtype = jnp.asarray(x).dtype
+    return dtype if jnp.issubdtype(dtype, jnp.floating) else jnp.result_type(float)
+
+
+def check_last(x, size: int, name: str) -> Array:
+    """A float array of shape ``(..., size)``."""
+    x = as_float(x)
+    if x.ndim < 1 or x.shape[-1] != size:
+        raise ValueError(f"{name} must have shape (..., {size}); got {x.shape}")
+    return x
+
+
+def check_matrix(R, name: str = "R") -> Array:
+    """A float array of shape ``(..., 3, 3)``."""
+    x = as_float(R)
+    if x.ndim < 2 or x.shape[-2:] != (3, 3):
+        raise ValueError(f"{name} must have shape (..., 3, 3); got {x.shape}")
+    return x
+
+
+def check_rows(x, tail: tuple[int, ...], name: str, dtype=None, *, prefix: str = "") -> Array:
+    """A float array of shape ``(n, *tail)`` (one problem)."""
+    x = as_float(x, dtype)
+    if x.ndim != len(tail) + 1 or x.shape[1:] != tail:
+        want = ", ".join(["n", *map(str, tail)])
+        raise ValueError(f"{prefix}{name} must have shape ({want}) ({ONE_PROBLEM}); got {x.shape}")
+    return x
+
+
+def check_same_length(a: Array, b: Array, name_a: str, name_b: str) -> None:
+    if a.shape[0] != b.shape[0]:
+        raise ValueError(
+            f"{name_a} and {name_b} must have the same length; got {a.shape[0]} and {b.shape[0]}"
+        )
+
+
+def check_pose(pose, name: str = "pose") -> None:
+    """One :class:`~jaxpose.core.geometry.Pose` (rotation ``(3, 3)``, translation ``(3,)``)."""
+    from jaxpose.core.geometry import Pose
+
+    if not isinstance(pose, Pose):
+        raise ValueError(f"{name} must be a jaxpose.Pose; got {type(pose).__name__}")
+    if jnp.shape(pose.R) != (3, 3) or jnp.shape(pose.t) != (3,):
+        raise ValueError(
+            f"{name} must hold one rotation (3, 3) and one translation (3,); got "
+            f"{jnp.shape(pose.R)} and {jnp.shape(pose.t)} (use jax.vmap for batches)"
+        )
+
+
+def check_mask(mask, n: int, name: str = "mask", *, prefix: str = "") -> Array:
+    """A bool array of shape ``(n,)``; all ``True`` when ``mask`` is ``None``."""
+    if mask is None:
+        return jnp.ones((n,), bool)
+    mask = jnp.asarray(mask)
+    if mask.shape != (n,):
+        raise ValueError(f"{prefix}{name} must have shape ({n},); got {mask.shape}")
+    return mask.astype(bool)

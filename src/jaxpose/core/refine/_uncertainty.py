@@ -1,0 +1,220 @@
+"""Pose covariance and the sensitivity of the refined pose to every input."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from jaxpose.core._checks import as_float
+from jaxpose.core.camera import PinholeCamera, as_camera
+from jaxpose.core.dilution import dop_from_information, point_jacobians
+from jaxpose.core.geometry import (
+    DEFAULT_EULER_SEQUENCE,
+    Pose,
+)
+from jaxpose.core.refine._implicit import _implicit_parts
+from jaxpose.core.refine._model import (
+    _tangent_cost,
+)
+from jaxpose.core.refine._options import _config
+from jaxpose.core.refine._problem import _prepare
+from jaxpose.core.refine._result import RefineResult
+
+
+def pose_covariance(
+    pose: Pose,
+    points_body: Float[Array, "n 3"],
+    camera: PinholeCamera | Array,
+    *,
+    sigma: Float[Array, " n"] | float = 1.0,
+    mask: Array | None = None,
+    segments_body: Float[Array, "k 2 3"] | None = None,
+    lines_img: Float[Array, "k 3"] | None = None,
+    line_sigma: Float[Array, " k"] | float | None = None,
+    line_mask: Array | None = None,
+) -> Float[Array, "6 6"]:
+    """First-order pose covariance ``(J^T W J)^-1 = sigma^2 (J^T J)^-1`` (metres, radians).
+
+    Coordinates: ``(dt_x, dt_y, dt_z, dw_x, dw_y, dw_z)`` with ``t_true = t + dt`` (metres,
+    camera frame) and ``R_true = exp([dw]_x) R`` (radians, rotation about camera-frame axes,
+    applied on the left). The Jacobian is :func:`jaxpose.core.dilution.point_jacobians` with
+    ``parameterization="tangent"`` through :func:`jaxpose.core.dilution.information_blocks`, so this is
+    ``dop(..., parameterization="tangent", sigma=sigma).Q``: one Jacobian for DOP, refinement
+    and covariance. Lines add ``J_l^T J_l / sigma_l^2`` with ``J_l = l_hat^T J`` of their
+    projected endpoints.
+
+    Returns a ``(6, 6)`` matrix, all ``inf`` when the information matrix is singular (fewer
+    than three points, collinear points, ...).
+    """
+    from jaxpose.core.dilution import information_blocks
+
+    camera = as_camera(camera)
+    A = jnp.sum(
+        information_blocks(
+            points_body, pose, camera, sigma=sigma, mask=mask, parameterization="tangent"
+        ),
+        axis=0,
+    )
+    if segments_body is not None:
+        if lines_img is None:
+            raise ValueError("segments_body and lines_img go together (both or neither)")
+        segments_body = as_float(segments_body)
+        lines = as_float(lines_img, segments_body.dtype)
+        k = segments_body.shape[0]
+        J_e = point_jacobians(
+            segments_body.reshape(-1, 3), pose, camera, parameterization="tangent"
+        )
+        l12 = lines[:, :2] / jnp.linalg.norm(lines[:, :2], axis=-1, keepdims=True)
+        J_l = jnp.einsum("ka,kmab->kmb", l12, J_e.reshape(k, 2, 2, 6))
+        ls = sigma if line_sigma is None and jnp.ndim(sigma) == 0 else line_sigma
+        ls = (
+            jnp.ones((k,), A.dtype) if ls is None else jnp.broadcast_to(as_float(ls, A.dtype), (k,))
+        )
+        w = 1.0 / ls**2
+        if line_mask is not None:
+            w = jnp.where(jnp.asarray(line_mask, bool), w, 0.0)
+        A = A + jnp.einsum("k,kmi,kmj->ij", w, J_l, J_l)
+    return dop_from_information(A).Q
+
+
+class PoseSensitivity(eqx.Module):
+    """Jacobians of the refined pose's tangent coordinates (see :func:`pose_covariance`).
+
+    Rows are ``(dt_x, dt_y, dt_z, dw_x, dw_y, dw_z)`` (metres, radians) of the optimum as the
+    inputs change; e.g. ``d_pixels[:, i, 0]`` is the pose change per pixel of ``u_i``.
+
+    Attributes:
+        d_pixels: ``(6, n, 2)`` per pixel.
+        d_points_body: ``(6, n, 3)`` per metre of model point coordinates.
+        d_intrinsics: ``(6, 4)`` per pixel of ``(fx, fy, cx, cy)``.
+        d_dist: ``(6, 5)`` per unit of each distortion coefficient.
+        d_segments_body: ``(6, k, 2, 3)`` (zeros ``(6, 0, 2, 3)`` without lines).
+        d_lines_img: ``(6, k, 3)`` per unit of the homogeneous line coefficients as given.
+    """
+
+    d_pixels: Array
+    d_points_body: Array
+    d_intrinsics: Array
+    d_dist: Array
+    d_segments_body: Array
+    d_lines_img: Array
+
+
+def sensitivity(
+    pose: Pose | RefineResult,
+    points_body: Float[Array, "n 3"],
+    pixels: Float[Array, "n 2"],
+    camera: PinholeCamera | Array,
+    *,
+    mask: Array | None = None,
+    sigma: Float[Array, " n"] | float | None = None,
+    segments_body: Float[Array, "k 2 3"] | None = None,
+    lines_img: Float[Array, "k 3"] | None = None,
+    line_mask: Array | None = None,
+    line_sigma: Float[Array, " k"] | float | None = None,
+    robust: str | None = None,
+    robust_scale: float | None = None,
+) -> PoseSensitivity:
+    """Derivatives of the optimal pose with respect to pixels, 3-D points, lines and intrinsics.
+
+    ``pose`` must be the optimum of the same problem (e.g. ``refine_pose(...).pose``, or the
+    :class:`RefineResult` itself). By the implicit function theorem on ``grad_xi C(xi, theta) =
+    0``: ``d xi / d theta = -H^-1 d(grad_xi C) / d theta`` with the exact Hessian ``H`` of the
+    robust cost (``xi`` in the tangent coordinates of :func:`pose_covariance`). This is the same
+    rule that :func:`refine_pose` gives to ``jax.grad``; here all Jacobians at once.
+
+    Example: ``sensitivity(res, P, u, cam).d_intrinsics[:, 0] * dfx`` is the first-order pose
+    error caused by a focal-length error ``dfx`` (pixels).
+    """
+    if isinstance(pose, RefineResult):
+        pose = pose.pose
+    cfg = _config(
+        "lm", robust, robust_scale, 1, 0.0, 0.0, DEFAULT_EULER_SEQUENCE, segments_body is not None
+    )
+    camera = as_camera(camera)
+    # Validate shapes eagerly (ValueError), then compute everything in one compiled call.
+    _prepare(
+        pose,
+        points_body,
+        pixels,
+        camera,
+        mask,
+        sigma,
+        segments_body,
+        lines_img,
+        line_mask,
+        line_sigma,
+    )
+    return _sensitivity(
+        pose,
+        points_body,
+        pixels,
+        camera,
+        mask,
+        sigma,
+        segments_body,
+        lines_img,
+        line_mask,
+        line_sigma,
+        cfg,
+    )
+
+
+@eqx.filter_jit
+def _sensitivity(
+    pose,
+    points_body,
+    pixels,
+    camera,
+    mask,
+    sigma,
+    segments_body,
+    lines_img,
+    line_mask,
+    line_sigma,
+    cfg,
+) -> PoseSensitivity:
+    has_lines = segments_body is not None
+    pose_, prob, *_ = _prepare(
+        pose,
+        points_body,
+        pixels,
+        camera,
+        mask,
+        sigma,
+        segments_body,
+        lines_img,
+        line_mask,
+        line_sigma,
+    )
+    dtype = prob.points.dtype
+    zero = jnp.zeros(6, dtype)
+
+    # Differentiate through _prepare (it only masks and normalises) so that the Jacobians are
+    # with respect to the inputs as given.
+    def grad_xi(P, u, cam, seg, lin):
+        pose_i, prob_i, *_ = _prepare(pose, P, u, cam, mask, sigma, seg, lin, line_mask, line_sigma)
+        return jax.grad(_tangent_cost)(zero, pose_i, prob_i, cfg)
+
+    args = (
+        as_float(points_body, dtype),
+        as_float(pixels, dtype),
+        camera,
+        as_float(segments_body, dtype) if has_lines else None,
+        as_float(lines_img, dtype) if has_lines else None,
+    )
+    B = jax.jacrev(grad_xi, argnums=(0, 1, 2, 3, 4) if has_lines else (0, 1, 2))(*args)
+    H, _ = _implicit_parts(pose_, prob, cfg)
+    Hinv = jnp.linalg.inv(H)
+    dP, du, dcam, *dlines = jax.tree.map(lambda b: -jnp.tensordot(Hinv, b, axes=1), B)
+    k = prob.segments.shape[0]
+    return PoseSensitivity(
+        d_pixels=du,
+        d_points_body=dP,
+        d_intrinsics=jnp.stack([dcam.fx, dcam.fy, dcam.cx, dcam.cy], axis=-1),
+        d_dist=dcam.dist,
+        d_segments_body=dlines[0] if has_lines else jnp.zeros((6, k, 2, 3), dtype),
+        d_lines_img=dlines[1] if has_lines else jnp.zeros((6, k, 3), dtype),
+    )
