@@ -114,12 +114,12 @@ for k, name in ((0, "PDOP"), (1, "ADOP")):
               f"points {med[i, 1]:.3f}); the segment wins in {wins[i]:.0%} of the cases")""")
 
 md("""A short segment is nearly a point measured twice across the line and never along it, and is
-usually worth less than the point. As it grows, its endpoints' lever arm pins the attitude and, for a target about as
-large as the segment, it wins in about half of the cases; which half depends on the direction:
-a line tells nothing along itself, so it helps when its normal is the direction the other
-features measure poorly. Two endpoint points always do better than the segment (the line's two
-distances are a projection of their four coordinates), so a line is worth more than a *point*,
-never more than two.
+usually worth less than the point. As it grows, its endpoints' lever arm pins the attitude and,
+for a target about as large as the segment, it wins in about half of the cases; which half
+depends on the direction: a line tells nothing along itself, so it helps when its normal is the
+direction the other features measure poorly. Two endpoint points always do better than the
+segment (the line's two distances are a projection of their four coordinates), so a line is worth
+more than a *point*, never more than its own two endpoints.
 
 ## Selecting from points and lines together
 Twelve points and six segments of a 1 m plate; branch and bound picks the 8 features of
