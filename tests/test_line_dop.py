@@ -8,6 +8,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import jaxpose
 from jaxpose import PinholeCamera, Pose
@@ -125,6 +127,37 @@ def test_block_is_psd_rank_two_and_below_its_endpoints_as_points():
         # Two distances along n carry no more than the four pixel coordinates of the endpoints.
         gap = np.linalg.eigvalsh(P[j].sum(0) - A[j])
         assert gap[0] > -1e-8 * ev[-1]
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    z=st.floats(2.0, 50.0),
+    parameterization=st.sampled_from(["euler", "tangent"]),
+)
+def test_line_block_never_exceeds_its_endpoints_and_its_rows_are_normal_projections(
+    seed, z, parameterization
+):
+    rng = np.random.default_rng(seed)
+    pose = Pose.from_euler(rng.uniform(-1.0, 1.0, 3), np.r_[rng.uniform(-0.3, 0.3, 2), z])
+    segments = rng.uniform(-0.5, 0.5, (3, 2, 3))
+    L = np.asarray(line_jacobians(segments, pose, CAMERA, parameterization=parameterization))
+    H = np.asarray(
+        point_jacobians(segments.reshape(-1, 3), pose, CAMERA, parameterization=parameterization)
+    ).reshape(3, 2, 2, 6)
+    n = unit_normals(segments, pose)
+    scale = np.abs(H).max()
+    # |row| = |n^T H_k| whatever the sign convention, and the row lies in the span of H_k's rows.
+    np.testing.assert_allclose(
+        np.abs(np.einsum("jkl,jkl->jk", L, np.einsum("ji,jkil->jkl", n, H))),
+        np.sum(L**2, -1),
+        rtol=1e-8,
+        atol=1e-8 * scale**2,
+    )
+    A = np.einsum("jki,jkl->jil", L, L)
+    P = np.einsum("jkai,jkal->jil", H, H)
+    for j in range(3):
+        assert np.linalg.eigvalsh(P[j] - A[j])[0] > -1e-9 * np.linalg.norm(P[j])
 
 
 def _line_motions(segment, pose):
@@ -268,6 +301,12 @@ def test_bad_input_raises_value_error_naming_the_argument():
         )
     with pytest.raises(ValueError, match="parameterization"):
         line_information_blocks(segments, pose, CAMERA, parameterization="quaternion")
+    with pytest.raises(ValueError, match="parameterization"):
+        line_jacobians(segments, pose, CAMERA, parameterization="quaternion")
+    with pytest.raises(ValueError, match="sigma"):
+        line_information_blocks(segments, pose, CAMERA, sigma=np.ones(len(segments) + 1))
+    with pytest.raises(ValueError, match="pose"):
+        line_information_blocks(segments, pose.R, CAMERA)
 
 
 # ----------------------------------------------------------------------------- mixed selection

@@ -32,6 +32,7 @@ the camera.
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -86,7 +87,17 @@ def line_jacobians(
     """
     check_pose(pose)
     segments_body = check_rows(segments_body, (2, 3), "segments_body")
-    camera = as_camera(camera)
+    _check_parameterization(parameterization)
+    return _jacobians(segments_body, pose, as_camera(camera), sequence, parameterization)
+
+
+def _check_parameterization(parameterization: str) -> None:
+    if parameterization not in ("euler", "tangent"):
+        raise ValueError(f"parameterization must be 'euler' or 'tangent'; got {parameterization!r}")
+
+
+@eqx.filter_jit
+def _jacobians(segments_body, pose, camera, sequence, parameterization):
     x0, pixels = _state_to_pixels(pose, camera, sequence, parameterization)
     return jax.vmap(lambda s: _segment_jacobian(x0, pixels, s))(segments_body)
 
@@ -125,22 +136,31 @@ def line_information_blocks(
     """
     check_pose(pose)
     segments_body = check_rows(segments_body, (2, 3), "segments_body")
+    _check_parameterization(parameterization)
     n = segments_body.shape[0]
-    if mask is not None:
-        valid = check_mask(mask, n)
+    valid = None if mask is None else check_mask(mask, n)
+    if sigma is not None:
+        sigma = jnp.asarray(sigma, dtype=segments_body.dtype)
+        if sigma.shape not in ((), (n,)):
+            raise ValueError(f"sigma must be a scalar or have shape ({n},); got {sigma.shape}")
+    return _blocks(segments_body, pose, as_camera(camera), sigma, valid, sequence, parameterization)
+
+
+@eqx.filter_jit
+def _blocks(segments_body, pose, camera, sigma, valid, sequence, parameterization):
+    n = segments_body.shape[0]
+    if valid is not None:
         # Masked-out segments are replaced by a harmless one in front of the camera (values and
         # gradients stay finite whatever they held), then their blocks are zeroed.
         dummy = (
             jnp.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]], segments_body.dtype) - pose.t
         ) @ pose.R
         segments_body = jnp.where(valid[:, None, None], segments_body, dummy)
-    L = line_jacobians(
-        segments_body, pose, camera, sequence=sequence, parameterization=parameterization
-    )
+    L = _jacobians(segments_body, pose, camera, sequence, parameterization)
     w = jnp.ones(n, dtype=L.dtype)
     if sigma is not None:
-        w = w / jnp.broadcast_to(jnp.asarray(sigma, dtype=L.dtype), (n,)) ** 2
+        w = w / jnp.broadcast_to(sigma.astype(L.dtype), (n,)) ** 2
     blocks = jnp.einsum("nki,nkj,n->nij", L, L, w)
-    if mask is not None:
+    if valid is not None:
         blocks = jnp.where(valid[:, None, None], blocks, 0.0)
     return blocks
