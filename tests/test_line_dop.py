@@ -266,6 +266,18 @@ def test_jit_vmap_and_gradient_of_the_mixed_dop():
             pdop((flat + e).reshape(segments.shape)) - pdop((flat - e).reshape(segments.shape))
         ) / (2 * h)
         np.testing.assert_allclose(g.reshape(-1)[i], fd, rtol=1e-4, atol=1e-12)
+
+    # ... and with respect to the pose (through the observed line and the Jacobian point).
+    def adop_at(t):
+        p = Pose(pose.R, t)
+        A = jnp.sum(information_blocks(points, p, CAMERA), 0)
+        return dop_from_information(
+            A + jnp.sum(line_information_blocks(segments, p, CAMERA), 0)
+        ).adop
+
+    gt = np.asarray(jax.grad(adop_at)(pose.t))
+    fd = [(adop_at(pose.t + h * e) - adop_at(pose.t - h * e)) / (2 * h) for e in jnp.eye(3)]
+    np.testing.assert_allclose(gt, fd, rtol=1e-4)
     # vmap of grad: one gradient per pose.
     gv = jax.vmap(
         lambda p: jax.grad(lambda s: jnp.sum(line_information_blocks(s, p, CAMERA)))(segments)
