@@ -124,8 +124,8 @@ def line_information_blocks(
         segments_body: ``(n, 2, 3)`` segment endpoints in the target body frame, metres.
         pose: true relative pose (``x_cam = R p + t``).
         camera: :class:`~jaxpose.core.camera.PinholeCamera` or ``3x3`` ``K``.
-        sigma: noise (pixels) of each endpoint-to-line distance, one per segment or shared;
-            ``None`` for unit weights (the plain DOP).
+        sigma: noise (pixels, positive) of each endpoint-to-line distance, one per segment or
+            shared; ``None`` for unit weights (the plain DOP).
         mask: ``(n,)`` bool, valid segments of a padded set; masked-out ones give zero blocks
             whatever they hold (NaN included).
         sequence, parameterization: attitude state, as in :func:`jaxpose.core.dilution.dop`.
@@ -143,6 +143,10 @@ def line_information_blocks(
         sigma = jnp.asarray(sigma, dtype=segments_body.dtype)
         if sigma.shape not in ((), (n,)):
             raise ValueError(f"sigma must be a scalar or have shape ({n},); got {sigma.shape}")
+        if not isinstance(sigma, jax.core.Tracer) and not bool(
+            jnp.all((sigma > 0) & jnp.isfinite(sigma))
+        ):
+            raise ValueError(f"sigma (pixel noise) must be positive and finite; got {sigma}")
     return _blocks(segments_body, pose, as_camera(camera), sigma, valid, sequence, parameterization)
 
 
