@@ -119,11 +119,40 @@ for a target about as large as the segment, it wins in about half of the cases; 
 depends on the direction: a line tells nothing along itself, so it helps when its normal is the
 direction the other features measure poorly. Two endpoint points always do better than the
 segment (the line's two distances are a projection of their four coordinates), so a line is worth
-more than a *point*, never more than its own two endpoints.
+more than a *point*, never more than its own two endpoints.""")
+
+md("""### The direction matters
+One base set of four points (20 deg per axis, 10 m), the added feature at the plate's centre:
+the ratio over the segment's direction in the plate and its length (blue: the segment wins; the
+black line is ratio 1).""")
+
+code("""one_base = np.c_[np.random.default_rng(3).uniform(-0.5, 0.5, (4, 2)), np.zeros(4)]
+angles_deg = np.linspace(0.0, 180.0, 25 if SMALL else 73)
+grid = jax.vmap(lambda a: jax.vmap(lambda L: ratios(
+    one_base, np.zeros(3), jnp.array([jnp.cos(a), jnp.sin(a), 0.0]), np.deg2rad([20.0] * 3), L))(
+    lengths))(jnp.deg2rad(angles_deg))
+grid = np.asarray(grid)[..., 0]  # (angle, L, criterion): the segment's ratio to the point
+fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+for ax, k, name in ((axes[0], 0, "PDOP"), (axes[1], 1, "ADOP")):
+    z = np.log2(grid[:, :, k])
+    lim = np.abs(z).max()
+    im = ax.pcolormesh(lengths, angles_deg, z, cmap="RdBu_r", vmin=-lim, vmax=lim)
+    ax.contour(lengths, angles_deg, grid[:, :, k], levels=[1.0], colors="k")
+    fig.colorbar(im, ax=ax, label="log2 ratio")
+    ax.set(xlabel="segment length L (m)", ylabel="direction in the plate (deg)", title=name)
+axes[2].scatter(*one_base[:, :2].T, label="base points")
+axes[2].scatter(0.0, 0.0, marker="x", color="C3", label="added feature")
+axes[2].set(xlim=(-0.5, 0.5), ylim=(-0.5, 0.5), aspect="equal", title="the plate (body frame, m)")
+axes[2].legend(fontsize=8); fig.tight_layout()""")
+
+md("""For this base set the direction decides PDOP (a segment in the band of directions between
+the black lines wins at any length, one across it loses at any length), while the length
+decides ADOP (beyond about 0.2 m the segment wins in every direction): the lever arm of the two
+endpoints is what a line adds to the attitude.
 
 ## Selecting from points and lines together
-Twelve points and six segments of a 1 m plate; branch and bound picks the 8 features of
-minimum ADOP from the stacked blocks (point blocks first, then line blocks).""")
+Twelve points and six segments of a 1 m plate; branch and bound picks the 8 features of minimum
+PDOP, and of minimum ADOP, from the stacked blocks (point blocks first, then line blocks).""")
 
 code("""pose = jp.Pose.from_euler(np.deg2rad([15.0, -10.0, 20.0]), np.array([0.0, 0.0, 10.0]))
 points = np.c_[rng.uniform(-0.5, 0.5, (12, 2)), np.zeros(12)]
