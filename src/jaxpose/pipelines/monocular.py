@@ -735,7 +735,9 @@ def _batched_fit():
 def _batched_epnp():
     from jaxpose.core.pnp import epnp
 
-    return jax.jit(jax.vmap(lambda p, q, m, cam: epnp(p, q, cam, mask=m), in_axes=(0, 0, 0, None)))
+    return jax.jit(
+        jax.vmap(lambda p, q, m, cam: epnp(p, q, cam, mask=m, throw=False), in_axes=(0, 0, 0, None))
+    )
 
 
 @functools.lru_cache(maxsize=4)
@@ -767,32 +769,34 @@ def _batched_rank():
 
 @functools.lru_cache(maxsize=4)
 def _batched_refine():
-    from jaxpose.core.refine import refine_pose
+    from jaxpose.core.refine import RefineOptions, refine_pose
+
+    options = RefineOptions(method="newton-raphson", max_steps=30)
 
     def one(pose, pts, pix, mask, cam):
-        return refine_pose(pose, pts, pix, cam, mask=mask, method="newton-raphson", max_steps=30)
+        return refine_pose(pts, pix, pose, cam, mask=mask, options=options, throw=False)
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, None)))
 
 
 @functools.lru_cache(maxsize=4)
 def _refine_points_lines():
-    from jaxpose.core.refine import refine_pose
+    from jaxpose.core.refine import RefineOptions, refine_pose
+
+    options = RefineOptions(method="lm", robust="huber", robust_scale=3.0, max_steps=30)
 
     def one(pose, pts, pix, mask, seg_body, lines, lmask, cam):
         return refine_pose(
-            pose,
             pts,
             pix,
+            pose,
             cam,
             mask=mask,
             segments_body=seg_body,
             lines_img=lines,
             line_mask=lmask,
-            robust="huber",
-            robust_scale=3.0,
-            method="lm",
-            max_steps=30,
+            options=options,
+            throw=False,
         )
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, 0, 0, 0, None)))

@@ -44,7 +44,7 @@ from scipy.spatial import cKDTree
 
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
-from jaxpose.core.refine import refine_pose
+from jaxpose.core.refine import RefineOptions, refine_pose
 from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo_ba import bundle_adjust
 from jaxpose.pipelines.stereo_map import LandmarkMap
@@ -231,24 +231,22 @@ def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
     endpoint distance, pixels). Points-only mode passes an all-False ``lmask``: one compiled
     function serves both modes."""
     res = refine_pose(
-        pose0,
         P,
         uv,
+        pose0,
         camera,
         mask=mask,
         sigma=sigma,
-        robust=robust,
-        max_steps=30,
-        rtol=1e-9,
-        atol=1e-10,
         segments_body=S,
         lines_img=L,
         line_mask=lmask,
         line_sigma=line_sigma,
+        options=RefineOptions(robust=robust, max_steps=30, rtol=1e-9, atol=1e-10),
+        throw=False,
     )
     pose = res.pose
-    e_p = jnp.linalg.norm(camera.project_body(pose, P) - uv, axis=-1)
-    pix = camera.project_body(pose, S.reshape(-1, 3)).reshape(-1, 2, 2)
+    e_p = jnp.linalg.norm(camera.project(pose.apply(P)) - uv, axis=-1)
+    pix = camera.project(pose.apply(S.reshape(-1, 3))).reshape(-1, 2, 2)
     n = jnp.linalg.norm(L[:, :2], axis=-1, keepdims=True)
     d = (jnp.einsum("ki,kmi->km", L[:, :2], pix) + L[:, 2:3]) / jnp.where(n > 0, n, 1.0)
     return res, e_p, jnp.max(jnp.abs(d), axis=-1)

@@ -81,7 +81,7 @@ class Scenario:
     random_attitude: bool = False
     plane_size_m: float = 1.0
     plane_centre_m: tuple[float, float] = (0.0, 0.0)
-    sequence: str = "xyz"
+    sequence: str = "XYZ"
     parameterization: str = "euler"
     sigma_px: float = 1.0
 
@@ -588,7 +588,11 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--random-attitude", action="store_true", help="draw each angle in [-A, A] per case"
     )
-    g.add_argument("--sequence", default=d.sequence, help="Euler sequence of the attitude state")
+    g.add_argument(
+        "--sequence",
+        default=d.sequence,
+        help="Euler sequence of the attitude state (SciPy naming: upper case intrinsic, lower case extrinsic)",
+    )
     g.add_argument("--plane-size-m", type=float, default=d.plane_size_m)
     g.add_argument(
         "--plane-centre-m",
