@@ -1,4 +1,5 @@
-"""Benchmark and evaluation of the monocular initialisation (seed 002) on rendered Tango images.
+"""Benchmark and evaluation of the monocular initialisation (Sharma, Ventura, D'Amico 2018) on
+rendered Tango images and, with ``--speedplus DIR``, on labelled SPEED+ images.
 
     python bench/monocular.py --images 200 --out runs/monocular_rendered.json [--method ransac]
 
@@ -33,11 +34,13 @@ from jaxpose.pipelines.monocular import (  # noqa: E402
     ANTENNA_WEIGHT,
     ATTITUDE_GRID,
     CONFIDENCE,
+    ORIENTATION_WEIGHT,
     REGION_WEIGHT,
     SILHOUETTE_WEIGHT,
     InitOptions,
     initialise_pose,
 )
+from jaxpose.pipelines.monocular.diagnose import stage_breakdown, stage_counts  # noqa: E402
 from jaxpose.vision.features import DetectionOptions  # noqa: E402
 from jaxpose.vision.models import tango  # noqa: E402
 from jaxpose.vision.render import lightbox_scene, random_pose, render  # noqa: E402
@@ -63,13 +66,15 @@ def true_pose_score(res, pose, model, opts) -> float:
     """Score (``l_ROI`` units) that the pipeline's ranking gives the true pose after the same
     edge fit as the hypotheses (from the truth): below ``res.score`` when the ranking would
     prefer the truth to the chosen pose."""
-    import jaxpose.pipelines.monocular as mono
+    from jaxpose.pipelines.monocular.fit import _chamfer_fit
+    from jaxpose.pipelines.monocular.scene import _edge_scene
+    from jaxpose.pipelines.monocular.score import _chamfer
     from jaxpose.vision.roi import roi_diagonal
 
-    sc = mono._edge_scene(res.detection, model, opts)
+    sc = _edge_scene(res.detection, model, opts)
     R0, t0 = jnp.asarray(np.asarray(pose.R)), jnp.asarray(np.asarray(pose.t))
-    Rf, tf = mono._chamfer_fit(R0, t0, sc, steps=12)
-    return float(mono._chamfer(Rf, tf, sc)[0]) / roi_diagonal(res.detection.roi)
+    Rf, tf = _chamfer_fit(R0, t0, sc, steps=12)
+    return float(_chamfer(Rf, tf, sc)[0]) / roi_diagonal(res.detection.roi)
 
 
 def _mean(values) -> float | None:
@@ -129,6 +134,43 @@ def _roi_summary(rows, args) -> None:
         Path(args.out).write_text(json.dumps({"summary": summary, "per_image": rows}))
 
 
+def _speedplus(args, model, opts) -> None:
+    """``--speedplus DIR``: the SPEED+ evaluation (per domain), with ``--stages`` the breakdown."""
+    from jaxpose.studies.speedplus import evaluate_speedplus
+
+    def hook(label, result, row):
+        if args.stages:
+            row["stages"] = stage_breakdown(result, label.pose, model)
+        row["score"], row["coverage"] = result.score, result.coverage
+        row["timings"] = result.timings
+
+    out = evaluate_speedplus(args.speedplus, limit=None, model=model, options=opts, on_result=hook)
+    rows = out["per_image"]
+    if args.stages:
+        out["stages"] = stage_counts([r["stages"] for r in rows if "stages" in r])
+        for dom in out["per_domain"]:
+            out["per_domain"][dom]["stages"] = stage_counts(
+                [r["stages"] for r in rows if "stages" in r and r["domain"] == dom]
+            )
+    stages = sorted({k for r in rows for k in r.get("timings", {})})
+    out["stage_median_s"] = {
+        s: float(np.median([r["timings"].get(s, 0.0) for r in rows if "timings" in r]))
+        for s in stages
+    }
+    print(json.dumps({k: v for k, v in out.items() if k != "per_image"}, indent=1))
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(out, default=_json_default))
+
+
+def _json_default(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(type(x))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -179,6 +221,17 @@ def main() -> None:
         help="weight of the silhouette term in the ranking (0: off; ablation)",
     )
     ap.add_argument(
+        "--orientation-weight",
+        type=float,
+        default=ORIENTATION_WEIGHT,
+        help="weight of the gradient-orientation (LINE-2D) term in the ranking (0: off)",
+    )
+    ap.add_argument(
+        "--no-grid-on-roi",
+        action="store_true",
+        help="no attitude grid without a silhouette (the grid placed on the ROI is off)",
+    )
+    ap.add_argument(
         "--attitude-grid",
         type=int,
         default=ATTITUDE_GRID,
@@ -201,6 +254,20 @@ def main() -> None:
         help="override the confidence class's low_score (l_ROI units; e.g. 1 returns every "
         "pose, to record score, coverage and silhouette IoU against success for calibration)",
     )
+    ap.add_argument(
+        "--stages",
+        action="store_true",
+        help="record where the right answer is lost, per image: ROI right (IoU >= 0.5 with the "
+        "true box), a hypothesis within 10 deg and 0.3 m, the fitted shortlist, the top-k "
+        "candidates, after refinement, ranked first (jaxpose.pipelines.monocular.diagnose)",
+    )
+    ap.add_argument(
+        "--speedplus",
+        default=None,
+        metavar="DIR",
+        help="run the labelled SPEED+ images of DIR (a SPEED+ root or a labels.csv folder) "
+        "instead of renders (with --stages: the per-stage breakdown on them)",
+    )
     ap.add_argument("--out", default=None, help="write the summary and per-image records (JSON)")
     args = ap.parse_args()
     enable_compilation_cache()
@@ -212,10 +279,16 @@ def main() -> None:
         region_weight=args.region_weight,
         silhouette_weight=args.silhouette_weight,
         attitude_grid=args.attitude_grid,
+        orientation_weight=args.orientation_weight,
+        grid_without_silhouette=not args.no_grid_on_roi,
         confidence=dict(
             CONFIDENCE, **({} if args.low_score is None else {"low_score": args.low_score})
         ),
+        trace=args.stages,
     )
+    if args.speedplus:
+        _speedplus(args, model, opts)
+        return
     rng = np.random.default_rng(args.seed)
     warm = render(model, random_pose(rng, camera), camera, rng=rng)
     t0 = time.perf_counter()
@@ -257,6 +330,8 @@ def main() -> None:
             "score": res.score,
             "coverage": res.coverage,
             "silhouette_iou": res.silhouette_iou,
+            "orientation_agreement": res.orientation_agreement,
+            "margin": res.margin if res.margin is not None and np.isfinite(res.margin) else None,
             "e2d_px": res.reprojection_error_px if np.isfinite(res.reprojection_error_px) else None,
             "runtime_s": wall,
             "timings": res.timings,
@@ -273,6 +348,8 @@ def main() -> None:
             ),
             "success": False,
         }
+        if args.stages:
+            row["stages"] = stage_breakdown(res, pose, model)
         if args.true_score and res.roi is not None and res.confidence != "none":
             row["true_score"] = true_pose_score(res, pose, model, opts)
         if res.pose is not None:
@@ -327,6 +404,7 @@ def main() -> None:
         "roi_length_ratio_median": float(
             np.median([r["roi_length_ratio"] for r in rows if r["roi_length_ratio"]])
         ),
+        "stages": stage_counts([r["stages"] for r in rows]) if args.stages else None,
         "compile_and_first_run_s": compile_s,
         "median_runtime_s": float(np.median([r["runtime_s"] for r in rows])),
         "stage_mean_s": {
@@ -339,7 +417,9 @@ def main() -> None:
     print(json.dumps(summary, indent=1))
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps({"summary": summary, "per_image": rows}))
+        Path(args.out).write_text(
+            json.dumps({"summary": summary, "per_image": rows}, default=_json_default)
+        )
 
 
 if __name__ == "__main__":

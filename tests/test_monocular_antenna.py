@@ -10,15 +10,10 @@ import pytest
 
 from jaxpose import PinholeCamera, Pose
 from jaxpose.core.geometry import euler_to_dcm, so3_exp
-from jaxpose.pipelines.monocular import (
-    InitOptions,
-    _antenna_term,
-    _EdgeScene,
-    _ideal_params,
-    _model_geometry,
-    _rod_map,
-    initialise_pose,
-)
+from jaxpose.pipelines.monocular import InitOptions, initialise_pose
+from jaxpose.pipelines.monocular.scene import _EdgeScene, _ideal_params, _model_geometry
+from jaxpose.pipelines.monocular.score import _antenna_term
+from jaxpose.vision.image_maps import rod_map
 from jaxpose.vision.models import tango
 
 jax.config.update("jax_enable_x64", True)
@@ -36,7 +31,7 @@ def test_rod_map_sees_thin_rods_and_not_faces():
     cv2.line(img, (120, 150), (280, 330), 200, 5)  # a bright antenna against space
     cv2.line(img, (330, 420), (530, 230), 60, 5)  # a dark rod across the lit face
     roi = np.array([100.0, 140.0, 580.0, 480.0])
-    rods, frame = _rod_map(img, roi)
+    rods, frame = rod_map(img, roi)
     assert rods.shape == (256, 256) and np.all((np.asarray(rods) >= 0) & (np.asarray(rods) <= 1))
     s = np.linspace(0.2, 0.8, 7)[:, None]
     bright = np.array([120, 150]) + s * np.array([160, 180])
@@ -91,7 +86,7 @@ def test_antenna_term_prefers_the_antennas_on_the_rods():
         cv2.line(img, tuple(np.round(a).astype(int)), tuple(np.round(b).astype(int)), 230, 3)
     uv = project(model.vertices)
     roi = np.r_[uv.min(0), uv.max(0)]
-    rods, frame = _rod_map(img, roi)
+    rods, frame = (jnp.asarray(x) for x in rod_map(img, roi))
     l_roi = float(np.hypot(*(roi[2:] - roi[:2])))
     sc = _EdgeScene(
         _model_geometry(model),

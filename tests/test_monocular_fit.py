@@ -8,20 +8,16 @@ import numpy as np
 
 from jaxpose import PinholeCamera, Pose
 from jaxpose.core.geometry import euler_to_dcm, so3_exp
-from jaxpose.pipelines.monocular import (
-    _bilinear,
-    _chamfer,
-    _chamfer_fit,
-    _distance_map,
-    _distinct,
+from jaxpose.pipelines.monocular.fit import _bilinear, _chamfer_fit
+from jaxpose.pipelines.monocular.hypothesise import _distinct
+from jaxpose.pipelines.monocular.scene import (
     _EdgeScene,
     _face_polygons,
     _ideal_params,
-    _image_samples,
     _model_geometry,
-    _region_energy,
-    _region_grid,
 )
+from jaxpose.pipelines.monocular.score import _chamfer, _region_energy
+from jaxpose.vision.image_maps import distance_map, region_grid, segment_samples
 from jaxpose.vision.models import tango
 from jaxpose.vision.render import BACKGROUND, render_layers, visible_edges
 
@@ -48,8 +44,8 @@ def _scene():
     true = Pose(jnp.asarray(R), jnp.asarray([0.1, -0.05, 5.0]))
     segs = np.asarray(visible_edges(model, true, cam, shape=(600, 800)).segments)
     geom = _model_geometry(model)
-    pts, mask = _image_samples(segs)
-    dt = jnp.asarray(_distance_map(segs, (600, 800)))
+    pts, mask = (jnp.asarray(x) for x in segment_samples(segs))
+    dt = jnp.asarray(distance_map(segs, (600, 800)))
     l_roi = float(np.linalg.norm(segs.reshape(-1, 2).max(0) - segs.reshape(-1, 2).min(0)))
     return true, _EdgeScene(geom, pts, mask, dt, 0.05 * l_roi, _ideal_params(cam))
 
@@ -112,7 +108,7 @@ def test_region_energy_matches_the_painter_buffer_and_rejects_a_wrong_pose():
     img = np.where(ids == -2, 30.0, img)  # antennas: not a face; background grey
     vv, uu = np.nonzero(ids != BACKGROUND)
     roi = np.array([uu.min(), vv.min(), uu.max(), vv.max()], float)
-    pts, val = _region_grid(img.astype(np.uint8), roi)
+    pts, val = (jnp.asarray(x) for x in region_grid(img.astype(np.uint8), roi))
     sc = sc._replace(grid_pts=pts, grid_val=val, face_poly=_face_polygons(model))
     # NumPy reference of SSE / SST with the buffer's labels on the unsmoothed image
     p = np.rint(np.asarray(pts)).astype(int)

@@ -6,7 +6,8 @@ import pytest
 
 from jaxpose import PinholeCamera, Pose
 from jaxpose.core.geometry import euler_to_dcm
-from jaxpose.pipelines.monocular import InitOptions, _allocate, _hypotheses, initialise_pose
+from jaxpose.pipelines.monocular import InitOptions, initialise_pose
+from jaxpose.pipelines.monocular.hypothesise import _allocate, _hypotheses
 from jaxpose.vision.features import bright_background_share, detect
 from jaxpose.vision.models import tango
 from jaxpose.vision.render import render

@@ -12,17 +12,16 @@ from scipy.spatial.transform import Rotation
 
 from jaxpose import PinholeCamera, Pose
 from jaxpose.core.geometry import euler_to_dcm, so3_exp, super_fibonacci_rotations
-from jaxpose.pipelines.monocular import (
-    InitOptions,
+from jaxpose.pipelines.monocular import InitOptions, initialise_pose
+from jaxpose.pipelines.monocular.hypothesise import _place_on_silhouette
+from jaxpose.pipelines.monocular.scene import (
     _EdgeScene,
     _face_polygons,
     _ideal_params,
     _model_geometry,
-    _place_on_silhouette,
-    _silhouette_grid,
-    _silhouette_term,
-    initialise_pose,
 )
+from jaxpose.pipelines.monocular.score import _silhouette_term
+from jaxpose.vision.image_maps import silhouette_grid
 from jaxpose.vision.models import tango
 from jaxpose.vision.render import render
 from jaxpose.vision.roi import silhouette_mask
@@ -109,7 +108,7 @@ def black_scene():
     body = (r.face_ids >= 0).astype(np.uint8)  # the model's faces (antennas are -2)
     v, u = np.nonzero(body)
     roi = np.array([u.min(), v.min(), u.max() + 1, v.max() + 1], float)
-    pts, val = _silhouette_grid(body, 1, roi)
+    pts, val = (jnp.asarray(x) for x in silhouette_grid(body, 1, roi))
     sc = _EdgeScene(
         _model_geometry(model),
         jnp.zeros((4, 2)),

@@ -55,19 +55,161 @@ def test_top_view_shows_panel_edges_only(camera):
     assert np.all(corners[:, 0] >= r.roi[0] - 1) and np.all(corners[:, 0] <= r.roi[2] + 1)
 
 
+def _first_hit_depth(point_cam, model, R, t, skip=(), grow_m=0.0):
+    """Brute-force ray casting, independent of the renderer's painter buffer: the smallest
+    distance along the camera ray through ``point_cam`` at which it crosses a front-facing model
+    face (convex polygon; back faces are culled, as the model format specifies) other than
+    ``skip``, each polygon grown (``grow_m > 0``) or shrunk (``< 0``) by ``|grow_m|`` metres at
+    its borders; ``inf`` when the ray crosses none."""
+    d = point_cam / np.linalg.norm(point_cam)
+    best = np.inf
+    for k, face in enumerate(model.faces):
+        if k in skip:
+            continue
+        V = model.vertices[list(face)] @ R.T + t
+        n = np.cross(V[1] - V[0], V[2] - V[0])
+        n /= np.linalg.norm(n)
+        if (model.face_normals[k] @ R.T) @ V.mean(0) >= 0:  # back-facing
+            continue
+        den = n @ d
+        if abs(den) < 1e-12:
+            continue
+        s = (n @ V[0]) / den
+        if s <= 0:
+            continue
+        q = s * d
+        edges = np.roll(V, -1, axis=0) - V
+        # Signed distance (m, in the face's plane) of q from each border line, inside positive
+        # for one orientation of the polygon.
+        dist = np.einsum("ij,j->i", np.cross(edges, q - V), n) / np.linalg.norm(edges, axis=1)
+        if min(dist) >= -grow_m or max(dist) <= grow_m:
+            best = min(best, s)
+    return best
+
+
+def _two_plates(front_half: float):
+    """A 0.4 m square plate at body z = 0 and a square plate of half-side ``front_half`` at
+    z = 0.3, both facing +z (the camera looks down -z of the body, see ``front_pose``)."""
+    from jaxpose.vision.models import WireframeModel
+
+    def square(h, z):
+        return [[-h, -h, z], [h, -h, z], [h, h, z], [-h, h, z]]
+
+    V = np.array(square(0.2, 0.0) + square(front_half, 0.3))
+    E = [[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4]]
+    return WireframeModel(V, np.array(E), ((0, 1, 2, 3), (4, 5, 6, 7)), name="two plates")
+
+
 def test_occlusion_hides_far_edges(camera, rng):
+    # A large front plate hides every edge of the back plate; a small one hides none of them.
+    for front_half, back_visible in ((0.5, set()), (0.05, {0, 1, 2, 3})):
+        r = render(_two_plates(front_half), front_pose(4.0), camera, rng=0)
+        assert set(r.visible.edge_ids.tolist()) == back_visible | {4, 5, 6, 7}
+    # Tango at random poses against a ray caster, up to the renderer's pixel grid (polygons grown
+    # by 1.5 px at the edge's depth): every edge that is front-facing and in view but reported
+    # hidden is covered at its midpoint by a face nearer than the edge.
     m = tango()
-    for _ in range(5):
+    px = 1.5 / float(camera.fx)
+    hidden_seen = 0
+    for _ in range(8):
         pose = random_pose(rng, camera, range_m=(4, 8))
         r = render(m, pose, camera, rng=rng)
         R, t = np.asarray(pose.R), np.asarray(pose.t)
-        # Each visible endpoint must be in front of every other face through its pixel: check by
-        # the face buffer: the pixel next to a visible endpoint is target or background.
-        assert len(r.visible.edge_ids) >= 3
-        pts_cam = r.visible.points_body.reshape(-1, 3) @ R.T + t
-        np.testing.assert_allclose(
-            project_points(camera, pts_cam), r.visible.segments.reshape(-1, 2), atol=1e-6
+        front = np.einsum("fi,fi->f", m.face_normals @ R.T, m.face_centres @ R.T + t) < 0
+        shown = set(r.visible.edge_ids.tolist())
+        for e, (a, b) in enumerate(m.edges):
+            mid = R @ (m.vertices[a] + m.vertices[b]) / 2 + t
+            uv = np.asarray(camera.project(jnp.asarray(mid)))
+            in_view = 5 < uv[0] < camera.width - 5 and 5 < uv[1] < camera.height - 5
+            if e in shown or not in_view or not any(front[f] for f in m.edge_faces[e]):
+                continue
+            hit = _first_hit_depth(mid, m, R, t, m.edge_faces[e], px * mid[2])
+            assert hit < np.linalg.norm(mid) - 1e-2, f"edge {e} hidden though nothing covers it"
+            hidden_seen += 1
+    assert hidden_seen > 0  # the random poses did exercise occlusion
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="painter's-algorithm ordering: where the solar panel overhangs the body, the body's "
+    "top side edges are drawn over the panel and reported visible though the panel covers them "
+    "(33 of 1923 visible samples in 10 of 40 random poses behind a nearer front face)",
+)
+def test_visible_edges_are_not_behind_a_face(camera, rng):
+    """No point of a reported visible edge lies behind a front-facing face (ray casting, polygons
+    shrunk by 1.5 px at the point's depth so that pixel rounding at borders does not count)."""
+    m = tango()
+    px = 1.5 / float(camera.fx)
+    for _ in range(8):
+        pose = random_pose(rng, camera, range_m=(4, 8))
+        r = render(m, pose, camera, rng=rng)
+        R, t = np.asarray(pose.R), np.asarray(pose.t)
+        for e, body in zip(r.visible.edge_ids, r.visible.points_body, strict=True):
+            if e >= len(m.edges):  # antennas have no faces of their own
+                continue
+            for s in (0.25, 0.5, 0.75):
+                p_cam = R @ ((1 - s) * body[0] + s * body[1]) + t
+                hit = _first_hit_depth(p_cam, m, R, t, m.edge_faces[e], -px * p_cam[2])
+                assert hit >= np.linalg.norm(p_cam) - 5e-3, f"edge {e} visible behind a face"
+
+
+def _occluded(points_cam, model, R, t):
+    """Independent ray casting: is each camera-frame point behind a face of the model? A face
+    (convex, planar) hides a point when the ray from the camera centre to it crosses the face's
+    plane nearer than 0.999 of its depth and inside the face's polygon."""
+    hidden = np.zeros(len(points_cam), bool)
+    for face in model.faces:
+        V = model.vertices[list(face)] @ R.T + t  # (k, 3)
+        n = np.cross(V[1] - V[0], V[2] - V[0])
+        denom = points_cam @ n
+        s = (V[0] @ n) / np.where(np.abs(denom) > 1e-12, denom, np.nan)  # ray x = s * p
+        X = s[:, None] * points_cam
+        sides = np.stack(
+            [np.cross(b - a, X - a) @ n for a, b in zip(V, np.roll(V, -1, axis=0), strict=True)]
         )
+        inside = np.all(sides >= -1e-9, axis=0) | np.all(sides <= 1e-9, axis=0)
+        hidden |= inside & (s > 0) & (s < 0.999)
+    return hidden
+
+
+def test_occlusion_hides_antennas_behind_the_body(camera):
+    """Antennas behind the body are hidden, and only they: for poses where the body covers part
+    of an antenna (found by an independent ray cast against the model's faces), the renderer's
+    visible fraction of each antenna matches the ray-cast share of unoccluded samples."""
+    m = tango()
+    n_edges = len(m.edges)
+    rng = np.random.default_rng(5)
+    checked = occluded_seen = 0
+    for _ in range(60):
+        pose = random_pose(rng, camera, range_m=(4, 8))
+        R, t = np.asarray(pose.R), np.asarray(pose.t)
+        s = np.linspace(0.0, 1.0, 49)
+        fractions = {}
+        for a, (base, tip) in enumerate(m.antenna_points):
+            pts = (base + s[:, None] * (tip - base)) @ R.T + t
+            pix = project_points(camera, pts)
+            on_image = np.all((pix >= 0) & (pix <= [639, 479]), axis=1)
+            if not on_image.all():
+                break
+            fractions[n_edges + a] = 1.0 - _occluded(pts, m, R, t).mean()
+        else:
+            if min(fractions.values()) > 0.9:
+                continue  # nothing occluded: not a test of occlusion
+            r = render(m, pose, camera, rng=rng)
+            got = dict(zip(r.visible.edge_ids.tolist(), r.visible.fraction.tolist(), strict=True))
+            for e, expected in fractions.items():
+                seen = got.get(e, 0.0)
+                if expected < 0.05:
+                    assert seen == 0.0  # wholly hidden: not reported
+                elif expected > 0.95:
+                    assert seen > 0.9
+                else:  # partly hidden: the longest visible run is at most the visible share
+                    assert seen <= expected + 0.05
+                occluded_seen += expected < 0.5
+            checked += 1
+        if checked >= 4 and occluded_seen >= 2:
+            break
+    assert checked >= 4 and occluded_seen >= 2
 
 
 def test_background_noise_blur_and_hooks(camera):

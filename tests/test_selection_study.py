@@ -165,3 +165,145 @@ def test_bad_study_options():
     with pytest.raises(ValueError, match="cases"):
         study.run_study(study.Scenario(), [(8, 4)], cases=0, progress=False)
     assert main(["select-study", "--n", "5", "--m", "7", "--no-progress"]) == 2
+
+
+def _one_error_line(capsys, command="select-study"):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(f"jaxpose {command}: error: ")
+    return err[0]
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["--range-m", "0"], "--range-m"),
+        (["--range-m", "-10"], "--range-m"),
+        (["--range-m", "nan"], "--range-m"),
+        (["--plane-size-m", "0"], "--plane-size-m"),
+        (["--plane-size-m", "inf"], "--plane-size-m"),
+        (["--focal-length-mm", "-5"], "--focal-length-mm"),
+        (["--pixel-size-um", "0"], "--pixel-size-um"),
+        (["--image-size", "0", "10"], "--image-size"),
+        (["--attitude-deg", "10", "nan", "0"], "--attitude-deg"),
+        (["--offset-m", "inf", "0"], "--offset-m"),
+        (["--cases", "0"], "--cases"),
+        (["--chunk-size", "-1"], "--chunk-size"),
+        (["--seed", "-1"], "--seed"),
+        (["--n", "18", "--m", "0"], "--m"),
+    ],
+)
+def test_bad_scenario_options_are_refused_naming_the_option(argv, option, tmp_path, capsys):
+    assert main(["select-study", *argv, "--out", str(tmp_path), "--no-progress"]) == 2
+    assert option in _one_error_line(capsys)
+    assert not (tmp_path / "results.json").exists()
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [("range_m", 0.0), ("range_m", -10.0), ("plane_size_m", 0.0), ("sigma_px", -1.0)],
+)
+def test_scenario_refuses_bad_values_naming_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        study.Scenario(**{field: value})
+
+
+@pytest.mark.parametrize("random", [False, True])
+def test_points_behind_the_camera_are_refused(random, tmp_path, capsys):
+    # A 1 m square tilted by 80 deg at 0.3 m: its far edge is 0.3 - 0.5 sin 80 = -0.19 m deep
+    # (random attitudes in [-80, 80] deg per axis: some of the 8 cases reach behind too).
+    argv = ["--range-m", "0.3", "--attitude-deg", "0", "80", "0", "--n", "6", "--m", "4"]
+    argv += ["--random-attitude", "--no-progress"] if random else []
+    assert main(["select-study", *argv, "--cases", "8", "--out", str(tmp_path)]) == 2
+    line = _one_error_line(capsys)
+    assert "behind the camera" in line and "--range-m" in line
+
+
+def test_a_search_too_large_is_refused_at_once(tmp_path, capsys):
+    import time
+
+    t0 = time.perf_counter()
+    assert main(["select-study", "--n", "40", "--m", "20", "--cases", "1", "--out", str(tmp_path)])
+    assert time.perf_counter() - t0 < 5
+    line = _one_error_line(capsys)
+    assert "C(40, 20)" in line and "--n" in line and f"{study.MAX_SUBSETS_PER_CASE:.0e}" in line
+    study.check_group(25, 12)  # 5.2e6 subsets: under the limit
+    with pytest.raises(ValueError, match="C\\(26, 13\\)"):
+        study.check_group(26, 13)
+
+
+def test_a_truncated_chunk_is_recomputed_with_a_warning(tmp_path, capsys):
+    argv = ["select-study", "--n", "9", "--m", "5", "--cases", "6", "--chunk-size", "3"]
+    argv += ["--seed", "3", "--out", str(tmp_path), "--no-progress", "--no-figures"]
+    assert main(argv) == 0
+    first = json.loads((tmp_path / "results.json").read_text())
+    chunk = sorted((tmp_path / "chunks").glob("*.npz"))[-1]
+    data = chunk.read_bytes()
+    chunk.write_bytes(data[: len(data) // 2])  # a run killed while writing (or a bad copy)
+    capsys.readouterr()
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert f"jaxpose select-study: warning: chunk file {chunk}" in err and "recomput" in err
+    again = json.loads((tmp_path / "results.json").read_text())
+    assert again["groups"][0]["pdop_ratio"] == first["groups"][0]["pdop_ratio"]
+    with np.load(chunk) as z:  # rewritten whole
+        assert "pdop_opt" in z.files
+
+
+def test_failed_cases_give_null_statistics_never_nan():
+    inf = np.inf
+    group = {
+        "pdop_quasi": np.array([2.0, inf]),
+        "pdop_opt": np.array([1.0, inf]),
+        "adop_quasi": np.array([3.0, inf]),
+        "adop_opt": np.array([2.0, inf]),
+        "pdop_all": np.array([0.5, np.nan]),
+        "adop_all": np.array([1.0, np.nan]),
+        "status": np.array([0, 3]),
+    }
+    failed = {k: v[1:] for k, v in group.items()}
+    res = study._summarise(
+        study.Scenario(),
+        0,
+        {(18, 8): group, (18, 9): failed},
+        {(18, 8): [1, 1], (18, 9): [1, 1]},
+        1,
+    )
+    text = json.dumps(res, allow_nan=False)  # raises on NaN or inf
+    g8, g9 = res["groups"]
+    assert g8["pdop_ratio"] == {"mean": 2.0, "max": 2.0} and g8["failed_cases"] == 1
+    assert g9["pdop_ratio"] == {"mean": None, "max": None} and g9["failed_cases"] == 1
+    assert "NaN" not in text and "Infinity" not in text
+    assert "Table 4" in study.format_report(res)
+
+
+@pytest.mark.parametrize(
+    "groups, panels",
+    [
+        (study.TABLE4_GROUPS, ["n"]),
+        (study.PAPER_GROUPS, ["n", "m"]),
+        ([(18, 8)], [""]),
+        ([(9, 5), (10, 6)], [""]),
+        ([(12, 8), (14, 8), (9, 5)], ["n", ""]),
+    ],
+)
+def test_timing_figure_plots_what_ran(groups, panels):
+    from jaxpose.studies._selection_figures import _timing_panels
+
+    fake = [{"n": n, "m": m} for n, m in groups]
+    got = _timing_panels(fake)
+    assert [key for _, key, _ in got] == panels
+    shown = sorted((g["n"], g["m"]) for gs, _, _ in got for g in gs)
+    assert set(shown) == set(groups)  # every group that ran is on a panel
+
+
+def test_ratio_histogram_bins_fit_the_data():
+    from jaxpose.studies._selection_figures import _ratio_bins
+
+    bins = _ratio_bins([np.array([1.0, 1.3]), np.array([1.1, 1.2])])
+    top = np.quantile([1.0, 1.3], 0.99)
+    assert bins[0] == 1.0 and top <= bins[-1] < top + 2 * (bins[1] - bins[0])
+    assert 30 <= len(bins) <= 45
+    # One far outlier does not stretch the axis: it lands in the last bin.
+    spread = np.r_[np.linspace(1.0, 1.5, 999), 4.3]
+    assert _ratio_bins([spread])[-1] < 1.6

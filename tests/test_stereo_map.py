@@ -1,31 +1,32 @@
-"""Body-frame landmark map of the stereo tracker (jaxpose.pipelines.stereo_map) and the sparse
+"""Body-frame landmark map of the stereo tracker (jaxpose.pipelines.stereo.landmarks) and the sparse
 Hamming KNN it uses; reference values from independent constructions (known geometry, dense
 brute force)."""
 
 import numpy as np
 import pytest
 
-from jaxpose.pipelines.stereo_map import LandmarkMap
+from jaxpose.core.geometry import Pose
+from jaxpose.pipelines.stereo import LandmarkMap
 from jaxpose.vision.stereo_features import knn_ratio_match, knn_ratio_match_pairs
 
 
 def _look_at(centre_body):
-    """Pose (R, t) of a camera at ``centre_body`` looking at the body origin (body to camera)."""
+    """Pose of a camera at ``centre_body`` looking at the body origin (body to camera)."""
     z = -centre_body
     z = z / np.linalg.norm(z)
     x = np.cross([0.0, 1.0, 0.0], z)
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     R = np.stack([x, y, z])
-    return R, -R @ centre_body
+    return Pose(R, -R @ centre_body)
 
 
 def test_observe_triangulates_from_rays_and_keeps_near_parallel_ones():
     rng = np.random.default_rng(0)
     X = rng.normal(size=(5, 3)) * 0.2
     m = LandmarkMap()
-    R, t = _look_at(np.array([0.0, 0.0, -2.0]))
-    idx = m.add("points", X + 0.05, np.zeros((5, 32), np.uint8), R, t, 0)
+    pose = _look_at(np.array([0.0, 0.0, -2.0]))
+    idx = m.add("points", X + 0.05, np.zeros((5, 32), np.uint8), pose, 0)
     # one ray each: underdetermined, the points keep their (wrong) initial positions
     c0 = np.array([0.0, 0.0, -2.0])
     m.observe(idx, np.broadcast_to(c0, X.shape), X - c0)
@@ -45,8 +46,8 @@ def test_observe_matches_the_stereo_triangulation():
     X = np.array([[0.1, -0.05, 2.0], [-0.2, 0.1, 2.4]])
     left, right = (np.asarray(p) for p in rig.project(X))
     m = LandmarkMap()
-    R, t = np.eye(3), np.zeros(3)  # body = left camera
-    idx = m.add("points", np.zeros_like(X), np.zeros((2, 32), np.uint8), R, t, 0)
+    pose = Pose(np.eye(3), np.zeros(3))  # body = left camera
+    idx = m.add("points", np.zeros_like(X), np.zeros((2, 32), np.uint8), pose, 0)
     K_inv = np.linalg.inv(np.asarray(cam.K))
     d_l = np.c_[left, np.ones(2)] @ K_inv.T
     d_r = np.c_[right, np.ones(2)] @ K_inv.T
@@ -57,32 +58,32 @@ def test_observe_matches_the_stereo_triangulation():
 
 def test_candidates_use_the_viewing_cone_and_the_camera_side():
     m = LandmarkMap(max_view_deg=60.0)
-    R, t = _look_at(np.array([0.0, 0.0, -2.0]))
+    pose = _look_at(np.array([0.0, 0.0, -2.0]))
     X = np.array([[0.0, 0.0, -0.3], [0.0, 0.0, 0.3]])
-    m.add("points", X, np.zeros((2, 32), np.uint8), R, t, 0)  # both seen from -z
-    assert list(m.candidates("points", R, t)) == [0, 1]
+    m.add("points", X, np.zeros((2, 32), np.uint8), pose, 0)  # both seen from -z
+    assert list(m.candidates("points", pose)) == [0, 1]
     # from 45 deg away: inside the cone; from the far side (180 deg): not searched
-    R45, t45 = _look_at(np.array([np.sqrt(2.0), 0.0, -np.sqrt(2.0)]))
-    assert list(m.candidates("points", R45, t45)) == [0, 1]
-    Rb, tb = _look_at(np.array([0.0, 0.0, 2.0]))
-    assert len(m.candidates("points", Rb, tb)) == 0
+    pose45 = _look_at(np.array([np.sqrt(2.0), 0.0, -np.sqrt(2.0)]))
+    assert list(m.candidates("points", pose45)) == [0, 1]
+    pose_b = _look_at(np.array([0.0, 0.0, 2.0]))
+    assert len(m.candidates("points", pose_b)) == 0
     # segments use their midpoints
-    m.add("lines", X[None], np.zeros((1, 32), np.uint8), R, t, 0)
-    assert list(m.candidates("lines", R, t)) == [0]
+    m.add("lines", X[None], np.zeros((1, 32), np.uint8), pose, 0)
+    assert list(m.candidates("lines", pose)) == [0]
     with pytest.raises(ValueError):
         LandmarkMap(max_view_deg=0.0)
 
 
 def test_refine_running_mean_and_culling():
     m = LandmarkMap(max_obs=4, cull_after=4, cull_ratio=0.5, keep_obs=3)
-    R, t = np.eye(3), np.array([0.0, 0.0, 2.0])
-    m.add("points", np.zeros((3, 3)), np.zeros((3, 32), np.uint8), R, t, 0)
+    pose = Pose(np.eye(3), np.array([0.0, 0.0, 2.0]))
+    m.add("points", np.zeros((3, 3)), np.zeros((3, 32), np.uint8), pose, 0)
     new_desc = np.full((1, 32), 7, np.uint8)
-    m.refine("points", [0], np.array([[0.3, 0.0, 0.0]]), new_desc, R, t, 5)
+    m.refine("points", [0], np.array([[0.3, 0.0, 0.0]]), new_desc, pose, 5)
     np.testing.assert_allclose(m.points.X[0], [0.15, 0.0, 0.0])  # mean of two observations
     assert m.points.n_obs[0] == 2 and m.points.last_seen[0] == 5
     assert (m.points.desc[0] == 7).all()
-    m.refine("points", [2, 2], None, np.zeros((2, 32), np.uint8), R, t, 6)  # X kept
+    m.refine("points", [2, 2], None, np.zeros((2, 32), np.uint8), pose, 6)  # X kept
     np.testing.assert_allclose(m.points.X[2], 0.0)
     assert m.points.n_obs[2] == 3
     # all three predicted visible 4 times, never found: landmark 2 (3 observations) is kept
@@ -116,19 +117,19 @@ def test_pairs_knn_equals_the_dense_allowed_matrix():
 
 def test_closed_form_rectified_triangulation_equals_the_rig():
     from jaxpose import PinholeCamera, StereoCamera
-    from jaxpose.pipelines.stereo import _triangulate_rectified
+    from jaxpose.pipelines.stereo.keyframes import triangulate_rectified
 
     cam = PinholeCamera(900.0, 900.0, 511.5, 383.5, width=1024, height=768)
     rig = StereoCamera.from_baseline(cam, 0.3)
     X = np.random.default_rng(4).uniform([-0.5, -0.4, 1.5], [0.5, 0.4, 3.5], (20, 3))
     left, right = (np.asarray(p) for p in rig.project(X))
-    np.testing.assert_allclose(_triangulate_rectified(rig, left, right), X, atol=1e-9)
+    np.testing.assert_allclose(triangulate_rectified(rig, left, right), X, atol=1e-9)
     np.testing.assert_allclose(
-        _triangulate_rectified(rig, left, right),
+        triangulate_rectified(rig, left, right),
         np.asarray(rig.triangulate(left, right)),
         atol=1e-9,
     )
-    bad = _triangulate_rectified(rig, left[:1], left[:1] + [1.0, 0.0])  # negative disparity
+    bad = triangulate_rectified(rig, left[:1], left[:1] + [1.0, 0.0])  # negative disparity
     assert np.isnan(bad).all()
 
 
@@ -138,12 +139,12 @@ def test_observe_lines_intersects_the_planes_and_moves_endpoints_across_the_line
     P0, u = np.array([0.1, -0.2, 0.3]), np.array([0.6, 0.3, -0.74])
     u /= np.linalg.norm(u)
     m = LandmarkMap()
-    R, t = _look_at(np.array([0.0, 0.0, -2.0]))
+    pose = _look_at(np.array([0.0, 0.0, -2.0]))
     # wrong initial endpoints: off the line by a perpendicular offset, at along-line 0.1 and 0.4
     off = np.cross(u, [0.0, 0.0, 1.0])
     off = 0.03 * off / np.linalg.norm(off)
     start = np.stack([P0 + 0.1 * u + off, P0 + 0.4 * u - off])
-    (i,) = m.add("lines", start[None], np.zeros((1, 32), np.uint8), R, t, 0)
+    (i,) = m.add("lines", start[None], np.zeros((1, 32), np.uint8), pose, 0)
     c0 = np.array([0.0, 0.0, -2.0])
     n0 = np.cross(P0 - c0, u)
     m.observe_lines([i], n0[None], [n0 @ c0])  # one plane: underdetermined, nothing moves

@@ -81,7 +81,7 @@ def test_tracker_follows_a_short_sequence(frames, use_lines):
         angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
         assert angle < 1.0
         assert np.linalg.norm(res.t - t) < 0.02
-        assert set(res.timings) == {"features", "stereo", "triangulate", "match", "pose", "ba"}
+        assert set(res.timings) == {"features", "stereo", "triangulate", "match", "pose"}
     if use_lines:
         assert res.n_lines > 0
 
@@ -112,7 +112,7 @@ def test_keypoint_budget_follows_the_target_area():
 
     def budget(depth, **kw):
         pose = Pose(np.eye(3), np.array([0.0, 0.0, depth]))
-        return StereoTracker(RIG, pose, options=TrackerOptions(**kw))._feature_options().n_points
+        return StereoTracker(RIG, pose, options=TrackerOptions(**kw)).feature_options().n_points
 
     # the target's apparent area goes as 1/depth^2: 2000 keypoints at 2 m, 2000 * 4/9 at 3 m
     assert budget(2.0) == 2000
@@ -169,28 +169,19 @@ def test_tracker_map_lies_on_the_target(frames):
     assert len(tracker.map.lines) > 0
 
 
-def test_tracker_with_windowed_bundle_adjustment(frames):
-    tracker = StereoTracker(RIG, frames[0].pose, options=TrackerOptions(ba_every=1, ba_window=4))
-    ran = False
-    for fr in frames:
-        res = tracker.process(fr.left, fr.right)
-        assert res.status == Status.OK
-        R = np.asarray(fr.pose.R)
-        angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
-        assert angle < 1.0
-        ran |= res.timings["ba"] > 0
-    assert ran and len(tracker._ba_frames) == 4
-
-
 def test_line_gate_uses_the_landmark_disparity_at_the_endpoint_rows():
     """The gate of the line-plane refinement: a segment triangulated at the landmark line agrees;
     one whose depth gives 1.5 px more disparity at an endpoint does not (disparity fx b / Z of the
     rig, computed here by hand)."""
-    tracker = StereoTracker(RIG, None)
+    from jaxpose.core.geometry import Pose
+    from jaxpose.pipelines.stereo import LandmarkMap
+    from jaxpose.pipelines.stereo.keyframes import line_disparity_agrees
+
+    landmarks = LandmarkMap()
     fx, b = float(RIG.left.fx), float(RIG.baseline)
-    T = np.eye(4)  # body = left camera
+    pose = Pose(np.eye(3), np.zeros(3))  # body = left camera
     line = np.array([[[-0.1, -0.2, 2.0], [0.05, 0.25, 2.3]]])
-    tracker.map.add("lines", line, np.zeros((1, 32), np.uint8), np.eye(3), np.zeros(3), 0)
+    landmarks.add("lines", line, np.zeros((1, 32), np.uint8), pose, 0)
     # a shorter segment on the same 3-D line: agrees
     s = 0.2
     same = np.stack([line[0, 0] + s * (line[0, 1] - line[0, 0]), line[0, 1]])[None]
@@ -203,9 +194,10 @@ def test_line_gate_uses_the_landmark_disparity_at_the_endpoint_rows():
     near = same.copy()
     near[0, 1] *= fx * b / (fx * b / Z + 0.5) / Z
     idx = np.zeros(1, int)
-    assert tracker._line_disparity_agrees(idx, same, T).tolist() == [True]
-    assert tracker._line_disparity_agrees(idx, near, T).tolist() == [True]
-    assert tracker._line_disparity_agrees(idx, off, T).tolist() == [False]
+    agrees = lambda S: line_disparity_agrees(landmarks, RIG, idx, S, pose, 1.0).tolist()  # noqa: E731
+    assert agrees(same) == [True]
+    assert agrees(near) == [True]
+    assert agrees(off) == [False]
 
 
 def test_measured_line_sigma_is_the_ratio_of_the_residual_scales():
@@ -216,12 +208,50 @@ def test_measured_line_sigma_is_the_ratio_of_the_residual_scales():
     e_p = np.linalg.norm(rng.normal(0.0, 0.8, (20000, 2)), axis=1)
     e_l = np.abs(rng.normal(0.0, 0.4, (20000, 2))).max(1)
     tracker = StereoTracker(RIG, None, options=TrackerOptions(line_scale_memory=0.0))
-    tracker._update_line_scale(e_p, e_l)
-    assert tracker._line_scale == pytest.approx(0.5, rel=0.03)
+    tracker.update_line_scale(e_p, e_l)
+    assert tracker.line_scale == pytest.approx(0.5, rel=0.03)
     slow = StereoTracker(RIG, None, options=TrackerOptions(line_scale_memory=0.9))
-    slow._update_line_scale(e_p, e_l)
-    assert slow._line_scale == pytest.approx(0.9 + 0.1 * 0.5, rel=0.01)
-    slow._update_line_scale(e_p, e_l[:2])  # too few lines: unchanged
-    assert slow._line_scale == pytest.approx(0.9 + 0.1 * 0.5, rel=0.01)
+    slow.update_line_scale(e_p, e_l)
+    assert slow.line_scale == pytest.approx(0.9 + 0.1 * 0.5, rel=0.01)
+    slow.update_line_scale(e_p, e_l[:2])  # too few lines: unchanged
+    assert slow.line_scale == pytest.approx(0.9 + 0.1 * 0.5, rel=0.01)
     with pytest.raises(ValueError, match="line_scale_memory"):
         StereoTracker(RIG, None, options=TrackerOptions(line_scale_memory=1.0))
+
+
+def test_an_all_nan_first_frame_is_a_status_and_the_map_starts_later(frames):
+    tracker = StereoTracker(RIG, frames[0].pose)
+    nan = np.full(frames[0].left.shape, np.nan)
+    res = tracker.process(nan, nan)
+    assert res.status == Status.TOO_FEW_POINTS
+    assert np.all(np.isnan(res.R)) and np.all(np.isnan(res.t))
+    assert len(tracker.map.points) == 0
+    res = tracker.process(frames[0].left, frames[0].right)
+    assert res.status == Status.OK and len(tracker.map.points) > 100
+    res = tracker.process(frames[1].left, frames[1].right)
+    assert res.status == Status.OK
+
+
+def test_identity_start_tracks_the_motion_relative_to_the_first_frame(frames):
+    """Started at the identity (target frame = first left camera frame), the pose at frame k is
+    T_k T_0^-1 of the true poses; stereo-track's summary aligns it back on the first frame."""
+    from jaxpose.core.geometry import Pose
+    from jaxpose.studies.stereo_track import summarize
+
+    tracker = StereoTracker(RIG, None)
+    results = [tracker.process(fr.left, fr.right) for fr in frames]
+    T0_inv = frames[0].pose.inverse()
+    for fr, res in zip(frames, results, strict=True):
+        assert res.status == Status.OK
+        rel = fr.pose @ T0_inv
+        R = np.asarray(rel.R)
+        angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
+        assert angle < 0.5
+        assert np.linalg.norm(res.t - np.asarray(rel.t)) < 0.02
+    np.testing.assert_allclose(results[0].R, np.eye(3))
+    rep = summarize(results, [fr.pose for fr in frames], [0.1] * len(frames))["summary"]
+    assert max(rep["rms_position_mm"]) < 20.0 and max(rep["rms_attitude_deg"]) < 0.5
+    # a wrong first truth moves every aligned estimate: the alignment is really applied
+    shifted = [Pose(np.asarray(frames[0].pose.R), np.asarray(frames[0].pose.t) + 0.1)]
+    rep2 = summarize(results, shifted + [fr.pose for fr in frames[1:]], [0.1] * len(frames))
+    assert max(rep2["summary"]["rms_position_mm"]) > 50.0

@@ -32,6 +32,7 @@ from jaxpose.core.dilution import dop_from_information as dop_from_information
 from jaxpose.core.dilution import information_blocks as information_blocks
 from jaxpose.core.dilution import observation_jacobian as observation_jacobian
 from jaxpose.core.geometry import Pose as Pose
+from jaxpose.core.line_dop import line_information_blocks as line_information_blocks
 from jaxpose.core.pnp import PnPOptions as PnPOptions
 from jaxpose.core.pnp import PnPResult as PnPResult
 from jaxpose.core.pnp import RansacOptions as RansacOptions
@@ -98,6 +99,7 @@ __all__ = sorted(
         "epnp",
         "geometry",
         "information_blocks",
+        "line_information_blocks",
         "observation_jacobian",
         "pose_covariance",
         "ransac_pnp",

@@ -17,31 +17,47 @@ import argparse
 import time
 from pathlib import Path
 
+from jaxpose.commands._common import (
+    CommandError,
+    add_out_argument,
+    add_progress_argument,
+    nonnegative_int,
+    positive_int,
+    progress,
+    stage,
+)
+
 __all__ = ["add_arguments", "run"]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_out_argument(parser, "demo", "report and figures")
     parser.add_argument(
-        "--out", default="jaxpose-demo", help="folder for figures (default ./jaxpose-demo)"
+        "--cases", type=positive_int, default=100, help="cases per group of the selection study"
     )
     parser.add_argument(
-        "--cases", type=int, default=100, help="cases per group of the selection study"
+        "--seed", type=nonnegative_int, default=0, help="seed of the selection and stereo sections"
     )
-    parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--stereo-frames",
-        type=int,
+        type=nonnegative_int,
         default=25,
-        help="frames of the stereo section (5 Hz; default 25; 0 skips it)",
+        help="frames of the stereo section at 5 Hz (0 skips it)",
     )
+    add_progress_argument(parser)
 
 
-def _selection(out: Path, cases: int, seed: int) -> list[str]:
+def _selection(out: Path, cases: int, seed: int, show: bool) -> list[str]:
     from jaxpose.studies.selection import Scenario, run_study, write_outputs
 
     t0 = time.perf_counter()
     result = run_study(
-        Scenario(), [(12, 8), (14, 8), (16, 8)], cases=cases, seed=seed, progress=False
+        Scenario(),
+        [(12, 8), (14, 8), (16, 8)],
+        cases=cases,
+        seed=seed,
+        progress=show,
+        progress_desc="demo 1/3: selection study",
     )
     paths = write_outputs(result, out / "selection")
     lines = [
@@ -66,11 +82,13 @@ def _selection(out: Path, cases: int, seed: int) -> list[str]:
     return lines
 
 
-def _monocular(out: Path) -> list[str]:
+def _monocular(out: Path, show: bool) -> list[str]:
     from jaxpose.pipelines.monocular import demo_report
 
     t0 = time.perf_counter()
-    r = demo_report(out / "monocular")
+    # One pipeline call: minutes of compilation the first time, seconds from the cache after.
+    with stage("demo 2/3: monocular initialisation", enabled=show):
+        r = demo_report(out / "monocular")
     lines = ["2. Monocular pose initialisation (Sharma et al. 2018) on a rendered Tango image"]
     lines.append(
         f"   confidence: {r['confidence']}, reprojection error: "
@@ -94,7 +112,7 @@ def _monocular(out: Path) -> list[str]:
     return lines
 
 
-def _stereo(out: Path, frames: int, seed: int) -> list[str]:
+def _stereo(out: Path, frames: int, seed: int, show: bool) -> list[str]:
     from jaxpose.pipelines.stereo import TrackerOptions
     from jaxpose.studies.stereo_track import summarize, track_sequence, write_outputs
     from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
@@ -102,9 +120,12 @@ def _stereo(out: Path, frames: int, seed: int) -> list[str]:
     t0 = time.perf_counter()
     scene = StereoScene(frames=frames, seed=seed)
     rig = default_rig(1024, 768)
-    results, truths, seconds = track_sequence(
-        render_sequence(scene, rig), rig, options=TrackerOptions(use_lines=True)
-    )
+    with progress(
+        total=frames, desc="demo 3/3: stereo tracking", unit="frame", enabled=show
+    ) as bar:
+        results, truths, seconds = track_sequence(
+            render_sequence(scene, rig), rig, options=TrackerOptions(use_lines=True), progress=bar
+        )
     report = summarize(results, truths, seconds)
     folder = out / "stereo"
     write_outputs(report, folder, 1.0 / scene.frame_rate_hz, "points+lines")
@@ -126,15 +147,16 @@ def _stereo(out: Path, frames: int, seed: int) -> list[str]:
 
 
 def run(args) -> int:
-    if args.stereo_frames < 0 or args.stereo_frames == 1:  # before a minute of other sections
-        raise ValueError(f"--stereo-frames must be 0 or at least 2; got {args.stereo_frames}")
+    if args.stereo_frames == 1:  # before a minute of other sections
+        raise CommandError(f"--stereo-frames must be 0 or at least 2; got {args.stereo_frames}")
+    show = not args.no_progress
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     report = ["jaxpose demo", ""]
-    report += _selection(out, args.cases, args.seed)
-    report += [""] + _monocular(out)
+    report += _selection(out, args.cases, args.seed, show)
+    report += [""] + _monocular(out, show)
     if args.stereo_frames:
-        report += [""] + _stereo(out, args.stereo_frames, args.seed)
+        report += [""] + _stereo(out, args.stereo_frames, args.seed, show)
     text = "\n".join(report)
     (out / "report.txt").write_text(text + "\n")
     print(text)

@@ -1,4 +1,4 @@
-"""``jaxpose pose-study``: predicted pose covariance against Monte Carlo scatter.
+"""Predicted pose covariance against Monte Carlo scatter (run by ``jaxpose pose-study``).
 
 For each geometry (a point set seen from a fixed pose by a fixed camera) and each pixel noise
 level ``sigma``, the study
@@ -6,27 +6,26 @@ level ``sigma``, the study
 1. predicts the pose covariance ``sigma^2 (H^T H)^-1`` at the true pose with
    :func:`jaxpose.core.refine.pose_covariance` (the DOP module's tangent Jacobian);
 2. draws ``trials`` noisy images (independent Gaussian noise of ``sigma`` pixels per axis), refines
-   every one with :func:`jaxpose.core.refine.refine_pose` (LM, one ``jit(vmap(...))`` call per group)
-   from an initial guess (the true pose perturbed by ``--init-perturbation``, or EPnP with
+   every one with :func:`jaxpose.core.refine.refine_pose` (LM, one ``jit(vmap(...))`` call per
+   group) from an initial guess (the true pose perturbed by ``--init-perturbation``, or EPnP with
    ``--init epnp``);
 3. compares the per-axis standard deviations of the refined poses' errors, in the covariance's
    coordinates (``dt = t_est - t_true`` in metres, ``dw = log(R_est R_true^T)`` in radians, both in
    the camera frame), with the predicted ones, and reports the mean NEES
    ``e^T Sigma^-1 e`` (6 for a consistent covariance).
 
-The check of the issue: at 0.5 px every axis of every geometry has ``|std_emp / std_pred - 1| <=
+The check: at 0.5 px every axis of every geometry has ``|std_emp / std_pred - 1| <=
 0.10`` (with 1000 trials the std estimate itself has a relative standard error of about 2.2%).
 
-Outputs in ``--out``: ``results.json`` (``{"scenario", "groups": [...], "check"}``),
-``std_vs_noise.png`` (predicted lines and empirical markers per axis, per geometry) and
-``scatter.png`` (refined poses at the check noise with the predicted 1, 2, 3-sigma ellipses).
+:func:`run_study` runs every group; the command writes to ``--out``: ``results.json``
+(``{"scenario", "groups": [...], "check"}``), ``std_vs_noise.png`` (predicted lines and
+empirical markers per axis, per geometry) and ``scatter.png`` (refined poses at the check noise
+with the predicted 1, 2, 3-sigma ellipses).
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import json
 import math
 import time
 from pathlib import Path
@@ -40,7 +39,7 @@ from jaxpose.core.geometry import Pose, euler_to_dcm, so3_exp, so3_log
 from jaxpose.core.refine import pose_covariance, refine_pose
 from jaxpose.core.status import Status
 
-__all__ = ["GEOMETRIES", "Geometry", "add_arguments", "make_geometry", "run", "run_group"]
+__all__ = ["GEOMETRIES", "Geometry", "make_geometry", "run_group", "run_study", "write_figures"]
 
 AXES = ("tx", "ty", "tz", "wx", "wy", "wz")
 
@@ -148,10 +147,16 @@ def run_group(
     init: str = "perturbed",
     perturbation: tuple[float, float] = (2.0, 0.02),
 ) -> dict:
-    """One (geometry, noise) group; returns its summary and the raw errors ``(trials, 6)``."""
+    """One (geometry, noise) group; returns its summary and the raw errors ``(trials, 6)``.
+
+    ``sigma`` is the pixel noise (a positive finite number), ``perturbation`` the rms rotation
+    (deg) and translation (fraction of the range) of the initial guesses."""
+    sigma = _check_positive(sigma, "sigma")
+    if not (isinstance(trials, int) and trials >= 2):
+        raise ValueError(f"trials must be an integer >= 2; got {trials!r}")
     P, pose, camera = make_geometry(geometry)
     n = P.shape[0]
-    key = jax.random.fold_in(jax.random.PRNGKey(seed), int(round(sigma * 1e6)))
+    key = jax.random.fold_in(jax.random.PRNGKey(seed), int(round(sigma * 1e6)) % 2**32)
     key = jax.random.fold_in(key, geometry.seed)
     k_noise, k_init = jax.random.split(key)
     clean = camera.project(pose.apply(P))
@@ -192,177 +197,93 @@ def run_group(
     return {"summary": summary, "errors": err, "covariance": cov}
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("out/pose-study"), help="output folder")
-    parser.add_argument("--trials", type=int, default=1000, help="Monte Carlo trials per group")
-    parser.add_argument(
-        "--noise", type=float, nargs="+", default=[0.1, 0.5, 1.0, 2.0], help="pixel noise levels"
-    )
-    parser.add_argument(
-        "--geometries",
-        nargs="+",
-        default=list(GEOMETRIES),
-        choices=list(GEOMETRIES),
-        help="geometries to run",
-    )
-    parser.add_argument(
-        "--init",
-        choices=["perturbed", "epnp"],
-        default="perturbed",
-        help="initial guess: the true pose perturbed, or EPnP on each noisy image",
-    )
-    parser.add_argument(
-        "--init-perturbation",
-        type=float,
-        nargs=2,
-        default=[2.0, 0.02],
-        metavar=("DEG", "FRACTION"),
-        help="rms rotation (deg) and translation (fraction of range) of the perturbation",
-    )
-    parser.add_argument(
-        "--check-noise",
-        type=float,
-        default=0.5,
-        help="noise level (px) of the 10%% agreement check",
-    )
-    parser.add_argument(
-        "--tolerance",
-        type=float,
-        default=0.10,
-        help="allowed |std_emp / std_pred - 1| per axis at --check-noise",
-    )
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+def _check_positive(value, name: str) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number; got {value!r}")
+    return value
 
 
-def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
+def run_study(
+    geometries: list[str] | None = None,
+    noise: list[float] = (0.1, 0.5, 1.0, 2.0),
+    trials: int = 1000,
+    *,
+    seed: int = 0,
+    init: str = "perturbed",
+    perturbation: tuple[float, float] = (2.0, 0.02),
+    check_noise: float = 0.5,
+    tolerance: float = 0.10,
+    progress: bool = True,
+) -> tuple[dict, dict]:
+    """Every (geometry, noise) group; returns ``(results, raw)``: what ``results.json`` holds and
+    the per-group output of :func:`run_group` keyed by ``(geometry name, noise)``.
 
-    if args.trials < 2:
-        raise ValueError(f"--trials must be at least 2; got {args.trials}")
-    if any(s <= 0 for s in args.noise):
-        raise ValueError(f"--noise levels must be positive; got {args.noise}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    noise = sorted(set(args.noise) | {args.check_noise})
+    Raises ``ValueError`` naming the argument (and its ``--option``) for an unknown geometry,
+    fewer than 2 trials, a noise level, ``check_noise`` or ``tolerance`` that is not a positive
+    finite number, or a perturbation that is not finite and non-negative.
+    """
+    from jaxpose.commands._common import progress as progress_bar
+
+    geometries = list(GEOMETRIES) if geometries is None else list(geometries)
+    unknown = [g for g in geometries if g not in GEOMETRIES]
+    if unknown or not geometries:
+        raise ValueError(
+            f"geometries (--geometries) must be among {list(GEOMETRIES)}; got {unknown}"
+        )
+    if not (isinstance(trials, int) and trials >= 2):
+        raise ValueError(f"trials (--trials) must be an integer >= 2; got {trials!r}")
+    noise = [_check_positive(s, "noise levels (--noise)") for s in noise]
+    check_noise = _check_positive(check_noise, "check_noise (--check-noise)")
+    tolerance = _check_positive(tolerance, "tolerance (--tolerance)")
+    perturbation = tuple(float(x) for x in perturbation)
+    if len(perturbation) != 2 or not all(math.isfinite(x) and x >= 0 for x in perturbation):
+        raise ValueError(
+            "perturbation (--init-perturbation) must be two finite numbers >= 0 (deg, fraction "
+            f"of range); got {perturbation!r}"
+        )
+    levels = sorted(set(noise) | {check_noise})
     groups, raw = [], {}
-    jobs = [(g, s) for g in args.geometries for s in noise]
-    for name, sigma in tqdm(jobs, desc="pose-study", unit="group"):
+    jobs = [(g, s) for g in geometries for s in levels]
+    for name, sigma in progress_bar(jobs, desc="pose-study", unit="group", enabled=progress):
         r = run_group(
-            GEOMETRIES[name],
-            sigma,
-            args.trials,
-            seed=args.seed,
-            init=args.init,
-            perturbation=tuple(args.init_perturbation),
+            GEOMETRIES[name], sigma, trials, seed=seed, init=init, perturbation=perturbation
         )
         groups.append(r["summary"])
         raw[(name, sigma)] = r
-    checked = [g for g in groups if g["noise_px"] == args.check_noise]
-    worst = max(abs(x - 1.0) for g in checked for x in g["ratio"])
+    checked = [g for g in groups if g["noise_px"] == check_noise]
+    ratios = [x for g in checked for x in g["ratio"]]
+    worst = max(abs(x - 1.0) for x in ratios) if ratios and np.all(np.isfinite(ratios)) else None
     results = {
         "scenario": {
-            "geometries": [dataclasses.asdict(GEOMETRIES[n]) for n in args.geometries],
-            "noise_px": noise,
-            "trials": args.trials,
-            "init": args.init,
-            "init_perturbation": list(args.init_perturbation),
-            "seed": args.seed,
+            "geometries": [dataclasses.asdict(GEOMETRIES[n]) for n in geometries],
+            "noise_px": levels,
+            "trials": trials,
+            "init": init,
+            "init_perturbation": list(perturbation),
+            "seed": seed,
             "axes": list(AXES),
             "units": {"t": "m", "w": "rad"},
             "coordinates": "dt = t_est - t_true (camera frame); dw = log(R_est R_true^T)",
-            "solver": "refine_pose(method='lm', backend='native'), sigma-weighted",
+            "solver": "refine_pose (Levenberg-Marquardt), sigma-weighted",
         },
         "groups": groups,
         "check": {
-            "noise_px": args.check_noise,
-            "tolerance": args.tolerance,
+            "noise_px": check_noise,
+            "tolerance": tolerance,
             "max_abs_ratio_minus_1": worst,
-            "passed": bool(worst <= args.tolerance),
+            "passed": bool(worst is not None and worst <= tolerance),
         },
     }
-    (out / "results.json").write_text(json.dumps(results, indent=2))
-    if not args.no_plots:
-        _plot_std(out / "std_vs_noise.png", groups, args.geometries)
-        _plot_scatter(out / "scatter.png", raw, args.geometries, args.check_noise)
-    print(f"{'geometry':<16} {'noise':>6} " + " ".join(f"{a:>7}" for a in AXES) + "   NEES")
-    for g in groups:
-        print(
-            f"{g['geometry']:<16} {g['noise_px']:>6.2f} "
-            + " ".join(f"{x:>7.3f}" for x in g["ratio"])
-            + f" {g['nees_mean']:>6.2f}"
-        )
-    verdict = "PASS" if results["check"]["passed"] else "FAIL"
-    print(
-        f"std_emp / std_pred at {args.check_noise} px: worst |ratio - 1| = {worst:.3f} "
-        f"(tolerance {args.tolerance}) {verdict}; results in {out}"
-    )
-    print(json.dumps(results["check"]))
-    return 0
+    return results, raw
 
 
-def _plot_std(path: Path, groups: list[dict], names: list[str]) -> None:
-    import matplotlib
+def write_figures(out: Path, results: dict, raw: dict) -> list[Path]:
+    """``std_vs_noise.png`` and ``scatter.png`` in ``out``; returns their paths."""
+    from jaxpose.studies._pose_figures import plot_scatter, plot_std
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(len(names), 2, figsize=(10, 3.2 * len(names)), squeeze=False)
-    colors = ["C0", "C1", "C2"]
-    for row, name in enumerate(names):
-        gs = sorted((g for g in groups if g["geometry"] == name), key=lambda g: g["noise_px"])
-        s = np.array([g["noise_px"] for g in gs])
-        pred = np.array([g["pred_std"] for g in gs])
-        emp = np.array([g["emp_std"] for g in gs])
-        for col, (sl, scale, unit) in enumerate(
-            [(slice(0, 3), 1e3, "mm"), (slice(3, 6), 180 / np.pi, "deg")]
-        ):
-            ax = axes[row, col]
-            for k, i in enumerate(range(sl.start, sl.stop)):
-                ax.plot(s, pred[:, i] * scale, "-", color=colors[k], label=f"{AXES[i]} predicted")
-                ax.plot(s, emp[:, i] * scale, "o", color=colors[k], label=f"{AXES[i]} Monte Carlo")
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-            ax.set_xlabel("pixel noise sigma (px)")
-            ax.set_ylabel(f"std ({unit})")
-            ax.set_title(f"{name}: {'position' if col == 0 else 'attitude'}")
-            ax.grid(True, which="both", alpha=0.3)
-            ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _ellipse(cov2, k):
-    vals, vecs = np.linalg.eigh(cov2)
-    a = np.linspace(0, 2 * np.pi, 100)
-    circle = np.stack([np.cos(a), np.sin(a)])
-    return (vecs @ (np.sqrt(np.maximum(vals, 0))[:, None] * circle)) * k
-
-
-def _plot_scatter(path: Path, raw: dict, names: list[str], sigma: float) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    pairs = [((0, 2), 1e3, "mm"), ((3, 4), 180 / np.pi, "deg")]
-    fig, axes = plt.subplots(len(names), 2, figsize=(9, 4 * len(names)), squeeze=False)
-    for row, name in enumerate(names):
-        r = raw[(name, sigma)]
-        for col, ((i, j), scale, unit) in enumerate(pairs):
-            ax = axes[row, col]
-            e = r["errors"][:, [i, j]] * scale
-            ax.plot(e[:, 0], e[:, 1], ".", ms=2, alpha=0.5, label="refined poses")
-            c2 = r["covariance"][np.ix_([i, j], [i, j])] * scale**2
-            for k in (1, 2, 3):
-                x, y = _ellipse(c2, k)
-                ax.plot(x, y, "k-", lw=0.8, label="predicted 1-2-3 sigma" if k == 1 else None)
-            ax.set_xlabel(f"{AXES[i]} ({unit})")
-            ax.set_ylabel(f"{AXES[j]} ({unit})")
-            ax.set_title(f"{name}, {sigma} px")
-            ax.axis("equal")
-            ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    names = [g["name"] for g in results["scenario"]["geometries"]]
+    paths = [out / "std_vs_noise.png", out / "scatter.png"]
+    plot_std(paths[0], results["groups"], names)
+    plot_scatter(paths[1], raw, names, results["check"]["noise_px"])
+    return paths

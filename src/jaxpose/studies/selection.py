@@ -24,8 +24,8 @@ The default scenario (Table 3 of the paper is lost) is documented in :class:`Sce
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -40,12 +40,18 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.dilution import dop_from_information, information_blocks
 from jaxpose.core.geometry import Pose
+from jaxpose.studies import _selection_figures as _figures
+from jaxpose.studies._selection_figures import format_report
 
 __all__ = [
     "PAPER_GROUPS",
     "Scenario",
     "StudyResult",
+    "ResumeWarning",
+    "MAX_SUBSETS_PER_CASE",
+    "check_group",
     "default_groups",
+    "format_report",
     "make_cases",
     "run_study",
 ]
@@ -53,6 +59,29 @@ __all__ = [
 TABLE4_GROUPS = [(12, 8), (14, 8), (16, 8), (18, 8)]
 TABLE56_GROUPS = [(18, m) for m in range(4, 18)]
 PAPER_GROUPS = sorted(set(TABLE4_GROUPS + TABLE56_GROUPS))
+
+
+_POSITIVE_FIELDS = {
+    "focal_length_m": "--focal-length-mm",
+    "pixel_size_m": "--pixel-size-um",
+    "range_m": "--range-m",
+    "plane_size_m": "--plane-size-m",
+    "sigma_px": "sigma_px",
+}
+_FINITE_FIELDS = [
+    ("offset_x_m", "--offset-m", 1),
+    ("offset_y_m", "--offset-m", 1),
+    ("attitude_deg", "--attitude-deg", 3),
+    ("plane_centre_m", "--plane-centre-m", 2),
+]
+
+MAX_SUBSETS_PER_CASE = 10_000_000
+"""The largest ``C(n, m)`` the study searches exhaustively per case (``C(25, 12)`` is below it,
+``C(26, 13)`` above). The exhaustive kernel scores 1-2 x 10^7 subsets per CPU-second (measured at
+``n = 18, m = 9`` over 250 cases and ``n = 22, m = 11`` over 8), so a case at the limit costs
+about half a CPU-second and 1000 such cases some ten CPU-minutes; beyond it,
+:func:`jaxpose.core.select.branch_and_bound` finds the same optimum of one problem without
+visiting every subset."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,6 +113,31 @@ class Scenario:
     sequence: str = "XYZ"
     parameterization: str = "euler"
     sigma_px: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name, option in _POSITIVE_FIELDS.items():
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(
+                    f"Scenario.{name} ({option}) must be a positive finite number; got {value!r}"
+                )
+        for name, option, size in _FINITE_FIELDS:
+            value = getattr(self, name)
+            values = np.asarray(value, dtype=float).reshape(-1)
+            if values.size != size or not np.all(np.isfinite(values)):
+                raise ValueError(
+                    f"Scenario.{name} ({option}) must be {size} finite number(s); got {value!r}"
+                )
+        size = tuple(self.image_size)
+        if len(size) != 2 or not all(isinstance(v, int | np.integer) and v >= 1 for v in size):
+            raise ValueError(
+                f"Scenario.image_size (--image-size) must be two integers >= 1; got {size!r}"
+            )
+        if self.parameterization not in ("euler", "tangent"):
+            raise ValueError(
+                "Scenario.parameterization must be 'euler' or 'tangent'; "
+                f"got {self.parameterization!r}"
+            )
 
     def camera(self) -> PinholeCamera:
         return PinholeCamera.from_focal_length(
@@ -121,10 +175,10 @@ def _translation(scenario: Scenario) -> np.ndarray:
     return np.array([scenario.offset_x_m, scenario.offset_y_m, scenario.range_m])
 
 
-def _kernels(scenario: Scenario, m: int):
-    """Jitted per-chunk functions: blocks, quasi selection, exhaustive optima, DOP of subsets."""
-    from jaxpose.core import select as sel
-
+@functools.lru_cache(maxsize=8)
+def _prepare_kernel(scenario: Scenario):
+    """Jitted ``(points (C, n, 3), angles (C, 3)) -> (blocks, points_cam, pdop_all, adop_all)``;
+    one function per scenario, traced once per point count."""
     camera = scenario.camera()
     t = jnp.asarray(_translation(scenario))
 
@@ -146,35 +200,76 @@ def _kernels(scenario: Scenario, m: int):
         all_dop = jax.vmap(dop_from_information)(jnp.sum(blocks, axis=1))
         return blocks, points_cam, all_dop.pdop, all_dop.adop
 
-    @jax.jit
-    def quasi(points_cam):
-        return jax.vmap(lambda p: sel.quasi_optimal(p, m))(points_cam)
+    return prepare
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _quasi_kernel(points_cam, m: int):
+    from jaxpose.core import select as sel
+
+    return jax.vmap(lambda p: sel.quasi_optimal(p, m))(points_cam)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _exhaustive_kernel(blocks, m: int):
+    from jaxpose.core import select as sel
 
     # A bad case gets a status (counted in results.json as failed_cases), not an exception.
-    exhaustive = jax.jit(lambda blocks: sel.exhaustive_batch(blocks, m, throw=False))
+    return sel.exhaustive_batch(blocks, m, throw=False)
 
-    @jax.jit
-    def subset(blocks, idx):
-        return jax.vmap(sel.subset_dop)(blocks, idx)
 
-    compiled: dict = {}  # AOT executables per input shape: compiled once, outside the timings
-    return prepare, quasi, exhaustive, subset, compiled
+@jax.jit
+def _subset_kernel(blocks, idx):
+    from jaxpose.core import select as sel
+
+    return jax.vmap(sel.subset_dop)(blocks, idx)
 
 
 def _shard(x, sharding):
     return jax.device_put(x, sharding) if sharding is not None else x
 
 
-def _run_chunk(kernels, points, angles, sharding):
+def _behind_camera(z_min: float) -> ValueError:
+    return ValueError(
+        f"the scenario puts feature points behind the camera (z = {z_min:.3g} m): increase "
+        "range_m (--range-m) or decrease plane_size_m (--plane-size-m), "
+        "plane_centre_m (--plane-centre-m) or attitude_deg (--attitude-deg)"
+    )
+
+
+def _check_in_front(scenario: Scenario) -> None:
+    """Refuse before any work a fixed attitude that puts a corner of the feature square (the
+    square's deepest and shallowest points are corners) at or behind the camera's z = 0."""
+    if scenario.random_attitude:  # checked per chunk on the drawn attitudes
+        return
+    half = scenario.plane_size_m / 2.0
+    cx, cy = scenario.plane_centre_m
+    corners = np.array([[cx + a, cy + b, 0.0] for a in (-half, half) for b in (-half, half)])
+    pose = Pose.from_euler(
+        jnp.deg2rad(jnp.asarray(scenario.attitude_deg, dtype=float)),
+        jnp.asarray(_translation(scenario)),
+        scenario.sequence,
+    )
+    z_min = float(np.min(np.asarray(pose.apply(jnp.asarray(corners)))[:, 2]))
+    if not z_min > 0:
+        raise _behind_camera(z_min)
+
+
+def _run_chunk(scenario: Scenario, m: int, points, angles, sharding, compiled: dict):
     """One chunk: returns per-case arrays and the run times of the two selection methods."""
-    prepare, quasi, exhaustive, subset, compiled = kernels
     points, angles = _shard(points, sharding), _shard(angles, sharding)
-    blocks, points_cam, pdop_all, adop_all = prepare(points, angles)
+    blocks, points_cam, pdop_all, adop_all = _prepare_kernel(scenario)(points, angles)
     jax.block_until_ready(blocks)
+    z_min = float(jnp.min(points_cam[..., 2]))
+    if not z_min > 0:
+        raise _behind_camera(z_min)
     # Compile outside the timed region (AOT, once per shape), then time each method.
-    key = blocks.shape
+    key = (blocks.shape, m)
     if key not in compiled:
-        compiled[key] = (quasi.lower(points_cam).compile(), exhaustive.lower(blocks).compile())
+        compiled[key] = (
+            _quasi_kernel.lower(points_cam, m).compile(),
+            _exhaustive_kernel.lower(blocks, m).compile(),
+        )
     q_fn, e_fn = compiled[key]
     # The quasi-optimal call takes microseconds, so dispatch noise dominates one timing: best of 5.
     t_quasi = np.inf
@@ -185,7 +280,7 @@ def _run_chunk(kernels, points, angles, sharding):
     t1 = time.perf_counter()
     opt = jax.block_until_ready(e_fn(blocks))
     t_opt = time.perf_counter() - t1
-    pdop_q, adop_q = subset(blocks, q_idx)
+    pdop_q, adop_q = _subset_kernel(blocks, q_idx)
     out = {
         "points_body": points,
         "quasi_idx": q_idx,
@@ -212,6 +307,21 @@ class StudyResult:
     cases: dict[tuple[int, int], dict[str, np.ndarray]]
 
 
+def check_group(n: int, m: int) -> None:
+    """Refuse a group the study cannot run: ``4 <= m <= n`` and at most
+    :data:`MAX_SUBSETS_PER_CASE` subsets per case."""
+    if not (isinstance(n, int | np.integer) and isinstance(m, int | np.integer) and 4 <= m <= n):
+        raise ValueError(f"each group needs 4 <= m <= n (--n, --m); got (n, m) = ({n}, {m})")
+    count = math.comb(n, m)
+    if count > MAX_SUBSETS_PER_CASE:
+        raise ValueError(
+            f"(n, m) = ({n}, {m}) has C({n}, {m}) = {count:.3g} subsets per case, above the "
+            f"study's exhaustive limit of {MAX_SUBSETS_PER_CASE:.0e}; lower --n or move --m "
+            "away from n / 2 (jaxpose.core.select.branch_and_bound finds the optimum of one "
+            "large problem without visiting every subset)"
+        )
+
+
 def default_groups(n: list[int] | None, m: list[int] | None) -> list[tuple[int, int]]:
     """Groups to run: the paper's (Table 4 and Tables 5-6) unless ``n``/``m`` are given."""
     if n is None and m is None:
@@ -221,8 +331,38 @@ def default_groups(n: list[int] | None, m: list[int] | None) -> list[tuple[int, 
     groups = [(a, b) for a in ns for b in ms]
     bad = [(a, b) for a, b in groups if b < 4 or b > a]
     if bad:
-        raise ValueError(f"each group needs 4 <= m <= n; got (n, m) = {bad}")
+        raise ValueError(f"each group needs 4 <= m <= n (--n, --m); got (n, m) = {bad}")
+    for a, b in groups:
+        check_group(a, b)
     return groups
+
+
+class ResumeWarning(UserWarning):
+    """A chunk file of an earlier run could not be read and is recomputed."""
+
+
+def _load_chunk(path: Path, fingerprint: str) -> tuple[dict, float, float] | None:
+    """The saved chunk at ``path`` if it belongs to this scenario and seed, else ``None``; an
+    unreadable (truncated, corrupt) file is reported with a :class:`ResumeWarning`."""
+    import warnings
+    import zipfile
+
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path) as z:
+            if str(z["fingerprint"]) != fingerprint:
+                return None
+            part = {k: z[k] for k in z.files if k not in ("fingerprint", "times")}
+            t_quasi, t_opt = (float(x) for x in z["times"][:2])
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
+        warnings.warn(
+            f"chunk file {path} is unreadable ({type(err).__name__}: {err}); recomputing it",
+            ResumeWarning,
+            stacklevel=3,
+        )
+        return None
+    return part, t_quasi, t_opt
 
 
 def _device_sharding():
@@ -242,6 +382,7 @@ def run_study(
     chunk_size: int = 250,
     out_dir: str | Path | None = None,
     progress: bool = True,
+    progress_desc: str = "select-study",
 ) -> StudyResult:
     """Run the selection study; resumable when ``out_dir`` is given.
 
@@ -252,20 +393,23 @@ def run_study(
         seed: master seed.
         chunk_size: cases per chunk (the unit of resumption and of device sharding).
         out_dir: where chunks are kept (``out_dir/chunks``); ``None`` keeps nothing on disk.
-        progress: show a tqdm progress bar.
+        progress: show a progress bar (tqdm, on stderr).
+        progress_desc: the bar's label.
     """
-    from tqdm.auto import tqdm
+    from jaxpose.commands._common import progress as progress_bar
 
     if not jax.config.jax_enable_x64:
         raise ValueError(
             "the selection study needs float64: jax.config.update('jax_enable_x64', True)"
         )
     groups = list(groups or PAPER_GROUPS)
-    if cases < 1:
-        raise ValueError(f"cases must be >= 1; got {cases}")
+    if not (isinstance(cases, int | np.integer) and cases >= 1):
+        raise ValueError(f"cases (--cases) must be an integer >= 1; got {cases!r}")
+    if not (isinstance(chunk_size, int | np.integer) and chunk_size >= 1):
+        raise ValueError(f"chunk_size (--chunk-size) must be an integer >= 1; got {chunk_size!r}")
     for n, m in groups:
-        if not 4 <= m <= n:
-            raise ValueError(f"each group needs 4 <= m <= n; got (n, m) = ({n}, {m})")
+        check_group(n, m)
+    _check_in_front(scenario)
     sharding, ndev = _device_sharding()
     chunk_size = max(ndev, int(math.ceil(min(chunk_size, cases) / ndev)) * ndev)
     fp = scenario.fingerprint(seed)
@@ -274,82 +418,93 @@ def run_study(
         chunk_dir.mkdir(parents=True, exist_ok=True)
 
     starts = list(range(0, cases, chunk_size))
-    bar = tqdm(
-        total=len(groups) * len(starts), desc="select-study", unit="chunk", disable=not progress
+    bar = progress_bar(
+        total=len(groups) * len(starts), desc=progress_desc, unit="chunk", enabled=progress
     )
     per_group: dict[tuple[int, int], dict[str, np.ndarray]] = {}
     timings: dict[tuple[int, int], list[float]] = {}
-    kernel_cache: dict[int, tuple] = {}
-    for n, m in groups:
-        parts, t_quasi, t_opt = [], 0.0, 0.0
-        for start in starts:
-            stop = min(start + chunk_size, cases)
-            path = chunk_dir / f"n{n}_m{m}_c{start:06d}_{stop:06d}.npz" if chunk_dir else None
-            if path is not None and path.is_file():
-                with np.load(path) as z:
-                    if str(z["fingerprint"]) == fp:
-                        parts.append(
-                            {k: z[k] for k in z.files if k not in ("fingerprint", "times")}
-                        )
-                        t_quasi += float(z["times"][0])
-                        t_opt += float(z["times"][1])
-                        bar.update(1)
-                        continue
-            if m not in kernel_cache:
-                kernel_cache[m] = _kernels(scenario, m)
-            idx = list(range(start, stop))
-            padded = idx + [idx[-1]] * (chunk_size - len(idx))  # equal chunk shape: one compile
-            points, angles = make_cases(scenario, n, padded, seed)
-            out, tq, te = _run_chunk(kernel_cache[m], points, angles, sharding)
-            out = {k: v[: len(idx)] for k, v in out.items()}
-            frac = len(idx) / chunk_size
-            tq, te = tq * frac, te * frac
-            if path is not None:
-                tmp = path.with_suffix(".tmp.npz")
-                np.savez(tmp, fingerprint=fp, times=np.array([tq, te]), **out)
-                tmp.replace(path)
-            parts.append(out)
-            t_quasi += tq
-            t_opt += te
-            bar.update(1)
+    compiled: dict = {}
+    try:
+        for n, m in groups:
+            parts, t_quasi, t_opt = [], 0.0, 0.0
             bar.set_postfix(n=n, m=m)
-        per_group[(n, m)] = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        timings[(n, m)] = [t_quasi / cases, t_opt / cases]
-    bar.close()
+            for start in starts:
+                stop = min(start + chunk_size, cases)
+                path = chunk_dir / f"n{n}_m{m}_c{start:06d}_{stop:06d}.npz" if chunk_dir else None
+                saved = _load_chunk(path, fp) if path is not None else None
+                if saved is not None:
+                    parts.append(saved[0])
+                    t_quasi += saved[1]
+                    t_opt += saved[2]
+                    bar.update(1)
+                    continue
+                idx = list(range(start, stop))
+                padded = idx + [idx[-1]] * (chunk_size - len(idx))  # equal chunk shape: one compile
+                points, angles = make_cases(scenario, n, padded, seed)
+                out, tq, te = _run_chunk(scenario, m, points, angles, sharding, compiled)
+                out = {k: v[: len(idx)] for k, v in out.items()}
+                frac = len(idx) / chunk_size
+                tq, te = tq * frac, te * frac
+                if path is not None:
+                    tmp = path.with_suffix(".tmp.npz")
+                    np.savez(tmp, fingerprint=fp, times=np.array([tq, te]), **out)
+                    tmp.replace(path)
+                parts.append(out)
+                t_quasi += tq
+                t_opt += te
+                bar.update(1)
+            per_group[(n, m)] = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+            timings[(n, m)] = [t_quasi / cases, t_opt / cases]
+    finally:
+        bar.close()
     results = _summarise(scenario, seed, per_group, timings, ndev)
     return StudyResult(results, per_group)
 
 
-def _stats(x):
+def _finite(x) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _stats(x) -> dict:
     x = np.asarray(x, dtype=float)
-    return {"mean": float(np.mean(x)), "max": float(np.max(x))}
+    if x.size == 0:
+        return {"mean": None, "max": None}
+    return {"mean": _finite(np.mean(x)), "max": _finite(np.max(x))}
+
+
+def _mean(x) -> float | None:
+    return _finite(np.mean(x)) if np.size(x) else None
 
 
 def _summarise(scenario, seed, per_group, timings, ndev) -> dict:
+    """``results.json``: per group the statistics over the cases whose status is OK (the others
+    are counted in ``failed_cases``); ``null`` where no case succeeded, never NaN."""
     groups = []
     for (n, m), g in per_group.items():
+        ok = g["status"] == 0
         groups.append(
             {
                 "n": n,
                 "m": m,
                 "cases": int(len(g["pdop_opt"])),
-                "pdop_ratio": _stats(g["pdop_quasi"] / g["pdop_opt"]),
-                "adop_ratio": _stats(g["adop_quasi"] / g["adop_opt"]),
+                "pdop_ratio": _stats(g["pdop_quasi"][ok] / g["pdop_opt"][ok]),
+                "adop_ratio": _stats(g["adop_quasi"][ok] / g["adop_opt"][ok]),
                 "pdop": {
-                    "optimal_mean": float(np.mean(g["pdop_opt"])),
-                    "quasi_mean": float(np.mean(g["pdop_quasi"])),
-                    "all_mean": float(np.mean(g["pdop_all"])),
+                    "optimal_mean": _mean(g["pdop_opt"][ok]),
+                    "quasi_mean": _mean(g["pdop_quasi"][ok]),
+                    "all_mean": _mean(g["pdop_all"][ok]),
                 },
                 "adop": {
-                    "optimal_mean": float(np.mean(g["adop_opt"])),
-                    "quasi_mean": float(np.mean(g["adop_quasi"])),
-                    "all_mean": float(np.mean(g["adop_all"])),
+                    "optimal_mean": _mean(g["adop_opt"][ok]),
+                    "quasi_mean": _mean(g["adop_quasi"][ok]),
+                    "all_mean": _mean(g["adop_all"][ok]),
                 },
                 "time_s": {
                     "optimal_per_case": timings[(n, m)][1],
                     "quasi_per_case": timings[(n, m)][0],
                 },
-                "failed_cases": int(np.sum(g["status"] != 0)),
+                "failed_cases": int(np.sum(~ok)),
             }
         )
     return {
@@ -371,25 +526,28 @@ def _summarise(scenario, seed, per_group, timings, ndev) -> dict:
 def _tables_5_6(groups: list[dict]) -> dict:
     """Tables 5-6 of the paper from the ``n = 18`` groups: mean DOP, % decrease, ratio to all."""
     rows = sorted((g for g in groups if g["n"] == 18), key=lambda g: g["m"])
+
+    def ratio(a, b):
+        return None if a is None or b is None else a / b
+
+    def decrease(prev, now):
+        return None if prev is None or now is None else 100 * (prev - now) / prev
+
     tables = {}
     for key in ("pdop", "adop"):
         table = []
-        prev = None
+        prev = (None, None)
         for g in rows:
             opt, quasi, all_ = g[key]["optimal_mean"], g[key]["quasi_mean"], g[key]["all_mean"]
             table.append(
                 {
                     "m": g["m"],
                     "optimal_mean": opt,
-                    "optimal_decrease_pct": None
-                    if prev is None
-                    else 100 * (prev[0] - opt) / prev[0],
-                    "optimal_ratio_to_all": opt / all_,
+                    "optimal_decrease_pct": decrease(prev[0], opt),
+                    "optimal_ratio_to_all": ratio(opt, all_),
                     "quasi_mean": quasi,
-                    "quasi_decrease_pct": None
-                    if prev is None
-                    else 100 * (prev[1] - quasi) / prev[1],
-                    "quasi_ratio_to_all": quasi / all_,
+                    "quasi_decrease_pct": decrease(prev[1], quasi),
+                    "quasi_ratio_to_all": ratio(quasi, all_),
                     "all_mean": all_,
                 }
             )
@@ -402,13 +560,13 @@ def _tables_5_6(groups: list[dict]) -> dict:
 
 
 def write_outputs(
-    result: StudyResult, out_dir: str | Path, *, dump_cases: bool = False
+    result: StudyResult, out_dir: str | Path, *, dump_cases: bool = False, figures: bool = True
 ) -> list[Path]:
     """Write ``results.json``, the figures and (optionally) ``cases.npz``; return the paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / "results.json"]
-    paths[0].write_text(json.dumps(result.results, indent=1))
+    paths[0].write_text(json.dumps(result.results, indent=1, allow_nan=False))
     if dump_cases:
         arrays = {}
         scenario = _scenario_from_results(result.results)
@@ -430,7 +588,8 @@ def write_outputs(
                 arrays[pre + k] = g[k]
         paths.append(out_dir / "cases.npz")
         np.savez_compressed(paths[-1], **arrays)
-    paths += _figures(result, out_dir)
+    if figures:
+        paths += _figures.figures(result, out_dir)
     return paths
 
 
@@ -441,219 +600,3 @@ def _scenario_from_results(results: dict) -> Scenario:
     d["attitude_deg"] = tuple(d["attitude_deg"])
     d["plane_centre_m"] = tuple(d["plane_centre_m"])
     return Scenario(**d)
-
-
-def _figures(result: StudyResult, out_dir: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    paths = []
-    groups = result.results["groups"]
-    m8 = sorted((g for g in groups if g["m"] == 8), key=lambda g: g["n"])
-    if m8:  # Fig. 6: ratio histograms
-        fig, axes = plt.subplots(
-            2, len(m8), figsize=(3.2 * len(m8), 5.2), squeeze=False, sharey="row"
-        )
-        for j, g in enumerate(m8):
-            c = result.cases[(g["n"], 8)]
-            for i, key in enumerate(("pdop", "adop")):
-                ratio = c[f"{key}_quasi"] / c[f"{key}_opt"]
-                axes[i, j].hist(
-                    ratio, bins=np.arange(1.0, max(2.6, ratio.max() + 0.05), 0.05), color=f"C{i}"
-                )
-                axes[i, j].set_title(f"n = {g['n']}, m = 8: {key.upper()} ratio", fontsize=9)
-                axes[i, j].set_xlabel(f"{key.upper()}_quasi / {key.upper()}_opt")
-        axes[0, 0].set_ylabel("cases")
-        axes[1, 0].set_ylabel("cases")
-        fig.suptitle("DOP ratios of the quasi-optimal selection (Ning et al. Fig. 6)")
-        fig.tight_layout()
-        paths.append(out_dir / "fig6_ratio_histograms.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
-    n18 = sorted((g for g in groups if g["n"] == 18), key=lambda g: g["m"])
-    if len(n18) > 1:  # Fig. 8: mean DOP against m
-        fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-        ms = [g["m"] for g in n18]
-        for ax, key, unit in zip(axes, ("pdop", "adop"), ("m/px", "rad/px"), strict=True):
-            ax.plot(ms, [g[key]["optimal_mean"] for g in n18], "o-", label="optimal")
-            ax.plot(ms, [g[key]["quasi_mean"] for g in n18], "s--", label="quasi-optimal")
-            ax.axhline(n18[0][key]["all_mean"], color="k", lw=0.8, label="all 18 points")
-            ax.set_xlabel("selected points m (of n = 18)")
-            ax.set_ylabel(f"mean {key.upper()} ({unit})")
-            ax.set_yscale("log")
-            ax.legend()
-        fig.suptitle("Mean DOP against the number of selected points (Ning et al. Fig. 8)")
-        fig.tight_layout()
-        paths.append(out_dir / "fig8_dop_vs_m.png")
-        fig.savefig(paths[-1], dpi=110)
-        plt.close(fig)
-    # Figs. 9-10: time per case of both methods on shared log axes (the paper's point is the gap)
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
-    panels = [
-        (
-            axes[0],
-            sorted((g for g in groups if g["m"] == 8), key=lambda g: g["n"]),
-            "n",
-            "total points n (m = 8)",
-        ),
-        (axes[1], n18, "m", "selected points m (n = 18)"),
-    ]
-    for ax, gs, x, label in panels:
-        if not gs:
-            ax.set_visible(False)
-            continue
-        xs = [g[x] for g in gs]
-        ax.plot(
-            xs, [g["time_s"]["optimal_per_case"] for g in gs], "o-", label="optimal (exhaustive)"
-        )
-        ax.plot(xs, [g["time_s"]["quasi_per_case"] for g in gs], "s--", label="quasi-optimal")
-        ax.set_yscale("log")
-        ax.set_xlabel(label)
-        ax.legend(fontsize=8)
-    axes[0].set_ylabel("time per case (s), batched")
-    fig.suptitle("Time per case on this machine, after compilation (Ning et al. Figs. 9-10)")
-    fig.tight_layout()
-    paths.append(out_dir / "fig9_10_timing.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
-    return paths
-
-
-def format_report(results: dict) -> str:
-    """Plain-text Table 4, Tables 5-6 and timings."""
-    lines = [
-        "Table 4: DOP ratios quasi-optimal / optimal",
-        f"{'n':>4} {'m':>3} {'cases':>6} "
-        f"{'PDOP avg':>9} {'PDOP max':>9} {'ADOP avg':>9} {'ADOP max':>9} "
-        f"{'t_opt/case':>11} {'t_quasi/case':>12}",
-    ]
-    for g in sorted(results["groups"], key=lambda g: (g["m"] != 8, g["n"], g["m"])):
-        lines.append(
-            f"{g['n']:>4} {g['m']:>3} {g['cases']:>6} "
-            f"{g['pdop_ratio']['mean']:9.4f} {g['pdop_ratio']['max']:9.4f} "
-            f"{g['adop_ratio']['mean']:9.4f} {g['adop_ratio']['max']:9.4f} "
-            f"{g['time_s']['optimal_per_case']:11.3e} {g['time_s']['quasi_per_case']:12.3e}"
-        )
-    for key, name in (("pdop", "Table 5: PDOP (m/px)"), ("adop", "Table 6: ADOP (rad/px)")):
-        rows = results.get("tables_5_6", {}).get(key, [])
-        if len(rows) < 2:
-            continue
-        lines += [
-            "",
-            f"{name}, n = 18",
-            f"{'m':>3} {'opt mean':>10} {'% dec':>7} {'/all':>6} "
-            f"{'quasi mean':>11} {'% dec':>7} {'/all':>6}",
-        ]
-        for r in rows:
-
-            def pct(x):
-                return "      -" if x is None else f"{x:7.1f}"
-
-            lines.append(
-                f"{r['m']:>3} {r['optimal_mean']:10.3e} {pct(r['optimal_decrease_pct'])} "
-                f"{r['optimal_ratio_to_all']:6.3f} {r['quasi_mean']:11.3e} "
-                f"{pct(r['quasi_decrease_pct'])} {r['quasi_ratio_to_all']:6.3f}"
-            )
-    return "\n".join(lines)
-
-
-# ----------------------------------------------------------------------------- command line
-
-
-def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
-    d = Scenario()
-    g = parser.add_argument_group(
-        "scenario (Ning et al. Table 3 is lost; defaults documented in the README)"
-    )
-    g.add_argument("--focal-length-mm", type=float, default=d.focal_length_m * 1e3)
-    g.add_argument("--pixel-size-um", type=float, default=d.pixel_size_m * 1e6)
-    g.add_argument(
-        "--image-size", type=int, nargs=2, default=list(d.image_size), metavar=("W", "H")
-    )
-    g.add_argument(
-        "--range-m", type=float, default=d.range_m, help="target range along the boresight"
-    )
-    g.add_argument(
-        "--offset-m", type=float, nargs=2, default=[d.offset_x_m, d.offset_y_m], metavar=("X", "Y")
-    )
-    g.add_argument(
-        "--attitude-deg",
-        type=float,
-        nargs=3,
-        default=list(d.attitude_deg),
-        metavar=("A1", "A2", "A3"),
-    )
-    g.add_argument(
-        "--random-attitude", action="store_true", help="draw each angle in [-A, A] per case"
-    )
-    g.add_argument(
-        "--sequence",
-        default=d.sequence,
-        help="Euler sequence of the attitude state (SciPy naming: upper case intrinsic, lower case extrinsic)",
-    )
-    g.add_argument("--plane-size-m", type=float, default=d.plane_size_m)
-    g.add_argument(
-        "--plane-centre-m",
-        type=float,
-        nargs=2,
-        default=list(d.plane_centre_m),
-        metavar=("X", "Y"),
-        help="centre of the feature square in the body frame (0.5 0.5: origin at a corner)",
-    )
-
-
-def scenario_from_args(args) -> Scenario:
-    return Scenario(
-        focal_length_m=args.focal_length_mm * 1e-3,
-        pixel_size_m=args.pixel_size_um * 1e-6,
-        image_size=tuple(args.image_size),
-        range_m=args.range_m,
-        offset_x_m=args.offset_m[0],
-        offset_y_m=args.offset_m[1],
-        attitude_deg=tuple(args.attitude_deg),
-        random_attitude=args.random_attitude,
-        sequence=args.sequence,
-        plane_size_m=args.plane_size_m,
-        plane_centre_m=tuple(args.plane_centre_m),
-    )
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--n", type=int, nargs="+", help="total points per case (default: the paper's groups)"
-    )
-    parser.add_argument(
-        "--m", type=int, nargs="+", help="selected points (default: the paper's groups)"
-    )
-    parser.add_argument("--cases", type=int, default=1000, help="cases per group (default 1000)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--chunk-size", type=int, default=250, help="cases per resumable chunk")
-    parser.add_argument(
-        "--out", default="select-study", help="output folder (default ./select-study)"
-    )
-    parser.add_argument(
-        "--dump-cases", action="store_true", help="also write cases.npz (methods.md format)"
-    )
-    parser.add_argument("--no-progress", action="store_true")
-    add_scenario_arguments(parser)
-
-
-def run(args) -> int:
-    scenario = scenario_from_args(args)
-    groups = default_groups(args.n, args.m)
-    t0 = time.perf_counter()
-    result = run_study(
-        scenario,
-        groups,
-        cases=args.cases,
-        seed=args.seed,
-        chunk_size=args.chunk_size,
-        out_dir=args.out,
-        progress=not args.no_progress,
-    )
-    paths = write_outputs(result, args.out, dump_cases=args.dump_cases)
-    print(format_report(result.results))
-    print(f"\nwrote {', '.join(str(p) for p in paths)} in {time.perf_counter() - t0:.1f} s")
-    return 0

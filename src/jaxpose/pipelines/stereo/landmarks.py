@@ -1,6 +1,6 @@
 """Body-frame landmark map of the stereo tracker (points and line segments with descriptors).
 
-The tracker of :mod:`jaxpose.pipelines.stereo` no longer chains frame-to-keyframe increments: it
+The tracker of :mod:`jaxpose.pipelines.stereo` does not chain frame-to-keyframe increments: it
 tracks every frame against a map of 3-D landmarks fixed in the *target* (body) frame, as
 feature-based visual odometry does (ORB-SLAM's local map). A landmark is created from a stereo
 triangulation of a keyframe, transformed to the body frame with that keyframe's estimated pose, and
@@ -22,6 +22,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from jaxpose.core.geometry import Pose
+from jaxpose.pipelines.stereo._arrays import rt
 
 __all__ = ["LandmarkMap", "LandmarkSet"]
 
@@ -129,9 +132,10 @@ class LandmarkMap:
         return self.sets["lines"]
 
     # ------------------------------------------------------------------ queries
-    def candidates(self, kind: str, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Indices of the ``kind`` landmarks in front of the camera at pose ``(R, t)`` (body to
-        camera) and seen from within ``max_view_deg`` of their mean viewing direction."""
+    def candidates(self, kind: str, pose: Pose) -> np.ndarray:
+        """Indices of the ``kind`` landmarks in front of the camera at ``pose`` (body to camera)
+        and seen from within ``max_view_deg`` of their mean viewing direction."""
+        R, t = rt(pose)
         s = self.sets[kind]
         if len(s) == 0:
             return np.zeros(0, int)
@@ -142,8 +146,9 @@ class LandmarkMap:
         return np.nonzero((np.einsum("ij,ij->i", d, s.view) >= self.cos_view) & (z > 1e-3))[0]
 
     # ------------------------------------------------------------------ updates
-    def add(self, kind: str, X_body, desc, R, t, frame: int) -> np.ndarray:
-        """Append landmarks observed from the camera at ``(R, t)``; returns their indices."""
+    def add(self, kind: str, X_body, desc, pose: Pose, frame: int) -> np.ndarray:
+        """Append landmarks observed from the camera at ``pose``; returns their indices."""
+        R, t = rt(pose)
         s = self.sets[kind]
         X_body = np.asarray(X_body, float)
         n = len(X_body)
@@ -164,22 +169,6 @@ class LandmarkMap:
         s.ids = np.concatenate([s.ids, self._next_id[kind] + np.arange(n, dtype=np.int64)])
         self._next_id[kind] += n
         return np.arange(start, start + n)
-
-    def index_of(self, kind: str, ids) -> np.ndarray:
-        """Current indices of the landmarks with identifiers ``ids`` (-1 for culled ones)."""
-        s = self.sets[kind]
-        ids = np.asarray(ids, np.int64)
-        pos = np.searchsorted(s.ids, ids)
-        ok = (pos < len(s.ids)) & (s.ids[np.minimum(pos, max(len(s.ids) - 1, 0))] == ids)
-        return np.where(ok, pos, -1) if len(s.ids) else np.full(len(ids), -1)
-
-    def set_points(self, idx, X_body) -> None:
-        """Overwrite point positions (e.g. after a bundle adjustment), keeping the information
-        of their triangulations: ``b`` is re-centred so that ``M^-1 b`` is the new position."""
-        s = self.points
-        idx = np.asarray(idx, int)
-        s.X[idx] = X_body
-        s.b[idx] = np.einsum("nij,nj->ni", s.M[idx], s.X[idx])
 
     def observe(self, idx, origins, directions, weights=None) -> None:
         """Add observation rays of points ``idx`` (body frame: camera centres ``origins`` and
@@ -236,7 +225,7 @@ class LandmarkMap:
             y = np.einsum("kia,kei->kea", V2, r) / ev[:, None, 1:]
             s.X[u] = X + np.einsum("kia,kea->kei", V2, y)
 
-    def refine(self, kind: str, idx, X_body, desc, R, t, frame: int) -> None:
+    def refine(self, kind: str, idx, X_body, desc, pose: Pose, frame: int) -> None:
         """Fold new body-frame triangulations ``X_body`` of landmarks ``idx`` into their running
         means (``X_body=None``: keep the positions, update descriptor and viewing direction; the
         tracker does so for segments, whose endpoints differ from one detection to the next, and
@@ -249,6 +238,7 @@ class LandmarkMap:
         if X_body is not None:
             X_body = np.asarray(X_body, float)
             s.X[idx] = s.X[idx] + w.reshape((-1,) + (1,) * (X_body.ndim - 1)) * (X_body - s.X[idx])
+        R, t = rt(pose)
         c = s.centres()[idx]
         v = _unit((-R.T @ t)[None] - c)
         s.view[idx] = _unit(s.view[idx] + w[:, None] * (v - s.view[idx]))

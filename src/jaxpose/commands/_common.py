@@ -1,0 +1,287 @@
+"""Plumbing shared by every ``jaxpose`` command.
+
+* :class:`CommandError`: a user's mistake. :func:`jaxpose.cli.main` prints it as one line
+  ``jaxpose COMMAND: error: ...`` on stderr and exits with status 2 (no traceback); so do argparse's
+  own errors, a ``ValueError`` and a missing file.
+* :func:`enable_compilation_cache`: the persistent XLA compilation cache (``$JAXPOSE_CACHE_DIR``,
+  default ``~/.cache/jaxpose/xla``); :func:`jaxpose.cli.main` turns it on for every command.
+* :func:`progress` and :func:`stage`: tqdm bars on stderr (stdout stays clean for ``--json``).
+* One spelling for the shared options: :func:`add_out_argument` (``--out``, default
+  ``./jaxpose-out/<command>``), :func:`add_progress_argument` (``--no-progress``),
+  :func:`add_figures_argument` (``--no-figures``), :func:`add_image_size_argument`
+  (``--image-size W H``, ``WxH`` accepted).
+* ``argparse`` types that refuse bad values naming the option: :func:`positive_float`,
+  :func:`nonnegative_float`, :func:`finite_float`, :func:`positive_int`, :func:`nonnegative_int`.
+* :class:`HelpFormatter`: every option's help ends with its default.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import os
+import sys
+import threading
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+__all__ = [
+    "DEFAULT_OUT_ROOT",
+    "CommandError",
+    "HelpFormatter",
+    "add_figures_argument",
+    "add_image_size_argument",
+    "add_out_argument",
+    "add_progress_argument",
+    "cache_dir",
+    "default_out",
+    "enable_compilation_cache",
+    "finite_float",
+    "nonnegative_float",
+    "nonnegative_int",
+    "positive_float",
+    "positive_int",
+    "progress",
+    "stage",
+]
+
+DEFAULT_OUT_ROOT = Path("jaxpose-out")
+
+
+class CommandError(Exception):
+    """A user's mistake (bad option, bad file): one line on stderr and exit status 2.
+
+    The message should name the option, file or field and say what is expected, e.g.
+    ``CommandError("--range-m must be positive; got -10")``.
+    """
+
+
+# ----------------------------------------------------------------------------- compilation cache
+
+
+def cache_dir() -> Path:
+    """Folder of the persistent XLA cache: ``$JAXPOSE_CACHE_DIR`` or ``~/.cache/jaxpose/xla``."""
+    env = os.environ.get("JAXPOSE_CACHE_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "jaxpose" / "xla"
+
+
+def enable_compilation_cache(min_compile_time_s: float = 0.0) -> Path | None:
+    """Persist XLA compilations between runs; returns the cache folder (``None`` if unavailable).
+
+    Every compilation that takes at least ``min_compile_time_s`` is stored: the monocular pipeline
+    compiles for about two minutes the first time and loads in seconds afterwards; a study's many
+    small kernels (a fraction of a second each) add up to most of a short run, hence the default 0.
+    A read-only home or a JAX without the option runs without the cache.
+    """
+    import jax
+
+    path = cache_dir()
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", str(path))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_time_s))
+        with contextlib.suppress(AttributeError, KeyError):  # newer JAX: also cache tiny entries
+            jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    except (OSError, AttributeError):
+        return None
+    return path
+
+
+# ----------------------------------------------------------------------------- progress
+
+
+def progress(
+    iterable: Iterable | None = None,
+    *,
+    total: int | None = None,
+    desc: str = "",
+    unit: str = "it",
+    enabled: bool = True,
+):
+    """A tqdm bar on stderr (``--json`` output on stdout stays clean); a no-op bar if disabled.
+
+    Use as ``for x in progress(items, desc=...)`` or ``with progress(total=n) as bar:
+    bar.update(1)``.
+    """
+    from tqdm import tqdm
+
+    return tqdm(
+        iterable,
+        total=total,
+        desc=desc,
+        unit=unit,
+        file=sys.stderr,
+        disable=not enabled,
+        dynamic_ncols=True,
+    )
+
+
+@contextlib.contextmanager
+def stage(desc: str, *, enabled: bool = True, interval_s: float = 0.5) -> Iterator[None]:
+    """A one-line ticker ``desc: 00:12`` on stderr while one long step runs (compilation, a single
+    pipeline call): a step with no natural count still shows that it is alive."""
+    from tqdm import tqdm
+
+    if not enabled:
+        yield
+        return
+    bar = tqdm(
+        total=None, desc=desc, bar_format="{desc}: {elapsed}", file=sys.stderr, dynamic_ncols=True
+    )
+    done = threading.Event()
+
+    def tick() -> None:
+        while not done.wait(interval_s):
+            bar.refresh()
+
+    thread = threading.Thread(target=tick, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+        bar.close()
+
+
+# ----------------------------------------------------------------------------- shared options
+
+
+def default_out(command: str) -> Path:
+    """The default output folder of a command: ``./jaxpose-out/<command>``."""
+    return DEFAULT_OUT_ROOT / command
+
+
+def add_out_argument(parser: argparse.ArgumentParser, command: str, what: str = "outputs") -> None:
+    """``--out DIR`` with the shared default ``./jaxpose-out/<command>``."""
+    parser.add_argument(
+        "--out", type=Path, default=default_out(command), help=f"folder for the {what}"
+    )
+
+
+def add_progress_argument(parser: argparse.ArgumentParser) -> None:
+    """``--no-progress``: no progress bar on stderr."""
+    parser.add_argument(
+        "--no-progress", action="store_true", help="do not show progress bars (on stderr)"
+    )
+
+
+def add_figures_argument(parser: argparse.ArgumentParser) -> None:
+    """``--no-figures``: skip the PNG figures."""
+    parser.add_argument("--no-figures", action="store_true", help="do not write the PNG figures")
+
+
+class _ImageSize(argparse.Action):
+    def __call__(self, parser, namespace, values, option_string=None):
+        parts = values[0].lower().split("x") if len(values) == 1 else list(values)
+        try:
+            size = [int(p) for p in parts]
+        except ValueError:
+            size = []
+        if len(size) != 2 or min(size) < 1:
+            parser.error(
+                f"argument {option_string}: expected two positive integers W H (or WxH); "
+                f"got {' '.join(values)!r}"
+            )
+        setattr(namespace, self.dest, tuple(size))
+
+
+def add_image_size_argument(
+    parser, default: tuple[int, int], help: str = "image size in pixels"
+) -> None:
+    """``--image-size W H`` (``WxH`` accepted too), parsed to a tuple ``(W, H)`` of ints >= 1."""
+    parser.add_argument(
+        "--image-size",
+        nargs="+",
+        action=_ImageSize,
+        default=tuple(default),
+        metavar=("W", "H"),
+        help=help,
+    )
+
+
+# ----------------------------------------------------------------------------- argparse types
+
+
+def _number(kind, text: str):
+    try:
+        value = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected {'an integer' if kind is int else 'a number'}; got {text!r}"
+        ) from None
+    if kind is float and not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number; got {text!r}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """A finite float (no nan, no inf)."""
+    return _number(float, text)
+
+
+def positive_float(text: str) -> float:
+    """A finite float > 0."""
+    value = _number(float, text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive; got {text!r}")
+    return value
+
+
+def nonnegative_float(text: str) -> float:
+    """A finite float >= 0."""
+    value = _number(float, text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be zero or positive; got {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1."""
+    value = _number(int, text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1; got {text!r}")
+    return value
+
+
+def nonnegative_int(text: str) -> int:
+    """An integer >= 0 (seeds, counts that may be zero)."""
+    value = _number(int, text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be zero or positive; got {text!r}")
+    return value
+
+
+# ----------------------------------------------------------------------------- help and errors
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the description's line breaks and ends each option's help with its default (none
+    for flags, ``--help``, options whose default is ``None`` and helps that state it already)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if (
+            "default" in text  # the help states its default itself
+            or action.default is None
+            or action.default is argparse.SUPPRESS
+            or isinstance(action.default, bool)
+            or not action.option_strings
+            or isinstance(action, argparse._HelpAction | argparse._VersionAction)
+        ):
+            return text
+        default = action.default
+        if isinstance(default, list | tuple):
+            shown = " ".join(str(x) for x in default)
+        else:
+            shown = str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})".strip()
+
+
+class CommandParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors raise :class:`CommandError` (one line, exit 2,
+    printed by :func:`jaxpose.cli.main`) instead of printing the usage and exiting itself."""
+
+    def error(self, message: str):  # type: ignore[override]
+        raise CommandError(f"{message} (see {self.prog} --help)")

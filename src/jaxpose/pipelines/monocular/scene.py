@@ -1,0 +1,127 @@
+"""What every pose score of one image shares: the model's padded geometry and the image maps
+(:mod:`jaxpose.vision.image_maps`) as one pytree (:class:`_EdgeScene`)."""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpose.core.camera import PinholeCamera
+from jaxpose.pipelines.monocular.options import InitOptions
+from jaxpose.vision import image_maps
+from jaxpose.vision.features import Detection
+from jaxpose.vision.models import WireframeModel
+from jaxpose.vision.roi import roi_diagonal
+
+
+class _EdgeScene(NamedTuple):
+    """What every pose score of one image shares (a pytree: ``vmap`` with ``in_axes=None``).
+
+    ``geom``: :func:`_model_geometry` of the model; ``img_pts (N, 2)``, ``img_mask (N,)``: samples
+    of the detected segments (:func:`jaxpose.vision.image_maps.segment_samples`); ``dt (H, W)``:
+    distance map of the detected segments (pixels); ``tau``: truncation of the chamfer distances
+    (pixels, ``0.05 l_ROI``); ``cam4``: ``[fx, fy, cx, cy]`` of the undistorted image; ``grid_pts
+    (P, 2)``, ``grid_val (P,)``: a grid of pixels over the ROI and their smoothed grey levels, and
+    ``face_poly (F, K, 3)``: the model's faces (vertices, padded by repeating the last), for the
+    region term (:func:`_region_energy`); ``rods (S, S)``, ``rod_frame (3,)``: the rod response map
+    of :func:`jaxpose.vision.image_maps.rod_map` and its ``[u_origin, v_origin, scale]``, for the
+    antenna term; ``sil_pts (P, 2)``, ``sil_val (P,)``:
+    :func:`jaxpose.vision.image_maps.silhouette_grid`, for the silhouette term (``None`` without a
+    silhouette: an Earth behind the target, or the weight 0); ``ori (B, S, S)``, ``ori_frame (3,)``:
+    :func:`jaxpose.vision.image_maps.orientation_maps` and its frame, for the orientation term
+    (``None`` when its weight is 0)."""
+
+    geom: tuple
+    img_pts: jax.Array
+    img_mask: jax.Array
+    dt: jax.Array
+    tau: float
+    cam4: jax.Array
+    grid_pts: jax.Array | None = None
+    grid_val: jax.Array | None = None
+    face_poly: jax.Array | None = None
+    region_weight: float = 0.0
+    rods: jax.Array | None = None
+    rod_frame: jax.Array | None = None
+    antenna_weight: float = 0.0
+    sil_pts: jax.Array | None = None
+    sil_val: jax.Array | None = None
+    silhouette_weight: float = 0.0
+    ori: jax.Array | None = None
+    ori_frame: jax.Array | None = None
+    orientation_weight: float = 0.0
+
+    def chamfer_inputs(self):
+        """``(geom, img_pts, img_mask, dt, tau, cam4)``: the fields the chamfer terms use."""
+        return self.geom, self.img_pts, self.img_mask, self.dt, self.tau, self.cam4
+
+
+def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> _EdgeScene:
+    """The score inputs of one image (needs ``det.roi`` and ``det.segments``)."""
+    l_roi = roi_diagonal(det.roi)
+    img_pts, img_mask = _as_jax(image_maps.segment_samples(det.segments))
+    dt = jnp.asarray(image_maps.distance_map(det.segments, det.image.shape))
+    region = options.region_weight > 0
+    antennas = options.antenna_weight > 0 and len(model.antennas) > 0
+    sil = options.silhouette_weight > 0 and det.silhouette is not None and len(model.faces) > 0
+    ori = options.orientation_weight > 0
+    return _EdgeScene(
+        _model_geometry(model),
+        img_pts,
+        img_mask,
+        dt,
+        0.05 * l_roi,
+        _ideal_params(det.camera),
+        *(_as_jax(image_maps.region_grid(det.image, det.roi)) if region else (None, None)),
+        _face_polygons(model) if region or sil else None,
+        float(options.region_weight),
+        *(_as_jax(image_maps.rod_map(det.image, det.roi)) if antennas else (None, None)),
+        float(options.antenna_weight),
+        *(
+            _as_jax(image_maps.silhouette_grid(det.silhouette, det.silhouette_factor, det.roi))
+            if sil
+            else (None, None)
+        ),
+        float(options.silhouette_weight),
+        *(_as_jax(image_maps.orientation_maps(det.image, det.roi)) if ori else (None, None)),
+        float(options.orientation_weight),
+    )
+
+
+def _as_jax(arrays):
+    return tuple(jnp.asarray(a) for a in arrays)
+
+
+@functools.lru_cache(maxsize=8)
+def _model_geometry(model: WireframeModel, samples: int = 8):
+    segs = model.edge_points
+    faces = list(model.edge_faces)
+    if len(model.antennas):
+        segs = np.concatenate([segs, model.antenna_points])
+        faces += [()] * len(model.antennas)
+    F = len(model.faces)
+    ef = np.zeros((len(segs), max(F, 1)), bool)
+    for e, fs in enumerate(faces):
+        ef[e, list(fs)] = True
+    s = np.linspace(0.0, 1.0, samples)
+    pts = segs[:, :1] + s[None, :, None] * (segs[:, 1:] - segs[:, :1])
+    normals = model.face_normals if F else np.zeros((1, 3))
+    centres = model.face_centres if F else np.zeros((1, 3))
+    return tuple(jnp.asarray(x) for x in (segs, pts, ef, normals, centres))
+
+
+@functools.lru_cache(maxsize=8)
+def _face_polygons(model: WireframeModel) -> jax.Array:
+    if not len(model.faces):
+        return jnp.zeros((1, 3, 3))
+    k = max(len(f) for f in model.faces)
+    idx = [list(f) + [f[-1]] * (k - len(f)) for f in model.faces]
+    return jnp.asarray(model.vertices[np.asarray(idx)])
+
+
+def _ideal_params(camera: PinholeCamera):
+    return jnp.asarray([float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy)])

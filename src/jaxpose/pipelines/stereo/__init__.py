@@ -1,0 +1,29 @@
+"""Stereo point-line tracking of a tumbling target (Yang et al. 2024).
+
+Stages, one module each: :mod:`~jaxpose.pipelines.stereo.options` (options and the per-frame
+result), :mod:`~jaxpose.pipelines.stereo.landmarks` (the body-frame landmark map),
+:mod:`~jaxpose.pipelines.stereo.guided` (search by projection),
+:mod:`~jaxpose.pipelines.stereo.frame_pose` (the pose of a frame),
+:mod:`~jaxpose.pipelines.stereo.keyframes` (stereo correspondences and the map update) and
+:mod:`~jaxpose.pipelines.stereo.tracker` (:class:`StereoTracker`, which runs them).
+"""
+
+from jaxpose.pipelines.stereo.landmarks import LandmarkMap as LandmarkMap
+from jaxpose.pipelines.stereo.landmarks import LandmarkSet as LandmarkSet
+from jaxpose.pipelines.stereo.options import STAGES as STAGES
+from jaxpose.pipelines.stereo.options import FrameResult as FrameResult
+from jaxpose.pipelines.stereo.options import TrackerOptions as TrackerOptions
+from jaxpose.pipelines.stereo.tracker import StereoTracker as StereoTracker
+from jaxpose.pipelines.stereo.tracker import as_gray_uint8 as as_gray_uint8
+from jaxpose.pipelines.stereo.tracker import target_roi as target_roi
+
+__all__ = [
+    "STAGES",
+    "FrameResult",
+    "LandmarkMap",
+    "LandmarkSet",
+    "StereoTracker",
+    "TrackerOptions",
+    "as_gray_uint8",
+    "target_roi",
+]

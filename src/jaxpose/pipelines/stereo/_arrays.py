@@ -1,0 +1,61 @@
+"""Array helpers of the stereo tracker: padding, NumPy views of a pose, projection of body points
+through :meth:`PinholeCamera.project` at padded sizes, homogeneous image lines, sorted lookup."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpose.core.camera import PinholeCamera
+from jaxpose.core.geometry import Pose
+
+
+def pad(a: np.ndarray, n: int, fill: float = 0.0) -> np.ndarray:
+    """``a`` cut or padded with ``fill`` to ``n`` rows (float64)."""
+    out = np.full((n, *a.shape[1:]), fill, dtype=np.float64)
+    out[: min(n, len(a))] = a[:n]
+    return out
+
+
+def rt(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, t)`` of a pose as float64 NumPy arrays (for the map's NumPy bookkeeping)."""
+    return np.asarray(pose.R, np.float64), np.asarray(pose.t, np.float64)
+
+
+@eqx.filter_jit
+def _project(camera: PinholeCamera, pose: Pose, points):
+    return camera.project(pose.apply(points))
+
+
+def project(camera: PinholeCamera, pose: Pose | None, points_body: np.ndarray) -> np.ndarray:
+    """Pixels ``(..., 2)`` of body points ``(..., 3)`` seen at ``pose`` (``None``: the points are
+    in the camera frame), by :meth:`PinholeCamera.project`. The points are padded to a power of two
+    (at least 64) so that a sequence compiles a handful of sizes, not one a frame."""
+    X = np.asarray(points_body, np.float64)
+    flat = X.reshape(-1, 3)
+    n = len(flat)
+    if n == 0:
+        return np.zeros((*X.shape[:-1], 2))
+    size = max(64, 1 << (n - 1).bit_length())
+    pose = Pose(jnp.eye(3), jnp.zeros(3)) if pose is None else pose
+    uv = np.asarray(_project(camera, pose, jnp.asarray(pad(flat, size, 1.0))))[:n]
+    return uv.reshape(*X.shape[:-1], 2)
+
+
+def lines_from_segments(segments: np.ndarray) -> np.ndarray:
+    """Homogeneous lines ``(s, 1) x (e, 1)`` of ``(k, 2, 2)`` segments (Yang et al. 2024, eq. 7;
+    the NumPy twin of :func:`jaxpose.core.residuals.line_from_segment`, kept eager so that a
+    varying ``k`` compiles nothing)."""
+    one = np.ones((len(segments), 1))
+    return np.cross(np.c_[segments[:, 0], one], np.c_[segments[:, 1], one])
+
+
+def find(keys: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``q`` of the ``queries`` present in the non-empty ``keys`` and, for each, its
+    index in ``keys`` (sorted lookup)."""
+    order = np.argsort(keys)
+    pos = np.searchsorted(keys[order], queries)
+    hit = (pos < len(keys)) & (keys[order][np.minimum(pos, len(keys) - 1)] == queries)
+    q = np.nonzero(hit)[0]
+    return q, order[pos[q]]

@@ -1,0 +1,175 @@
+"""The pose of one frame from its matched landmarks: point+line reprojection cost (Yang et al.
+2024, eqs. 8-10) minimised by :func:`jaxpose.core.refine.refine_pose` in a few passes that drop
+the features left beyond ``reject_px``, on the left and (for stereo-matched features) the right
+image."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpose.core.camera import StereoCamera
+from jaxpose.core.geometry import Pose
+from jaxpose.core.refine import RefineOptions, refine_pose
+from jaxpose.core.status import Status
+from jaxpose.pipelines.stereo._arrays import find, lines_from_segments, pad, project
+from jaxpose.pipelines.stereo.keyframes import FrameStereo
+from jaxpose.pipelines.stereo.options import TrackerOptions
+
+__all__ = ["PoseFit", "fit_pose"]
+
+
+@eqx.filter_jit
+def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
+    """One LM solve (eq. 10) and the post-fit errors of every point (pixels) and line (largest
+    endpoint distance, pixels). Points-only mode passes an all-False ``lmask``: one compiled
+    function serves both modes."""
+    res = refine_pose(
+        P,
+        uv,
+        pose0,
+        camera,
+        mask=mask,
+        sigma=sigma,
+        segments_body=S,
+        lines_img=L,
+        line_mask=lmask,
+        line_sigma=line_sigma,
+        options=RefineOptions(robust=robust, max_steps=30, rtol=1e-9, atol=1e-10),
+        throw=False,
+    )
+    pose = res.pose
+    e_p = jnp.linalg.norm(camera.project(pose.apply(P)) - uv, axis=-1)
+    pix = camera.project(pose.apply(S.reshape(-1, 3))).reshape(-1, 2, 2)
+    n = jnp.linalg.norm(L[:, :2], axis=-1, keepdims=True)
+    d = (jnp.einsum("ki,kmi->km", L[:, :2], pix) + L[:, 2:3]) / jnp.where(n > 0, n, 1.0)
+    return res, e_p, jnp.max(jnp.abs(d), axis=-1)
+
+
+@dataclass
+class PoseFit:
+    """Result of :func:`fit_pose`.
+
+    Attributes:
+        pose: the fitted pose; ``solver_ok``: the solver returned ``OK`` or ``NOT_CONVERGED``.
+        e_points, e_lines: post-fit errors (pixels) of the left-image matches, ``(n_p,)`` and
+            ``(n_l,)``; ``in_points``, ``in_lines``: those below ``inlier_px``.
+        kept_points, kept_lines: the left-image matches left in the last pass (below
+            ``reject_px`` after the pass before); ``kept_errors``: the errors of every feature
+            (left and right) left in the last pass, points and lines.
+        inliers, rms_px: inlier count and RMS of the inliers' errors (``inf`` without inliers).
+    """
+
+    pose: Pose
+    solver_ok: bool
+    e_points: np.ndarray
+    e_lines: np.ndarray
+    in_points: np.ndarray
+    in_lines: np.ndarray
+    kept_points: np.ndarray
+    kept_errors: tuple[np.ndarray, np.ndarray]
+    inliers: int
+    rms_px: float
+
+
+def fit_pose(
+    landmarks,
+    feats,
+    stereo: FrameStereo | None,
+    matches,
+    pose_pred: Pose,
+    rig: StereoCamera,
+    options: TrackerOptions,
+    line_sigma: float,
+) -> PoseFit:
+    """Fit the pose of the frame from ``matches`` (``(i_m, i_cur, l_m, l_cur)``: landmark and
+    feature indices of the matched points and lines), starting at ``pose_pred``.
+
+    The right-image residuals of a matched landmark whose feature has a stereo match use
+    ``x_right = R X + t + t_rl = R (X + R^T t_rl) + t``: the same pose with the body point shifted
+    by ``R^T t_rl``, re-evaluated at the latest ``R`` on every pass (exact at the fixed point; the
+    shift changes by ``|t_rl|`` times the rotation update). The same holds for the right segment
+    of a matched segment with a stereo match. Each pass restarts from the last pose without the
+    features it left beyond ``reject_px`` (ORB-SLAM's outlier passes): the robust kernel alone
+    still lets mismatches on repetitive texture pull the pose."""
+    o = options
+    i_m, i_cur, l_m, l_cur = matches
+    n_p, n_l = len(i_m), len(l_m)
+    q_r, uv_r = np.zeros(0, int), np.zeros((0, 2))
+    if o.stereo_residuals and stereo is not None and len(stereo.point_idx):
+        q, j = find(stereo.point_idx, i_cur)
+        keep = o.max_points - n_p
+        q_r, uv_r = q[:keep], stereo.pixels_right[j[:keep]]
+    n_r = len(q_r)
+    t_rl = np.asarray(rig.t_rl, float)
+    ql_r, seg_r = np.zeros(0, int), np.zeros((0, 2, 2))
+    if (
+        o.stereo_residuals
+        and o.line_stereo_residuals
+        and stereo is not None
+        and n_l
+        and len(stereo.line_idx)
+    ):
+        q, j = find(stereo.line_idx, l_cur)
+        keep = o.max_lines - n_l
+        ql_r, seg_r = q[:keep], project(rig.left, None, stereo.segments[j[:keep]] + t_rl)
+    n_lr = len(ql_r)
+    mask = np.arange(o.max_points) < n_p + n_r
+    lmask = np.arange(o.max_lines) < n_l + n_lr
+    L = (
+        lines_from_segments(np.concatenate([feats.segments[l_cur], seg_r]))
+        if n_l
+        else np.zeros((0, 3))
+    )
+    X_m = landmarks.points.X[i_m]
+    X_l = landmarks.lines.X[l_m]
+    uv_all = jnp.asarray(pad(np.concatenate([feats.points[i_cur], uv_r]), o.max_points))
+    L_pad = jnp.asarray(pad(L, o.max_lines))
+    statics = (
+        rig.left,
+        o.robust,
+        o.sigma_px,
+        jnp.full(o.max_lines, line_sigma),  # an array: a new value compiles nothing
+    )
+    pose0 = pose_pred
+    for _ in range(o.passes):
+        shift = np.asarray(pose0.R).T @ t_rl
+        P_all = np.concatenate([X_m, X_m[q_r] + shift])
+        S_all = np.concatenate([X_l, X_l[ql_r] + shift])
+        res, e_p, e_l = _solve(
+            pose0,
+            jnp.asarray(pad(P_all, o.max_points)),
+            uv_all,
+            jnp.asarray(mask),
+            jnp.asarray(pad(S_all, o.max_lines)),
+            L_pad,
+            jnp.asarray(lmask),
+            *statics,
+        )
+        pose0 = res.pose
+        mask = mask & (np.asarray(e_p) < o.reject_px)
+        lmask = lmask & (np.asarray(e_l) < o.reject_px)
+    kept_errors = (np.asarray(e_p)[mask], np.asarray(e_l)[lmask])
+    e_p, e_l = np.asarray(e_p)[:n_p], np.asarray(e_l)[:n_l]
+    in_p, in_l = e_p < o.inlier_px, e_l < o.inlier_px
+    inl_err = np.concatenate([e_p[in_p], e_l[in_l]])
+    rms = float(np.sqrt(np.mean(inl_err**2))) if len(inl_err) else float("inf")
+    # the LM retraction exp(xi) R keeps whatever departure from orthonormality R has, and the
+    # constant-velocity prediction R_k R_(k-1)^T R_k compounds it by 1 + sqrt(2) a frame; a
+    # quaternion round trip returns the nearest rotation
+    pose = Pose.from_quat(res.pose.quat, res.pose.t)
+    return PoseFit(
+        pose=pose,
+        solver_ok=int(res.status) in (Status.OK, Status.NOT_CONVERGED),
+        e_points=e_p,
+        e_lines=e_l,
+        in_points=in_p,
+        in_lines=in_l,
+        kept_points=mask[:n_p],
+        kept_errors=kept_errors,
+        inliers=int(in_p.sum() + in_l.sum()),
+        rms_px=rms,
+    )

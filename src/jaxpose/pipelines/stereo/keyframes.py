@@ -1,0 +1,243 @@
+"""Keyframes: the stereo correspondences of a frame and the update of the landmark map.
+
+A keyframe's features get stereo correspondences by epipolar ZNCC search (Yang et al. 2024, eqs.
+4-5) and are triangulated with the rig. Those matched to a landmark refine it when their disparity
+agrees with it (a point: the least-squares intersection of all its observation rays; a line: of
+all its observation planes), the others become new landmarks. Rays and planes are weighted by
+``1 / depth^2``, i.e. by the angular (pixel) error of the observation.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import equinox as eqx
+import numpy as np
+from scipy.spatial import cKDTree
+
+from jaxpose.core.camera import StereoCamera
+from jaxpose.core.geometry import Pose
+from jaxpose.pipelines.stereo._arrays import pad, project, rt
+from jaxpose.pipelines.stereo.landmarks import LandmarkMap
+from jaxpose.pipelines.stereo.options import TrackerOptions
+from jaxpose.vision.stereo_match import match_lines_stereo, match_points_stereo
+
+__all__ = [
+    "FrameStereo",
+    "line_disparity_agrees",
+    "observe_line_planes",
+    "observe_point_rays",
+    "stereo_correspondences",
+    "triangulate_rectified",
+    "update_map",
+]
+
+
+@dataclass
+class FrameStereo:
+    """Stereo correspondences of one frame's features with a valid depth.
+
+    Attributes:
+        point_idx: ``(p,)`` keypoint indices; ``points``: ``(p, 3)`` left-camera points, metres;
+        pixels_right: ``(p, 2)`` their right-image pixels.
+        line_idx: ``(l,)`` segment indices; ``segments``: ``(l, 2, 3)`` left-camera endpoints.
+    """
+
+    point_idx: np.ndarray
+    points: np.ndarray
+    pixels_right: np.ndarray
+    line_idx: np.ndarray
+    segments: np.ndarray
+
+
+def triangulate_rectified(rig: StereoCamera, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Closed-form triangulation for a rectified rig with identical cameras (NumPy, no padding):
+    ``Z = fx b / (u_l - u_r)``, the ray of the left pixel at that depth (the row of the right
+    pixel is the left one's by construction). Equal to :meth:`StereoCamera.triangulate` there
+    (tested); non-positive disparities give NaN."""
+    c = rig.left
+    fx, fy, cx, cy = (float(v) for v in (c.fx, c.fy, c.cx, c.cy))
+    d = left[:, 0] - right[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Z = np.where(d > 0, fx * float(rig.baseline) / d, np.nan)
+    return np.stack([(left[:, 0] - cx) * Z / fx, (left[:, 1] - cy) * Z / fy, Z], 1)
+
+
+@eqx.filter_jit
+def _triangulate(rig: StereoCamera, left, right):
+    return rig.triangulate(left, right)
+
+
+def stereo_correspondences(
+    left, right, feats, rig: StereoCamera, disparities, options: TrackerOptions, timings: dict
+) -> FrameStereo:
+    """Stereo correspondence (eqs. 4-5) and triangulation of the frame's features, searched over
+    ``disparities``; times the stages ``stereo`` and ``triangulate`` into ``timings``."""
+    o = options
+    t0 = time.perf_counter()
+    pm = match_points_stereo(left, right, feats.points, disparities, options=o.stereo)
+    if o.use_lines and len(feats.segments):
+        lm = match_lines_stereo(left, right, feats.segments, disparities, options=o.stereo)
+        line_ok = lm.ok
+    else:
+        lm, line_ok = None, np.zeros(len(feats.segments), bool)
+    t1 = time.perf_counter()
+    ip = np.nonzero(pm.ok)[0]
+    il = np.nonzero(line_ok)[0][: o.max_lines]
+    n_tri = o.features.n_points + 2 * o.max_lines
+    ip = ip[: n_tri - 2 * len(il)]
+    pl = np.concatenate(
+        [feats.points[ip], feats.segments[il].reshape(-1, 2) if len(il) else np.zeros((0, 2))]
+    )
+    pr = np.concatenate(
+        [
+            pm.pixels_right[ip],
+            lm.segments_right[il].reshape(-1, 2) if len(il) else np.zeros((0, 2)),
+        ]
+    )
+    if np.allclose(np.asarray(rig.left.K), np.asarray(rig.right.K)):
+        X = triangulate_rectified(rig, pl, pr)
+    else:
+        X = np.asarray(_triangulate(rig, pad(pl, n_tri, 1.0), pad(pr, n_tri, 0.0)))
+    P = X[: len(ip)]
+    S = X[len(ip) : len(ip) + 2 * len(il)].reshape(-1, 2, 3)
+    lo, hi = o.depth_range_m
+    okp = np.isfinite(P).all(1) & (P[:, 2] > lo) & (P[:, 2] < hi)
+    oks = np.isfinite(S).all((1, 2)) & (S[..., 2] > lo).all(1) & (S[..., 2] < hi).all(1)
+    timings["stereo"] = t1 - t0
+    timings["triangulate"] = time.perf_counter() - t1
+    return FrameStereo(ip[okp], P[okp], pm.pixels_right[ip[okp]], il[oks], S[oks])
+
+
+def observe_point_rays(
+    landmarks: LandmarkMap, rig: StereoCamera, idx, pixels, pose: Pose, *, right: bool
+) -> None:
+    """Observation rays (body frame) of points ``idx`` seen at ``pixels`` of the left (or right)
+    image at ``pose``, weighted by ``1 / depth^2`` (pixel-error weighting), into the landmarks'
+    multi-view triangulation (:meth:`LandmarkMap.observe`)."""
+    if len(idx) == 0:
+        return
+    cam = rig.right if right else rig.left
+    R, t = rt(pose)
+    pixels = np.asarray(pixels, float)
+    d = np.stack(
+        [
+            (pixels[:, 0] - float(cam.cx)) / float(cam.fx),
+            (pixels[:, 1] - float(cam.cy)) / float(cam.fy),
+            np.ones(len(pixels)),
+        ],
+        1,
+    )
+    centre = -np.asarray(rig.t_rl, float) if right else np.zeros(3)
+    z = landmarks.points.X[idx] @ R[2] + t[2]
+    w = 1.0 / np.maximum(z, 1e-3) ** 2
+    landmarks.observe(idx, np.broadcast_to((centre - t) @ R, d.shape), d @ R, w)
+
+
+def observe_line_planes(landmarks: LandmarkMap, rig: StereoCamera, idx, S, pose: Pose) -> None:
+    """Observation planes (body frame) of line landmarks ``idx`` from their stereo triangulations
+    ``S`` (``(n, 2, 3)``, left camera at ``pose``): the planes through each camera centre and the
+    segment, weighted by ``1 / depth^2`` (pixel-error weighting), into the landmarks' multi-view
+    line fit (:meth:`LandmarkMap.observe_lines`)."""
+    if len(idx) == 0:
+        return
+    R, t = rt(pose)
+    w = 1.0 / np.maximum(S[..., 2].mean(1), 1e-3) ** 2
+    for C in (np.zeros(3), -np.asarray(rig.t_rl, float)):
+        n = np.cross(S[:, 0] - C, S[:, 1] - C)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        landmarks.observe_lines(idx, n @ R, n @ (C - t), w)
+
+
+def line_disparity_agrees(
+    landmarks: LandmarkMap, rig: StereoCamera, idx, S, pose: Pose, max_px: float
+) -> np.ndarray:
+    """Whether the stereo triangulations ``S`` (``(n, 2, 3)``, left camera at ``pose``) of the
+    segments matched to line landmarks ``idx`` agree with the landmark lines: at both endpoints,
+    the disparity of the landmark line where the endpoint's left ray passes closest to it is
+    within ``max_px`` of the segment's own (the point rays' gate)."""
+    if len(idx) == 0:
+        return np.zeros(0, bool)
+    fb = float(rig.left.fx) * float(rig.baseline)
+    R, t = rt(pose)
+    A = landmarks.lines.X[idx, 0] @ R.T + t
+    D = (landmarks.lines.X[idx, 1] - landmarks.lines.X[idx, 0]) @ R.T
+    ok = np.ones(len(idx), bool)
+    for e in range(2):
+        r = S[:, e] / S[:, e, 2:3]  # the left ray of the endpoint, unit depth
+        # closest points of the ray lam r and the line A + s D (2x2 normal equations)
+        rr, rd, dd = (r * r).sum(1), (r * D).sum(1), (D * D).sum(1)
+        ra, da = (r * A).sum(1), (D * A).sum(1)
+        det = rr * dd - rd**2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = (ra * dd - da * rd) / det
+            disp_map = fb / lam
+        disp_new = fb / S[:, e, 2]
+        ok &= (det > 1e-12 * rr * dd) & (lam > 0)
+        ok &= np.abs(disp_new - disp_map) < max_px
+    return ok
+
+
+def update_map(
+    landmarks: LandmarkMap,
+    rig: StereoCamera,
+    options: TrackerOptions,
+    pose: Pose,
+    feats,
+    stereo: FrameStereo,
+    assoc_p: dict,
+    assoc_l: dict,
+    rejected_p: set,
+    rejected_l: set,
+    frame: int,
+) -> None:
+    """Keyframe update at ``pose``: the frame's triangulated features matched to a landmark refine
+    it (when the new depth agrees with the landmark's to ``refine_disparity_px``); the others are
+    added as new landmarks (unless rejected by the frame's fit, ``rejected_*``, or an unmatched
+    landmark projects within ``duplicate_px``); then the map is culled. ``assoc_*``: current
+    feature index -> landmark index."""
+    o = options
+    fb = float(rig.left.fx) * float(rig.baseline)
+    R, t = rt(pose)
+    ip, P, pr = stereo.point_idx, stereo.points, stereo.pixels_right
+    il, S = stereo.line_idx, stereo.segments
+    Pb = (P - t) @ R  # body frame
+    m = landmarks.points
+    has = np.array([i in assoc_p for i in ip], bool)
+    if has.any():
+        idx = np.array([assoc_p[i] for i in ip[has]])
+        z_map = m.X[idx] @ R[2] + t[2]
+        agree = np.abs(fb / P[has, 2] - fb / z_map) < o.refine_disparity_px
+        landmarks.refine("points", idx[agree], None, feats.point_desc[ip[has][agree]], pose, frame)
+        if not o.frame_rays:
+            left_px = feats.points[ip[has][agree]]
+            observe_point_rays(landmarks, rig, idx[agree], left_px, pose, right=False)
+        observe_point_rays(landmarks, rig, idx[agree], pr[has][agree], pose, right=True)
+    new = ~has & ~np.isin(ip, list(rejected_p))
+    if new.any() and len(m):
+        cand = landmarks.candidates("points", pose)
+        cand = cand[~np.isin(cand, list(assoc_p.values()))]
+        if len(cand):
+            tree = cKDTree(project(rig.left, pose, m.X[cand]))
+            d, _ = tree.query(feats.points[ip[new]], distance_upper_bound=o.duplicate_px)
+            new[np.nonzero(new)[0][np.isfinite(d)]] = False
+    ids = landmarks.add("points", Pb[new], feats.point_desc[ip[new]], pose, frame)
+    observe_point_rays(landmarks, rig, ids, feats.points[ip[new]], pose, right=False)
+    observe_point_rays(landmarks, rig, ids, pr[new], pose, right=True)
+    if o.use_lines and len(il):
+        Sb = (S - t) @ R
+        has_l = np.array([i in assoc_l for i in il], bool)
+        if has_l.any():
+            idx = np.array([assoc_l[i] for i in il[has_l]])
+            landmarks.refine("lines", idx, None, feats.line_desc[il[has_l]], pose, frame)
+            if o.line_planes:
+                agree = line_disparity_agrees(
+                    landmarks, rig, idx, S[has_l], pose, o.refine_disparity_px
+                )
+                observe_line_planes(landmarks, rig, idx[agree], S[has_l][agree], pose)
+        new_l = ~has_l & ~np.isin(il, list(rejected_l))
+        ids_l = landmarks.add("lines", Sb[new_l], feats.line_desc[il[new_l]], pose, frame)
+        if o.line_planes:
+            observe_line_planes(landmarks, rig, ids_l, S[new_l], pose)
+    landmarks.cull()

@@ -1,0 +1,165 @@
+"""Options of the stereo tracker and its per-frame result."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from jaxpose.core.geometry import Pose
+from jaxpose.vision.stereo_features import FeatureOptions
+from jaxpose.vision.stereo_match import StereoMatchOptions
+
+__all__ = ["STAGES", "FrameResult", "TrackerOptions"]
+
+#: Stages timed by :meth:`~jaxpose.pipelines.stereo.StereoTracker.process` (seconds each).
+STAGES = ("features", "stereo", "triangulate", "match", "pose")
+
+
+@dataclass(frozen=True)
+class TrackerOptions:
+    """Options of :class:`~jaxpose.pipelines.stereo.StereoTracker`.
+
+    Attributes:
+        use_lines: fuse line features (``False``: points-only mode).
+        depth_range_m: depths searched by the epipolar search (sets the disparity range).
+        depth_margin_m: once the target depth is known, search only ``depth +- margin`` (the
+            target's half size plus a margin; ``None`` searches the whole range every frame).
+        robust: kernel of eq. 10 (``"huber"``, ``"cauchy"``, ``"tukey"`` or ``None``).
+        sigma_px, line_sigma_px: pixel noise of points and line distances (information matrices).
+        max_points, max_lines: padding sizes of the solver (one compiled function for a
+            sequence); beyond ``max_points`` matches the most observed landmarks are kept.
+        min_features: fewer matched features (points + lines) than this is LOST.
+        max_rms_px: a post-fit RMS reprojection error above this is LOST.
+        max_jump_deg, max_jump_m: a pose further than this from the prediction is LOST.
+        search_radius_px: search-by-projection radius around the landmarks' predicted pixels
+            (constant-velocity prediction); doubled on the frame after a lost one.
+        line_angle_deg: a current segment is a candidate for a landmark segment when their
+            directions differ by less than this (and they overlap, within the radius).
+        keyframe_every, keyframe_min: the map is updated (stereo triangulation of the frame's
+            features) every ``keyframe_every`` tracked frames, or when fewer than
+            ``keyframe_min`` inliers remain.
+        inlier_px: post-fit residual below which a feature counts as an inlier.
+        passes, reject_px: LM passes; features with a residual above ``reject_px`` after a pass
+            are left out of the next.
+        max_view_deg, max_obs, cull_after, cull_ratio, keep_obs: visibility cone, running-mean
+            cap and culling of the :class:`~jaxpose.pipelines.stereo.LandmarkMap`.
+        refine_disparity_px: a landmark's new triangulation is averaged in only when its
+            disparity is within this of the landmark's predicted disparity (stereo mismatches
+            are left out).
+        duplicate_px: an unmatched feature within this of an unmatched landmark's projection
+            does not become a new landmark.
+        frame_rays: add every tracked frame's left observation rays to the landmarks'
+            triangulations (else only those of keyframes with a stereo match).
+        stereo_residuals: also fit the right-image pixels of the matched landmarks.
+        features: the feature options; 2000 ORB keypoints instead of 1200 (chosen on the clean
+            2 m sequences, noise seeds 0-2: per-axis RMS position errors at most 10.5 mm instead
+            of at most 16.5 mm, at about 2/3 of the frame rate).
+        points_ref_depth_m: the ORB budget ``features.n_points`` holds for a target at this depth;
+            farther, the budget shrinks with the target's apparent area, ``(ref / z)^2`` (``z``:
+            the last tracked depth of the target origin; rounded to 100, never above
+            ``n_points``), i.e. a constant keypoint density on the target. A far target seen
+            with the full budget gets weak extra corners (clean 3 m: worse with 2000 than with
+            1200 keypoints). ``None``: always ``n_points``.
+        line_planes: refine the line landmarks from all their observation planes (the planes
+            through each camera centre and the segment, body frame, of every stereo pair that
+            matched the landmark; :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe_lines`)
+            instead of keeping the first stereo triangulation. A matched segment's planes are
+            used only when its stereo triangulation agrees with the landmark line to
+            ``refine_disparity_px`` at both endpoints (the point rays' gate): a stereo or LBD
+            mismatch would otherwise tilt the line for good.
+        line_stereo_residuals: with ``stereo_residuals``, also fit the right-image lines of the
+            matched segments that have a stereo match (the landmark segment shifted by
+            ``R^T t_rl``, as the points), so that a line counts in both images as a point does.
+        measured_line_sigma: weight the lines by their measured noise: ``line_sigma_px`` is
+            scaled by the ratio of the line to the point residual scales (medians of the
+            residuals kept by the last pass), averaged over frames with weight
+            ``line_scale_memory`` on the past.
+        stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
+            StereoMatchOptions`).
+    """
+
+    use_lines: bool = True
+    depth_range_m: tuple[float, float] = (0.6, 8.0)
+    depth_margin_m: float | None = 0.8
+    robust: str | None = "huber"
+    sigma_px: float = 1.0
+    line_sigma_px: float = 1.0
+    max_points: int = 2048
+    max_lines: int = 96
+    min_features: int = 12
+    max_rms_px: float = 4.0
+    max_jump_deg: float = 10.0
+    max_jump_m: float = 0.25
+    search_radius_px: float = 12.0
+    line_angle_deg: float = 10.0
+    keyframe_every: int = 1
+    keyframe_min: int = 50
+    inlier_px: float = 2.0
+    passes: int = 3
+    reject_px: float = 1.5
+    max_view_deg: float = 60.0
+    max_obs: int = 10
+    cull_after: int = 8
+    cull_ratio: float = 0.25
+    keep_obs: int = 3
+    refine_disparity_px: float = 1.0
+    duplicate_px: float = 2.0
+    frame_rays: bool = True
+    stereo_residuals: bool = True
+    features: FeatureOptions = field(default_factory=lambda: FeatureOptions(n_points=2000))
+    points_ref_depth_m: float | None = 2.0
+    line_planes: bool = True
+    line_stereo_residuals: bool = True
+    measured_line_sigma: bool = True
+    line_scale_memory: float = 0.9
+    stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
+
+    def __post_init__(self):
+        if self.points_ref_depth_m is not None and not self.points_ref_depth_m > 0:
+            raise ValueError(
+                f"points_ref_depth_m must be positive or None; got {self.points_ref_depth_m}"
+            )
+        if not 0.0 <= self.line_scale_memory < 1.0:
+            raise ValueError(f"line_scale_memory must be in [0, 1); got {self.line_scale_memory}")
+
+
+def lost_pose() -> Pose:
+    """The pose of a lost frame: NaN rotation and translation."""
+    return Pose(np.full((3, 3), np.nan), np.full(3, np.nan))
+
+
+@dataclass
+class FrameResult:
+    """Tracking output of one frame.
+
+    Attributes:
+        index: frame number (0 for the first pair).
+        pose: :class:`~jaxpose.core.geometry.Pose` of the target in the left camera
+            (``x_cam = R x_body + t``; NaN when lost).
+        status: :class:`~jaxpose.core.status.Status` (``OK`` or ``LOST``).
+        n_points, n_lines: features given to the solver.
+        inliers: post-fit inliers; ``rms_px``: their post-fit RMS (pixels).
+        keyframe: this frame updated the landmark map.
+        timings: seconds by stage (:data:`STAGES`).
+    """
+
+    index: int
+    pose: Pose
+    status: int
+    n_points: int = 0
+    n_lines: int = 0
+    inliers: int = 0
+    rms_px: float = float("nan")
+    keyframe: bool = False
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def R(self) -> np.ndarray:
+        """``(3, 3)`` rotation of :attr:`pose` as a NumPy array."""
+        return np.asarray(self.pose.R, float)
+
+    @property
+    def t(self) -> np.ndarray:
+        """``(3,)`` translation of :attr:`pose` as a NumPy array, metres."""
+        return np.asarray(self.pose.t, float)
