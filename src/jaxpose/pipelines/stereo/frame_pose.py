@@ -5,9 +5,10 @@ image."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
-import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -15,14 +16,20 @@ from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.refine import refine_pose
 from jaxpose.core.status import Status
-from jaxpose.pipelines.stereo._arrays import find, lines_from_segments, pad, project
+from jaxpose.pipelines.stereo._arrays import (
+    find,
+    lines_from_segments,
+    nearest_rotation,
+    pad,
+    project,
+)
 from jaxpose.pipelines.stereo.keyframes import FrameStereo
 from jaxpose.pipelines.stereo.options import TrackerOptions
 
 __all__ = ["PoseFit", "fit_pose"]
 
 
-@eqx.filter_jit
+@functools.partial(jax.jit, static_argnames=("robust", "sigma"))
 def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
     """One LM solve (eq. 10) and the post-fit errors of every point (pixels) and line (largest
     endpoint distance, pixels). Points-only mode passes an all-False ``lmask``: one compiled
@@ -162,7 +169,7 @@ def fit_pose(
     # the LM retraction exp(xi) R keeps whatever departure from orthonormality R has, and the
     # constant-velocity prediction R_k R_(k-1)^T R_k compounds it by 1 + sqrt(2) a frame; a
     # quaternion round trip returns the nearest rotation
-    pose = Pose.from_quat(res.pose.quat(), res.pose.t)
+    pose = nearest_rotation(res.pose)
     return PoseFit(
         pose=pose,
         solver_ok=int(res.status) in (Status.OK, Status.NOT_CONVERGED),
