@@ -8,6 +8,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import jaxpose
 from jaxpose import PinholeCamera, Pose
@@ -127,6 +129,37 @@ def test_block_is_psd_rank_two_and_below_its_endpoints_as_points():
         assert gap[0] > -1e-8 * ev[-1]
 
 
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    z=st.floats(2.0, 50.0),
+    parameterization=st.sampled_from(["euler", "tangent"]),
+)
+def test_line_block_never_exceeds_its_endpoints_and_its_rows_are_normal_projections(
+    seed, z, parameterization
+):
+    rng = np.random.default_rng(seed)
+    pose = Pose.from_euler(rng.uniform(-1.0, 1.0, 3), np.r_[rng.uniform(-0.3, 0.3, 2), z])
+    segments = rng.uniform(-0.5, 0.5, (3, 2, 3))
+    L = np.asarray(line_jacobians(segments, pose, CAMERA, parameterization=parameterization))
+    H = np.asarray(
+        point_jacobians(segments.reshape(-1, 3), pose, CAMERA, parameterization=parameterization)
+    ).reshape(3, 2, 2, 6)
+    n = unit_normals(segments, pose)
+    scale = np.abs(H).max()
+    # |row| = |n^T H_k| whatever the sign convention, and the row lies in the span of H_k's rows.
+    np.testing.assert_allclose(
+        np.abs(np.einsum("jkl,jkl->jk", L, np.einsum("ji,jkil->jkl", n, H))),
+        np.sum(L**2, -1),
+        rtol=1e-8,
+        atol=1e-8 * scale**2,
+    )
+    A = np.einsum("jki,jkl->jil", L, L)
+    P = np.einsum("jkai,jkal->jil", H, H)
+    for j in range(3):
+        assert np.linalg.eigvalsh(P[j] - A[j])[0] > -1e-9 * np.linalg.norm(P[j])
+
+
 def _line_motions(segment, pose):
     """State motions (T, delta) keeping the 3-D line on itself: slide along it, rotate about it."""
     R = np.asarray(pose.R)
@@ -233,6 +266,18 @@ def test_jit_vmap_and_gradient_of_the_mixed_dop():
             pdop((flat + e).reshape(segments.shape)) - pdop((flat - e).reshape(segments.shape))
         ) / (2 * h)
         np.testing.assert_allclose(g.reshape(-1)[i], fd, rtol=1e-4, atol=1e-12)
+
+    # ... and with respect to the pose (through the observed line and the Jacobian point).
+    def adop_at(t):
+        p = Pose(pose.R, t)
+        A = jnp.sum(information_blocks(points, p, CAMERA), 0)
+        return dop_from_information(
+            A + jnp.sum(line_information_blocks(segments, p, CAMERA), 0)
+        ).adop
+
+    gt = np.asarray(jax.grad(adop_at)(pose.t))
+    fd = [(adop_at(pose.t + h * e) - adop_at(pose.t - h * e)) / (2 * h) for e in jnp.eye(3)]
+    np.testing.assert_allclose(gt, fd, rtol=1e-4)
     # vmap of grad: one gradient per pose.
     gv = jax.vmap(
         lambda p: jax.grad(lambda s: jnp.sum(line_information_blocks(s, p, CAMERA)))(segments)
@@ -268,6 +313,16 @@ def test_bad_input_raises_value_error_naming_the_argument():
         )
     with pytest.raises(ValueError, match="parameterization"):
         line_information_blocks(segments, pose, CAMERA, parameterization="quaternion")
+    with pytest.raises(ValueError, match="parameterization"):
+        line_jacobians(segments, pose, CAMERA, parameterization="quaternion")
+    with pytest.raises(ValueError, match="sigma"):
+        line_information_blocks(segments, pose, CAMERA, sigma=np.ones(len(segments) + 1))
+    with pytest.raises(ValueError, match="sigma"):
+        line_information_blocks(segments, pose, CAMERA, sigma=-1.0)
+    with pytest.raises(ValueError, match="sigma"):
+        line_information_blocks(segments, pose, CAMERA, sigma=np.r_[np.nan, np.ones(5)])
+    with pytest.raises(ValueError, match="pose"):
+        line_information_blocks(segments, pose.R, CAMERA)
 
 
 # ----------------------------------------------------------------------------- mixed selection

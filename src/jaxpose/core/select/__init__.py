@@ -10,7 +10,10 @@
 * :func:`select_features`: eager convenience from points, pose and camera.
 
 Every function except :func:`select_features` takes one problem and works under ``jit`` and
-``vmap``; ``m`` is a static Python int.
+``vmap``; ``m`` is a static Python int. The DOP-based methods (greedy, exhaustive, branch and bound,
+:func:`subset_dop`) take any stack of ``6 x 6`` information blocks: points
+(:func:`jaxpose.core.dilution.information_blocks`), lines
+(:func:`jaxpose.core.line_dop.line_information_blocks`) or a mix of both.
 """
 
 from jaxpose.core.select._features import METHODS as METHODS

@@ -416,7 +416,8 @@ def branch_and_bound(
 
     Args:
         blocks: ``(n, 6, 6)`` per-point information ``A_i = H_i^T H_i / sigma_i^2`` from
-            :func:`jaxpose.core.dilution.information_blocks` (state order ``(T, eps)``).
+            :func:`jaxpose.core.dilution.information_blocks` (state order ``(T, eps)``), line
+            blocks (:func:`jaxpose.core.line_dop.line_information_blocks`) or a stack of both.
         m: subset size, ``4 <= m <= n`` (static).
         criterion: ``"pdop"`` or ``"adop"``.
         bound: ``"relaxation"`` (default; Frank-Wolfe on the continuous relaxation),

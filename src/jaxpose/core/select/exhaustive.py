@@ -382,7 +382,8 @@ def exhaustive(
 
     Args:
         blocks: ``(n, 6, 6)`` per-point information blocks
-            (:func:`jaxpose.core.dilution.information_blocks`).
+            (:func:`jaxpose.core.dilution.information_blocks`), line blocks
+            (:func:`jaxpose.core.line_dop.line_information_blocks`) or a stack of both.
         m: subset size (static), ``4 <= m <= n``.
         mask: ``(n,)`` bool, valid points of a padded set (subsets with an invalid point are
             skipped).

@@ -48,7 +48,8 @@ def greedy(
 
     Args:
         blocks: ``(n, 6, 6)`` per-point information blocks
-            (:func:`jaxpose.core.dilution.information_blocks`).
+            (:func:`jaxpose.core.dilution.information_blocks`), line blocks
+            (:func:`jaxpose.core.line_dop.line_information_blocks`) or a stack of both.
         m: number of points to keep (static), ``4 <= m <= n``.
         criterion: ``"pdop"`` or ``"adop"``.
         mask: ``(n,)`` bool, valid points (masked ones are removed first, never kept unless
