@@ -1,4 +1,4 @@
-"""Benchmark of feature-point selection (issue 2, item 7).
+"""Benchmark of DOP-based feature-point selection (Ning, Zhang, Wang 2018).
 
 Parts, each a function called by :func:`main`:
 

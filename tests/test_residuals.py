@@ -1,4 +1,4 @@
-"""Point and line residuals, robust kernels and the joint cost (seed 001 eqs. 7-10)."""
+"""Point and line residuals, robust kernels and the joint cost (Yang et al. 2024, eqs. 7-10)."""
 
 import cv2
 import jax

@@ -217,3 +217,41 @@ def test_measured_line_sigma_is_the_ratio_of_the_residual_scales():
     assert slow.line_scale == pytest.approx(0.9 + 0.1 * 0.5, rel=0.01)
     with pytest.raises(ValueError, match="line_scale_memory"):
         StereoTracker(RIG, None, options=TrackerOptions(line_scale_memory=1.0))
+
+
+def test_an_all_nan_first_frame_is_a_status_and_the_map_starts_later(frames):
+    tracker = StereoTracker(RIG, frames[0].pose)
+    nan = np.full(frames[0].left.shape, np.nan)
+    res = tracker.process(nan, nan)
+    assert res.status == Status.TOO_FEW_POINTS
+    assert np.all(np.isnan(res.R)) and np.all(np.isnan(res.t))
+    assert len(tracker.map.points) == 0
+    res = tracker.process(frames[0].left, frames[0].right)
+    assert res.status == Status.OK and len(tracker.map.points) > 100
+    res = tracker.process(frames[1].left, frames[1].right)
+    assert res.status == Status.OK
+
+
+def test_identity_start_tracks_the_motion_relative_to_the_first_frame(frames):
+    """Started at the identity (target frame = first left camera frame), the pose at frame k is
+    T_k T_0^-1 of the true poses; stereo-track's summary aligns it back on the first frame."""
+    from jaxpose.core.geometry import Pose
+    from jaxpose.studies.stereo_track import summarize
+
+    tracker = StereoTracker(RIG, None)
+    results = [tracker.process(fr.left, fr.right) for fr in frames]
+    T0_inv = frames[0].pose.inverse()
+    for fr, res in zip(frames, results, strict=True):
+        assert res.status == Status.OK
+        rel = fr.pose @ T0_inv
+        R = np.asarray(rel.R)
+        angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
+        assert angle < 0.5
+        assert np.linalg.norm(res.t - np.asarray(rel.t)) < 0.02
+    np.testing.assert_allclose(results[0].R, np.eye(3))
+    rep = summarize(results, [fr.pose for fr in frames], [0.1] * len(frames))["summary"]
+    assert max(rep["rms_position_mm"]) < 20.0 and max(rep["rms_attitude_deg"]) < 0.5
+    # a wrong first truth moves every aligned estimate: the alignment is really applied
+    shifted = [Pose(np.asarray(frames[0].pose.R), np.asarray(frames[0].pose.t) + 0.1)]
+    rep2 = summarize(results, shifted + [fr.pose for fr in frames[1:]], [0.1] * len(frames))
+    assert max(rep2["summary"]["rms_position_mm"]) > 50.0

@@ -43,6 +43,7 @@ import numpy as np
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose, rotation_angle
 from jaxpose.core.status import Status
+from jaxpose.pipelines.stereo._arrays import rt
 from jaxpose.pipelines.stereo.frame_pose import fit_pose
 from jaxpose.pipelines.stereo.guided import match_by_projection
 from jaxpose.pipelines.stereo.keyframes import (
@@ -177,12 +178,26 @@ class StereoTracker:
         n = int(round(o.features.n_points * (ref / z) ** 2, -2))
         return replace(o.features, n_points=max(100, min(o.features.n_points, n)))
 
-    def _disparities(self) -> tuple[int, int]:
-        """Disparities searched: around the last known target depth (``+- depth_margin_m``) when
-        there is one, else the whole ``depth_range_m``."""
+    def _disparities(self, pose_pred: Pose | None = None) -> tuple[int, int]:
+        """Disparities searched. With a map and a predicted pose: the depths of the landmarks
+        visible from the prediction (5th to 95th percentile), widened by half their spread
+        plus ``depth_margin_m / 8`` each side (structure turning into view lies within the
+        target, whose visible depth extent the map measures); else around the last known target
+        depth (``+- depth_margin_m``); else the whole ``depth_range_m``."""
         o = self.options
         lo, hi = o.depth_range_m
         z = self._last_depth
+        if o.depth_margin_m is not None and pose_pred is not None and len(self.map.points) >= 20:
+            cand = self.map.candidates("points", pose_pred)
+            if len(cand) >= 20:
+                R, t = rt(pose_pred)
+                depth = self.map.points.X[cand] @ R[2] + t[2]
+                z0, z1 = np.percentile(depth, [5, 95])
+                pad = 0.5 * (z1 - z0) + o.depth_margin_m / 8
+                lo, hi = max(lo, z0 - pad), min(hi, z1 + pad)
+                if lo < hi:
+                    return disparity_range(self.rig, lo, hi)
+                lo, hi = o.depth_range_m
         if o.depth_margin_m is not None and z is not None and np.isfinite(z) and z > 0:
             lo, hi = max(lo, z - o.depth_margin_m), min(hi, z + o.depth_margin_m)
             if not lo < hi:
@@ -212,9 +227,9 @@ class StereoTracker:
         return self._line_scale
 
     # ------------------------------------------------------------------ main entry
-    def _stereo(self, left, right, feats, timings):
+    def _stereo(self, left, right, feats, timings, pose_pred=None):
         return stereo_correspondences(
-            left, right, feats, self.rig, self._disparities(), self.options, timings
+            left, right, feats, self.rig, self._disparities(pose_pred), self.options, timings
         )
 
     def _first_frame(self, left, right, feats, timings) -> FrameResult:
@@ -259,11 +274,11 @@ class StereoTracker:
         if not self._started:
             return self._first_frame(left, right, feats, timings)
 
+        pose_pred = self._delta @ self._pose_prev
         stereo = None
         if o.stereo_residuals or o.keyframe_every <= 1:
-            stereo = self._stereo(left, right, feats, timings)
+            stereo = self._stereo(left, right, feats, timings, pose_pred)
         t1 = time.perf_counter()
-        pose_pred = self._delta @ self._pose_prev
         radius = o.search_radius_px * (2.0 if self._misses else 1.0)
         (i_m, i_cur, cand), (l_m, l_cur, lcand) = match_by_projection(
             self.map,
@@ -346,7 +361,7 @@ class StereoTracker:
             self._since_kf >= o.keyframe_every or result.inliers < o.keyframe_min
         ):
             if stereo is None:
-                stereo = self._stereo(left, right, feats, timings)
+                stereo = self._stereo(left, right, feats, timings, pose_pred)
             update_map(
                 self.map,
                 self.rig,
