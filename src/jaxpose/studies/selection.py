@@ -110,11 +110,7 @@ class Scenario:
     random_attitude: bool = False
     plane_size_m: float = 1.0
     plane_centre_m: tuple[float, float] = (0.0, 0.0)
-<<<<<<< ours
-    sequence: str = "XYZ"
-=======
     sequence: str = DEFAULT_EULER_SEQUENCE
->>>>>>> theirs
     parameterization: str = "euler"
     sigma_px: float = 1.0
 
