@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import io
 import math
 import os
 import pickle
@@ -203,13 +202,25 @@ def global_array(local, sharding: NamedSharding | None, length: int):
     return jax.make_array_from_process_local_data(sharding, local, (length, *local.shape[1:]))
 
 
-def to_host(x) -> np.ndarray:
-    """A NumPy copy of ``x`` on every process (all-gathered when other processes hold rows)."""
-    if isinstance(x, jax.Array) and not x.is_fully_addressable:
-        from jax.experimental import multihost_utils
+def to_host(tree: Any) -> Any:
+    """NumPy copies of the arrays of ``tree`` on every process; the leaves that other processes
+    hold rows of are all-gathered in one collective call (one compilation per tree of shapes)."""
+    leaves, treedef = jax.tree.flatten(tree)
+    remote = [
+        i for i, x in enumerate(leaves) if isinstance(x, jax.Array) and not x.is_fully_addressable
+    ]
+    if remote:
+        mesh = leaves[remote[0]].sharding.mesh
+        gathered = jax.jit(_identity, out_shardings=NamedSharding(mesh, PartitionSpec()))(
+            [leaves[i] for i in remote]
+        )
+        for i, x in zip(remote, gathered, strict=True):
+            leaves[i] = x.addressable_data(0)
+    return jax.tree.unflatten(treedef, [np.asarray(x) for x in leaves])
 
-        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
-    return np.asarray(x)
+
+def _identity(x):
+    return x
 
 
 def broadcast_from_writer(read: Callable[[], Any]) -> Any:
@@ -224,9 +235,13 @@ def broadcast_from_writer(read: Callable[[], Any]) -> Any:
     source = is_writer()
     blob = pickle.dumps(read(), protocol=pickle.HIGHEST_PROTOCOL) if source else b""
     size = int(multihost_utils.broadcast_one_to_all(np.int64(len(blob)), is_source=source))
-    data = np.frombuffer(blob, np.uint8) if source else np.zeros(size, np.uint8)
+    # Padded to a power of two: a handful of compiled broadcasts serve every size.
+    padded = 1 << max(8, (size - 1).bit_length())
+    data = np.zeros(padded, np.uint8)
+    if source:
+        data[:size] = np.frombuffer(blob, np.uint8)
     data = np.asarray(multihost_utils.broadcast_one_to_all(data, is_source=source))
-    return pickle.load(io.BytesIO(data.tobytes()))
+    return pickle.loads(data[:size].tobytes())
 
 
 def map_cases(fn: Callable, batched: tuple, shared: tuple = ()) -> Any:
@@ -255,7 +270,7 @@ def map_cases(fn: Callable, batched: tuple, shared: tuple = ()) -> Any:
 
     run = _sharded(fn, len(batched), len(shared), sharding.mesh)
     out = run(*jax.tree.map(block, batched), *shared)
-    return jax.tree.map(lambda y: to_host(y)[:length], out)
+    return jax.tree.map(lambda y: y[:length], to_host(out))
 
 
 @functools.lru_cache(maxsize=32)
