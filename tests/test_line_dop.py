@@ -384,6 +384,14 @@ def test_exhaustive_and_branch_and_bound_on_mixed_blocks_equal_brute_force(seed)
             np.testing.assert_array_equal(bb.idx, best)
 
 
+def test_exhaustive_float32_kernel_on_mixed_blocks_returns_the_float64_optimum():
+    blocks = np.stack([mixed_blocks(seed) for seed in range(3)])
+    f64 = sel.exhaustive_batch(blocks, M)
+    f32 = sel.exhaustive_batch(blocks, M, kernel_dtype=jnp.float32)
+    for name in ("pdop_idx", "adop_idx", "pdop", "adop"):
+        np.testing.assert_array_equal(getattr(f32, name), getattr(f64, name))
+
+
 def test_optimal_mixed_subsets_use_lines_and_beat_points_only():
     """Non-trivial cases: the optimum takes lines and beats the best points-only subset."""
     with_lines = 0

@@ -108,20 +108,46 @@ def test_tracker_rejects_unrectified_rigs():
 
 
 def test_keypoint_budget_follows_the_target_area():
+    """One keypoint per spacing^2 pixels of target (rounded to 100, within [100, n_points]); the
+    apparent area is the count of bright pixels (checked on a drawn disc)."""
+    from jaxpose.pipelines.stereo.tracker import target_area
+
+    tracker = StereoTracker(RIG, None)
+    assert tracker.feature_options(8.0**2 * 1234).n_points == 1200
+    assert tracker.feature_options(8.0**2 * 5000).n_points == 2000  # never above the budget
+    assert tracker.feature_options(10.0).n_points == 100
+    assert tracker.feature_options(None).n_points == 2000
+    wide = StereoTracker(RIG, None, options=TrackerOptions(keypoint_spacing_px=16.0))
+    assert wide.feature_options(8.0**2 * 1234).n_points == 300
+    fixed = StereoTracker(RIG, None, options=TrackerOptions(keypoint_spacing_px=None))
+    assert fixed.feature_options(8.0**2 * 1234).n_points == 2000
+    img = np.zeros((768, 1024), np.uint8)
+    vv, uu = np.mgrid[:768, :1024]
+    img[(uu - 500) ** 2 + (vv - 400) ** 2 < 200**2] = 120
+    assert target_area(img) == pytest.approx(np.pi * 200**2, rel=0.02)
+    with pytest.raises(ValueError, match="keypoint_spacing_px"):
+        TrackerOptions(keypoint_spacing_px=0.0)
+
+
+def test_search_radius_follows_the_measured_prediction_error(frames):
+    """After a tracked frame the radius is 3 x the 90th percentile of the landmarks' predicted
+    vs fitted pixel distance + 3 sigma (clipped to [r0 / 2, 4 r0]), recomputed here by hand."""
     from jaxpose.core.geometry import Pose
 
-    def budget(depth, **kw):
-        pose = Pose(np.eye(3), np.array([0.0, 0.0, depth]))
-        return StereoTracker(RIG, pose, options=TrackerOptions(**kw)).feature_options().n_points
-
-    # the target's apparent area goes as 1/depth^2: 2000 keypoints at 2 m, 2000 * 4/9 at 3 m
-    assert budget(2.0) == 2000
-    assert budget(1.5) == 2000  # never above the budget
-    assert budget(3.0) == 900
-    assert budget(4.0) == 500
-    assert budget(3.0, points_ref_depth_m=None) == 2000
-    with pytest.raises(ValueError, match="points_ref_depth_m"):
-        StereoTracker(RIG, options=TrackerOptions(points_ref_depth_m=0.0))
+    tracker = StereoTracker(RIG, frames[0].pose)
+    X = np.random.default_rng(0).uniform(-0.3, 0.3, (50, 3))
+    pose = Pose(np.asarray(frames[0].pose.R), np.asarray(frames[0].pose.t))
+    shifted = Pose(np.asarray(pose.R), np.asarray(pose.t) + np.array([0.004, 0.0, 0.0]))
+    tracker._update_radius(X, shifted, pose)
+    fx = float(RIG.left.fx)
+    z = (X @ np.asarray(pose.R).T + np.asarray(pose.t))[:, 2]
+    expected = 3 * np.percentile(fx * 0.004 / z, 90) + 3.0
+    assert tracker._radius == pytest.approx(expected, rel=1e-6)
+    tracker._update_radius(X, pose, pose)  # a perfect prediction: the floor r0 / 2
+    assert tracker._radius == pytest.approx(6.0)
+    far = Pose(np.asarray(pose.R), np.asarray(pose.t) + np.array([0.2, 0.0, 0.0]))
+    tracker._update_radius(X, far, pose)  # the ceiling 4 r0
+    assert tracker._radius == pytest.approx(48.0)
 
 
 def test_stereo_track_command_json(tmp_path, capsys):

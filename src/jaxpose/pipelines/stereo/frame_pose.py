@@ -15,7 +15,13 @@ from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.refine import RefineOptions, refine_pose
 from jaxpose.core.status import Status
-from jaxpose.pipelines.stereo._arrays import find, lines_from_segments, pad, project
+from jaxpose.pipelines.stereo._arrays import (
+    find,
+    lines_from_segments,
+    nearest_rotation,
+    pad,
+    project,
+)
 from jaxpose.pipelines.stereo.keyframes import FrameStereo
 from jaxpose.pipelines.stereo.options import TrackerOptions
 
@@ -160,7 +166,7 @@ def fit_pose(
     # the LM retraction exp(xi) R keeps whatever departure from orthonormality R has, and the
     # constant-velocity prediction R_k R_(k-1)^T R_k compounds it by 1 + sqrt(2) a frame; a
     # quaternion round trip returns the nearest rotation
-    pose = Pose.from_quat(res.pose.quat, res.pose.t)
+    pose = nearest_rotation(res.pose)
     return PoseFit(
         pose=pose,
         solver_ok=int(res.status) in (Status.OK, Status.NOT_CONVERGED),
