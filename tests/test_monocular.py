@@ -76,6 +76,17 @@ def test_overlay(scene):
         assert (np.abs(strip.astype(int) - np.array(colour)).max(axis=-1) < 40).sum() > 10
 
 
+def test_image_depths_give_the_same_pose(scene, camera):
+    """A 16-bit image (full range) and a float64 colour image in [0, 1] give exactly the pose of
+    their 8-bit version."""
+    r, res = scene
+    for img in (r.image.astype(np.uint16) * 257, np.stack([r.image] * 3, -1) / 255.0):
+        other = initialise_pose(img, camera)
+        assert other.confidence == res.confidence
+        np.testing.assert_array_equal(np.asarray(other.pose.R), np.asarray(res.pose.R))
+        np.testing.assert_array_equal(np.asarray(other.pose.t), np.asarray(res.pose.t))
+
+
 @pytest.mark.parametrize("kind", ["black", "saturated", "noise", "cut"])
 def test_bad_images_do_not_crash(camera, kind):
     rng = np.random.default_rng(0)
