@@ -116,3 +116,14 @@ def test_progress_bars_write_to_stderr_only(capsys):
     with _common.stage("quiet", enabled=False):
         pass
     assert capsys.readouterr().err == ""
+
+
+def test_annotations_are_checked_while_testing():
+    """pyproject's addopts turn on jaxtyping's import hook with beartype for the command and
+    study packages: a call against an annotation fails here (an int for a float field)."""
+    import jaxtyping
+
+    from jaxpose.studies.selection import Scenario
+
+    with pytest.raises(jaxtyping.TypeCheckError):
+        Scenario(range_m=5)

@@ -88,11 +88,12 @@ def _fail(prog: str, err: BaseException) -> int:
 
 
 def _one_line_warning(prog: str):
-    """Warnings of the package (a recomputed chunk, ...) as ``jaxpose COMMAND: warning: ...``."""
+    """The package's own warning classes (a recomputed chunk, ...) as one line
+    ``jaxpose COMMAND: warning: ...``; other warnings as Python shows them."""
     previous = warnings.showwarning
 
     def show(message, category, filename, lineno, file=None, line=None):
-        if not issubclass(category, UserWarning) or "jaxpose" not in str(filename):
+        if not category.__module__.startswith("jaxpose"):
             return previous(message, category, filename, lineno, file, line)
         print(f"{prog}: warning: {message}", file=sys.stderr if file is None else file)
 

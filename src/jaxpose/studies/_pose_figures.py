@@ -7,36 +7,17 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxpose.studies._plotting import plain_log_labels, pyplot
+
 __all__ = ["plot_scatter", "plot_std"]
 
 AXES = ("tx", "ty", "tz", "wx", "wy", "wz")
 _PANELS = [(slice(0, 3), 1e3, "mm", "position"), (slice(3, 6), 180 / np.pi, "deg", "attitude")]
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _plain_log_labels(axis, limits) -> None:
-    """Decade labels as plain numbers (``0.01``, not ``10^-2``); with less than two decades in
-    view, the minor ticks (2, 3, ..., 9 times a decade) are labelled too."""
-    from matplotlib.ticker import FuncFormatter, NullFormatter
-
-    plain = FuncFormatter(lambda v, _: f"{v:g}")
-    axis.set_major_formatter(plain)
-    lo, hi = np.log10(limits)
-    decades = int(np.floor(hi)) - int(np.ceil(lo)) + 1
-    axis.set_minor_formatter(plain if decades < 2 else NullFormatter())
-
-
 def plot_std(path: Path, groups: list[dict], names: list[str]) -> None:
     """Per geometry, predicted (lines) and Monte Carlo (markers) std of each axis vs noise."""
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.lines import Line2D
     from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
 
@@ -58,7 +39,7 @@ def plot_std(path: Path, groups: list[dict], names: list[str]) -> None:
             ax.xaxis.set_major_locator(FixedLocator(s))
             ax.xaxis.set_major_formatter(ScalarFormatter())
             ax.xaxis.set_minor_formatter(NullFormatter())
-            _plain_log_labels(ax.yaxis, ax.get_ylim())
+            plain_log_labels(ax.yaxis, ax.get_ylim())
             ax.set_xlabel("pixel noise sigma (px)")
             ax.set_ylabel(f"std ({unit})")
             ax.set_title(f"{name}: {what}", fontsize=10)
@@ -87,7 +68,7 @@ def _ellipse(cov2, k):
 def plot_scatter(path: Path, raw: dict, names: list[str], sigma: float) -> None:
     """Refined poses at ``sigma`` with the predicted 1, 2, 3-sigma ellipses; each axis is fitted
     to the 3-sigma ellipse and the points (scales differ between x and y)."""
-    plt = _pyplot()
+    plt = pyplot()
 
     pairs = [((0, 2), 1e3, "mm"), ((3, 4), 180 / np.pi, "deg")]
     fig, axes = plt.subplots(
@@ -112,7 +93,8 @@ def plot_scatter(path: Path, raw: dict, names: list[str], sigma: float) -> None:
             ax.set_xlabel(f"{AXES[i]} error ({unit})")
             ax.set_ylabel(f"{AXES[j]} error ({unit})")
             ax.set_title(f"{name}, {sigma:g} px", fontsize=10)
-            ax.legend(fontsize=7, loc="upper right")
     fig.suptitle("Refined poses against the predicted covariance")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=2, markerscale=4)
     fig.savefig(path, dpi=110)
     plt.close(fig)

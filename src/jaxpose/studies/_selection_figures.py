@@ -12,27 +12,22 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxpose.studies._plotting import plain_log_labels, pyplot
+
 __all__ = ["figures", "format_report"]
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _ratio_bins(ratios: list[np.ndarray]) -> np.ndarray:
-    """Bins from 1 to the largest ratio of a row of panels (about 40 of them, at least 0.005)."""
-    top = max(float(np.max(r)) for r in ratios if r.size) if ratios else 1.0
+    """About 40 bins (at least 0.005 wide) from 1 to the largest 99th percentile of a row of
+    panels: a few far outliers would otherwise squeeze every other case into one bin."""
+    tops = [float(np.quantile(r, 0.99)) for r in ratios if r.size]
+    top = max(tops + [1.0])
     width = max((top - 1.0) / 40.0, 0.005)
     return 1.0 + width * np.arange(int(np.ceil((top - 1.0) / width)) + 2)
 
 
 def _fig6(result, groups: list[dict], out_dir: Path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.ticker import MaxNLocator
 
     k = len(groups)
@@ -46,10 +41,24 @@ def _fig6(result, groups: list[dict], out_dir: Path) -> Path:
             ok = c["status"] == 0
             ratios.append(c[f"{key}_quasi"][ok] / c[f"{key}_opt"][ok])
         bins = _ratio_bins(ratios)
+        last = bins[-1]
         for j, (g, ratio) in enumerate(zip(groups, ratios, strict=True)):
             ax = axes[i, j]
-            ax.hist(ratio, bins=bins, color=f"C{i}")
-            ax.set_xlim(bins[0], bins[-1])
+            over = ratio >= last
+            # Cases beyond the axis are counted in the last bin and named on the panel.
+            ax.hist(np.minimum(ratio, (bins[-2] + last) / 2), bins=bins, color=f"C{i}")
+            if over.any():
+                ax.text(
+                    0.97,
+                    0.95,
+                    f"{int(over.sum())} case(s) >= {last:.2f}\n"
+                    f"(max {ratio.max():.2f}) in the last bin",
+                    transform=ax.transAxes,
+                    ha="right",
+                    va="top",
+                    fontsize=7,
+                )
+            ax.set_xlim(bins[0], last)
             ax.yaxis.set_major_locator(MaxNLocator(integer=True))
             ax.set_title(f"n = {g['n']}, m = {g['m']}: {key.upper()}", fontsize=9)
             ax.set_xlabel(f"{key.upper()} quasi / optimal", fontsize=9)
@@ -63,7 +72,7 @@ def _fig6(result, groups: list[dict], out_dir: Path) -> Path:
 
 
 def _fig8(n18: list[dict], out_dir: Path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.ticker import MaxNLocator
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), layout="constrained")
@@ -75,6 +84,7 @@ def _fig8(n18: list[dict], out_dir: Path) -> Path:
         ax.set_xlabel("selected points m (of n = 18)")
         ax.set_ylabel(f"mean {key.upper()} ({unit})")
         ax.set_yscale("log")
+        plain_log_labels(ax.yaxis, ax.get_ylim())
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.legend()
     fig.suptitle("Mean DOP against the number of selected points (Ning et al. 2018, Fig. 8)")
@@ -101,7 +111,7 @@ def _timing_panels(groups: list[dict]) -> list[tuple[list[dict], str, str]]:
 
 
 def _fig9_10(groups: list[dict], out_dir: Path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.ticker import MaxNLocator
 
     panels = _timing_panels(groups)
@@ -126,7 +136,7 @@ def _fig9_10(groups: list[dict], out_dir: Path) -> Path:
         t_opt = [g["time_s"]["optimal_per_case"] for g in gs]
         t_quasi = [g["time_s"]["quasi_per_case"] for g in gs]
         ax.plot(xs, t_opt, "o" + style, label="optimal (exhaustive)")
-        ax.plot(xs, t_quasi, "s-" if key else "s", ls="--" if key else "", label="quasi-optimal")
+        ax.plot(xs, t_quasi, "s--" if key else "s", label="quasi-optimal")
         ax.set_yscale("log")
         ax.set_xlabel(label)
         ax.grid(True, which="major", alpha=0.3)
