@@ -226,8 +226,8 @@ def figure(results: list[dict], path: Path) -> None:
         axes[1, col].set_ylabel("RMS attitude (deg)")
     handles = (
         [
-            plt.Line2D([], [], color=colours[a], marker="s", ls="none", label=f"axis {a}")
-            for a in "xyz"
+            plt.Line2D([], [], color=colours[a], marker="s", ls="none", label=f"{a} / {ang}")
+            for a, ang in zip("xyz", ("roll", "pitch", "yaw"), strict=True)
         ]
         + [
             plt.Line2D([], [], color="gray", marker=markers[k], ls="none", label=f"{k} scenes")
@@ -235,9 +235,9 @@ def figure(results: list[dict], path: Path) -> None:
         ]
         + [plt.Line2D([], [], color="red", ls="--", lw=0.8, label="target")]
     )
-    fig.legend(handles=handles, loc="upper center", ncol=6, fontsize=8)
-    fig.suptitle("Stereo tracking, points+lines: per-axis RMS over the scene suite", y=0.995)
-    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    fig.suptitle("Stereo tracking, points+lines: per-axis RMS over the scene suite", y=0.99)
+    fig.legend(handles=handles, loc="upper center", ncol=6, fontsize=8, bbox_to_anchor=(0.5, 0.955))
+    fig.tight_layout(rect=(0, 0, 1, 0.91))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
