@@ -167,8 +167,8 @@ fig, axes = plt.subplots(1, 2, figsize=(9, 4.2))
 for ax, criterion in zip(axes, ("pdop", "adop")):
     res = sel.branch_and_bound(blocks, m, criterion=criterion)
     idx = set(np.asarray(res.idx).tolist())
-    pix = np.asarray(camera.project_body(pose, points))
-    seg_pix = np.asarray(camera.project_body(pose, segments.reshape(-1, 3))).reshape(-1, 2, 2)
+    pix = np.asarray(camera.project(pose.apply(points)))
+    seg_pix = np.asarray(camera.project(pose.apply(segments.reshape(-1, 3)))).reshape(-1, 2, 2)
     ax.scatter(*pix.T, c=["C0" if i in idx else "lightgray" for i in range(12)], zorder=3)
     for j, s in enumerate(seg_pix):
         ax.plot(*s.T, color="C3" if 12 + j in idx else "lightgray", lw=2)

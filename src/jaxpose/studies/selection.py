@@ -39,7 +39,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.dilution import dop_from_information, information_blocks
-from jaxpose.core.geometry import Pose
+from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
 from jaxpose.studies import _selection_figures as _figures
 from jaxpose.studies._selection_figures import format_report
 
@@ -110,7 +110,7 @@ class Scenario:
     random_attitude: bool = False
     plane_size_m: float = 1.0
     plane_centre_m: tuple[float, float] = (0.0, 0.0)
-    sequence: str = "xyz"
+    sequence: str = DEFAULT_EULER_SEQUENCE
     parameterization: str = "euler"
     sigma_px: float = 1.0
 

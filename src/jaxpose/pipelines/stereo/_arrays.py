@@ -44,13 +44,13 @@ def relative(a: Pose, b: Pose) -> Pose:
 @jax.jit
 def nearest_rotation(pose: Pose) -> Pose:
     """The pose with ``R`` returned to the nearest rotation (a quaternion round trip)."""
-    return Pose.from_quat(pose.quat(), pose.t)
+    return Pose.from_quat(pose.quat, pose.t)
 
 
 @jax.jit
 def fraction(motion: Pose, steps) -> Pose:
     """A ``motion`` spread over ``steps`` frames: rotation vector and translation over steps."""
-    return Pose.from_rotvec(motion.rotvec() / steps, motion.t / steps)
+    return Pose.from_rotvec(motion.rotvec / steps, motion.t / steps)
 
 
 @jax.jit

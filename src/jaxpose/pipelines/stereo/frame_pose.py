@@ -5,16 +5,15 @@ image."""
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
-import jax
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
-from jaxpose.core.refine import refine_pose
+from jaxpose.core.refine import RefineOptions, refine_pose
 from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo._arrays import (
     find,
@@ -29,30 +28,28 @@ from jaxpose.pipelines.stereo.options import TrackerOptions
 __all__ = ["PoseFit", "fit_pose"]
 
 
-@functools.partial(jax.jit, static_argnames=("robust", "sigma"))
+@eqx.filter_jit
 def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
     """One LM solve (eq. 10) and the post-fit errors of every point (pixels) and line (largest
     endpoint distance, pixels). Points-only mode passes an all-False ``lmask``: one compiled
     function serves both modes."""
     res = refine_pose(
-        pose0,
         P,
         uv,
+        pose0,
         camera,
         mask=mask,
         sigma=sigma,
-        robust=robust,
-        max_steps=30,
-        rtol=1e-9,
-        atol=1e-10,
         segments_body=S,
         lines_img=L,
         line_mask=lmask,
         line_sigma=line_sigma,
+        options=RefineOptions(robust=robust, max_steps=30, rtol=1e-9, atol=1e-10),
+        throw=False,
     )
     pose = res.pose
-    e_p = jnp.linalg.norm(camera.project_body(pose, P) - uv, axis=-1)
-    pix = camera.project_body(pose, S.reshape(-1, 3)).reshape(-1, 2, 2)
+    e_p = jnp.linalg.norm(camera.project(pose.apply(P)) - uv, axis=-1)
+    pix = camera.project(pose.apply(S.reshape(-1, 3))).reshape(-1, 2, 2)
     n = jnp.linalg.norm(L[:, :2], axis=-1, keepdims=True)
     d = (jnp.einsum("ki,kmi->km", L[:, :2], pix) + L[:, 2:3]) / jnp.where(n > 0, n, 1.0)
     return res, e_p, jnp.max(jnp.abs(d), axis=-1)

@@ -73,8 +73,8 @@ class ExhaustiveResult(eqx.Module):
         pdop: its PDOP (metres per pixel), ``inf`` when the status is not OK.
         adop_idx: ``(m,)`` indices (ascending) of the minimum-ADOP subset.
         adop: its ADOP (radians per pixel), ``inf`` when the status is not OK.
-        status: ``int32`` :class:`~jaxpose.core.status.Status`: ``OK``; ``NONFINITE_INPUT`` for NaN/inf
-            in a valid block; ``TOO_FEW_POINTS`` when fewer than ``m`` points are valid;
+        status: ``int32`` :class:`~jaxpose.core.status.Status`: ``OK``; ``NONFINITE_INPUT``
+            for NaN/inf in a valid block; ``TOO_FEW_POINTS`` when fewer than ``m`` points are valid;
             ``SINGULAR`` when every subset is singular.
     """
 
