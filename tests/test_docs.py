@@ -18,8 +18,17 @@ def test_mkdocs_build_strict(tmp_path):
     pytest.importorskip("material", reason="the docs extra is not installed")
     site = tmp_path / "site"
     proc = subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "mkdocs.yml"),
-         "-d", str(site)],
+        [
+            sys.executable,
+            "-m",
+            "mkdocs",
+            "build",
+            "--strict",
+            "-f",
+            str(ROOT / "mkdocs.yml"),
+            "-d",
+            str(site),
+        ],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -28,8 +37,12 @@ def test_mkdocs_build_strict(tmp_path):
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     # every page of the nav was written, and the API reference holds the entry points
-    for page in ("index.html", "conventions/index.html", "formats/index.html",
-                 "api/toplevel/index.html"):
+    for page in (
+        "index.html",
+        "conventions/index.html",
+        "formats/index.html",
+        "api/toplevel/index.html",
+    ):
         assert (site / page).is_file(), page
     api = (site / "api" / "toplevel" / "index.html").read_text()
     for name in ("jaxpose.dop", "jaxpose.solve_pnp", "jaxpose.refine_pose", "jaxpose.Pose"):
@@ -113,8 +126,11 @@ def test_code_blocks_name_only_what_exists():
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("jaxpose"):
                 module = importlib.import_module(node.module)
-                missing += [f"{where}: {node.module}.{a.name}" for a in node.names
-                            if not hasattr(module, a.name)]
+                missing += [
+                    f"{where}: {node.module}.{a.name}"
+                    for a in node.names
+                    if not hasattr(module, a.name)
+                ]
             elif isinstance(node, ast.Import):
                 for a in node.names:
                     if a.name.startswith("jaxpose"):
