@@ -330,6 +330,8 @@ def main() -> None:
             "score": res.score,
             "coverage": res.coverage,
             "silhouette_iou": res.silhouette_iou,
+            "orientation_agreement": res.orientation_agreement,
+            "margin": res.margin if res.margin is not None and np.isfinite(res.margin) else None,
             "e2d_px": res.reprojection_error_px if np.isfinite(res.reprojection_error_px) else None,
             "runtime_s": wall,
             "timings": res.timings,
@@ -415,7 +417,9 @@ def main() -> None:
     print(json.dumps(summary, indent=1))
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps({"summary": summary, "per_image": rows}))
+        Path(args.out).write_text(
+            json.dumps({"summary": summary, "per_image": rows}, default=_json_default)
+        )
 
 
 if __name__ == "__main__":

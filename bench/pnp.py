@@ -61,6 +61,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxpose  # noqa: E402
+from jaxpose import PnPOptions, RefineOptions  # noqa: E402
 from jaxpose.core.geometry import so3_exp  # noqa: E402
 
 try:  # bench-only dependency
@@ -171,7 +172,18 @@ def jax_solve(points, pixels, K, refine, repeats=3, workers=None):
     ``solve_pnp`` (CPU time of this process, all its threads)."""
 
     def call():
-        res = jaxpose.solve_pnp(points, pixels, K, refine=refine, throw=False, workers=workers)
+        res = jaxpose.solve_pnp(
+            points,
+            pixels,
+            K,
+            throw=False,
+            options=PnPOptions(
+                refine=(
+                    None if refine is None else RefineOptions(method=refine, rtol=1e-6, atol=1e-9)
+                ),
+                workers=workers,
+            ),
+        )
         return jax.block_until_ready(res)
 
     t0, c0 = time.perf_counter(), time.process_time()

@@ -30,7 +30,7 @@ import cv2  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxpose import PinholeCamera, Pose, refine_pose  # noqa: E402
+from jaxpose import PinholeCamera, Pose, RefineOptions, refine_pose  # noqa: E402
 from jaxpose.core.geometry import rotation_angle, so3_exp  # noqa: E402
 
 CAM = PinholeCamera(800.0, 800.0, 320.0, 240.0)
@@ -43,7 +43,7 @@ def scenes(B, n, noise, perturb_deg, perturb_frac, seed=0):
     depth = rng.uniform(3.0, 15.0, B)
     t = np.c_[rng.uniform(-0.3, 0.3, (B, 2)), depth]
     truth = Pose(R, jnp.asarray(t))
-    pix = np.asarray(jax.vmap(CAM.project_body)(truth, jnp.asarray(P)))
+    pix = np.asarray(jax.vmap(lambda pose, p: CAM.project(pose.apply(p)))(truth, jnp.asarray(P)))
     pix = pix + noise * rng.normal(size=pix.shape)
     w = rng.normal(size=(B, 3)) * np.deg2rad(perturb_deg) / np.sqrt(3)
     dt = rng.normal(size=(B, 3)) * perturb_frac * depth[:, None] / np.sqrt(3)
@@ -59,7 +59,7 @@ def errors(R, t, truth):
 
 def bench_cv2(P, pix, pose0, truth, repeat_s=2.0):
     K = np.asarray(CAM.K)
-    rvecs = np.asarray(pose0.rotvec())
+    rvecs = np.asarray(pose0.rotvec)
     tvecs = np.asarray(pose0.t)
     B = len(P)
     R_out, t_out = np.zeros((B, 3, 3)), np.zeros((B, 3))
@@ -76,7 +76,13 @@ def bench_cv2(P, pix, pose0, truth, repeat_s=2.0):
 
 
 def bench_jax(P, pix, pose0, truth, backend, repeats=3):
-    f = jax.jit(jax.vmap(lambda p0, x, u: refine_pose(p0, x, u, CAM, sigma=0.5, backend=backend)))
+    f = jax.jit(
+        jax.vmap(
+            lambda p0, x, u: refine_pose(
+                x, u, p0, CAM, sigma=0.5, options=RefineOptions(backend=backend), throw=False
+            )
+        )
+    )
     args = (pose0, jnp.asarray(P), jnp.asarray(pix))
     t0, c0 = time.perf_counter(), time.process_time()
     compiled = f.lower(*args).compile()

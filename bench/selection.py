@@ -2,7 +2,8 @@
 
 Parts, each a function called by :func:`main`:
 
-(a) :func:`bench_kernel`: the exhaustive kernel (:func:`jaxpose.core.select.exhaustive_batch`, float64
+(a) :func:`bench_kernel`: the exhaustive kernel (:func:`jaxpose.core.select.exhaustive_batch`,
+float64
     and float32-with-float64-recheck) against a plain NumPy loop over subsets (``np.linalg.inv``
     per subset, timed on a sample and extrapolated) and against a straightforward batched
     ``jnp.linalg.inv`` (stack all subset matrices, invert, take traces), in subsets per second;
@@ -29,7 +30,9 @@ import json
 import math
 import os
 import platform
+import sys
 import time
+from pathlib import Path
 
 import jax
 
@@ -41,8 +44,10 @@ import numpy as np  # noqa: E402
 from jaxpose import select as sel  # noqa: E402
 from jaxpose.core.dilution import information_blocks  # noqa: E402
 from jaxpose.core.geometry import Pose  # noqa: E402
-from jaxpose.core.select import bnb as bnb_module  # noqa: E402
 from jaxpose.studies.selection import Scenario, make_cases  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from bnb_numpy import branch_and_bound_numpy  # noqa: E402  (the test oracle, timed here)
 
 M = 8
 TABLE4_N = (12, 14, 16, 18)
@@ -174,15 +179,15 @@ def bench_kernel(
 
 
 def bench_float32_error(n: int = 14, cases: int = 100, ranges=(3.0, 10.0, 30.0, 100.0, 300.0)):
-    """What :data:`jaxpose.core.select.exhaustive.FLOAT32_MARGIN` rests on: the relative error of the
-    float32 kernel's scores against float64 over every subset, at several ranges, and how many
+    """What :data:`jaxpose.core.select._exhaustive.FLOAT32_MARGIN` rests on: the relative error of
+    the float32 kernel's scores against float64 over every subset, at several ranges, and how many
     cases the float32 kernel cannot certify (near-ties, searched again in float64)."""
     import dataclasses
     import sys
 
     from jaxpose.core.select._kernel import traces
 
-    ex = sys.modules["jaxpose.core.select.exhaustive"]
+    ex = sys.modules["jaxpose.core.select._exhaustive"]
     K = math.comb(n, M)
     member = jax.nn.one_hot(sel.unrank_combinations(jnp.arange(K), n, M), n).sum(1)
 
@@ -369,7 +374,7 @@ def bench_bnb(args) -> dict | None:
             host = []
             for b in blocks[:few]:
                 t0 = time.perf_counter()
-                bnb_module._branch_and_bound_numpy(b, M, criterion="pdop")
+                branch_and_bound_numpy(b, M, criterion="pdop")
                 host.append(time.perf_counter() - t0)
             group["pdop_numpy_host_loop"] = {
                 "cases": few,

@@ -11,12 +11,21 @@ an estimate with geometry the estimate never saw:
   matched keypoint and the projection is how far one corner's keypoints move between views, for
   ``cv2.cornerSubPix`` half-windows 3 and 7.
 
+* drift (``--drift SCENE``, a scene of ``bench/stereo.py``): the tracker run twice on the same
+  frames, as it is and with its landmark map updated at the *true* poses (an oracle map; the
+  poses are still estimated from it). Reported per axis: the error of the target position in the
+  camera, ``t_est - t_true``; of the chaser position in the target frame, ``c = -R^T t`` (the
+  stereo-track metric); of the attitude, and the attitude error split into the rotation about the
+  spin axis (spin phase) and across it.
+
     python bench/stereo_diagnose.py               # 2 m; --range-m 3 for the far scene
+    python bench/stereo_diagnose.py --drift d2-blur-3m-fast --frames 60
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 
 import numpy as np
@@ -27,6 +36,7 @@ from jaxpose.vision.stereo_match import disparity_range, match_points_stereo
 from jaxpose.vision.stereo_render import (
     StereoScene,
     default_rig,
+    render_sequence,
     render_stereo_frame,
     tumbler_model,
 )
@@ -51,10 +61,85 @@ def raycast(pixels, R, t, camera, model) -> np.ndarray:
     return X
 
 
+def _errors(results, truths, spin_axis_cam):
+    """Per-axis RMS of the camera-frame position (mm), chaser position (mm), attitude (deg) and
+    the attitude error about / across the spin axis (deg) over the tracked frames."""
+    from jaxpose.core.geometry import so3_log
+
+    et, ec, ea, ephase, eacross = [], [], [], [], []
+    for res, truth in zip(results, truths, strict=True):
+        if res.status != 0:
+            continue
+        Rt, tt = np.asarray(truth.R), np.asarray(truth.t)
+        et.append((res.t - tt) * 1000)
+        ec.append((-res.R.T @ res.t + Rt.T @ tt) * 1000)
+        w = np.degrees(np.asarray(so3_log(res.R @ Rt.T)))  # camera-frame rotation error
+        ea.append(w)
+        ephase.append(w @ spin_axis_cam)
+        eacross.append(np.linalg.norm(w - (w @ spin_axis_cam) * spin_axis_cam))
+
+    def rms(e):
+        return np.round(np.sqrt(np.mean(np.square(e), axis=0)), 3).tolist()
+
+    return {
+        "camera_position_mm": rms(et),
+        "chaser_position_mm": rms(ec),
+        "attitude_rotvec_deg": rms(ea),
+        "about_spin_axis_deg": rms(ephase),
+        "across_spin_axis_deg": rms(eacross),
+        "lost": int(sum(r.status != 0 for r in results)),
+    }
+
+
+def drift(name: str, frames: int) -> dict:
+    """Drift of the tracker as it is and with an oracle map (module docstring)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+    from stereo import scene_of  # bench/stereo.py
+
+    import jaxpose.pipelines.stereo.tracker as tracker_module
+    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
+
+    scene = scene_of(name, frames, 0)
+    rig = default_rig()
+    seq = list(render_sequence(scene, rig))
+    R0 = np.asarray(seq[0].pose.R)
+    axis_body = np.asarray(scene.spin_axis_body, float)
+    spin_axis_cam = R0 @ axis_body / np.linalg.norm(axis_body)
+    opts = TrackerOptions(depth_range_m=(0.3, max(8.0, 3 * scene.range_m)))
+    out = {}
+    update_map, observe = tracker_module.update_map, tracker_module.observe_point_rays
+    truth = [None]
+    for label in ("as is", "oracle map"):
+        if label == "oracle map":
+            tracker_module.update_map = lambda *a, **k: update_map(*a[:3], truth[0], *a[4:], **k)
+            tracker_module.observe_point_rays = lambda *a, **k: observe(
+                *a[:4], truth[0], *a[5:], **k
+            )
+        try:
+            tr = StereoTracker(rig, seq[0].pose, options=opts)
+            results = []
+            for fr in seq:
+                truth[0] = fr.pose
+                results.append(tr.process(fr.left, fr.right))
+        finally:
+            tracker_module.update_map, tracker_module.observe_point_rays = update_map, observe
+        out[label] = _errors(results, [fr.pose for fr in seq], spin_axis_cam)
+        print(f"{name}, {frames} frames, {label}: {json.dumps(out[label])}", flush=True)
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--range-m", type=float, default=2.0)
+    p.add_argument("--drift", default=None, help="a scene of bench/stereo.py: drift diagnosis")
+    p.add_argument("--frames", type=int, default=60, help="frames of the drift diagnosis")
     args = p.parse_args(argv)
+    if args.drift:
+        drift(args.drift, args.frames)
+        return 0
     scene = StereoScene(range_m=args.range_m)
     rig, model = default_rig(), tumbler_model()
     cam = rig.left

@@ -43,7 +43,7 @@ code("""camera = jp.PinholeCamera.from_focal_length(0.05, 5.5e-6, (2048, 2048))
 pose = jp.Pose.from_euler(np.deg2rad([20.0, 20.0, 20.0]), np.array([0.0, 0.0, 10.0]))
 n = 16
 points = np.c_[rng.uniform(-0.5, 0.5, (n, 2)), np.zeros(n)]
-pixels = np.asarray(camera.project_body(pose, points))
+pixels = np.asarray(camera.project(pose.apply(points)))
 
 H = jp.observation_jacobian(points, pose, camera)
 res = jp.dop(points, pose, camera)

@@ -46,12 +46,13 @@ code("""camera = jp.PinholeCamera(1000.0, 1000.0, 511.5, 511.5)
 truth = jp.Pose.from_euler(np.deg2rad([20.0, -15.0, 30.0]), np.array([0.2, -0.1, 5.0]))
 n = 20
 points = rng.uniform(-0.5, 0.5, (n, 3))
-pixels = np.asarray(camera.project_body(truth, points)) + 0.5 * rng.normal(size=(n, 2))
+pixels = np.asarray(camera.project(truth.apply(points))) + 0.5 * rng.normal(size=(n, 2))
 
-res = jp.refine_pose(truth, points, pixels, camera, sigma=0.5, rtol=1e-13, atol=1e-15)
+tight = jp.RefineOptions(rtol=1e-13, atol=1e-15)
+res = jp.refine_pose(points, pixels, truth, camera, sigma=0.5, options=tight)
 print("status", jp.Status(int(res.status)).name, " rms %.3f px" % res.rms_px,
       " steps", int(res.num_steps))
-sens = jp.sensitivity(res, points, pixels, camera, sigma=0.5)
+sens = jp.sensitivity(points, pixels, res, camera, sigma=0.5)
 print("d pose / d(fx, fy, cx, cy)  [rows tx ty tz (m/px), wx wy wz (rad/px)]")
 print(np.array2string(np.asarray(sens.d_intrinsics), precision=6, suppress_small=True))""")
 
@@ -65,8 +66,8 @@ code("""def tangent(a, b):
     return np.concatenate([np.asarray(a.t - b.t), np.asarray(so3_log(a.R @ b.R.T))])
 
 errors = np.linspace(-0.02, 0.02, 5 if SMALL else 9) * 1000.0   # focal errors in px (+-2 %)
-solve = jax.jit(lambda cam: jp.refine_pose(res.pose, points, pixels, cam, sigma=0.5,
-                                           rtol=1e-13, atol=1e-15).pose)
+solve = jax.jit(lambda cam: jp.refine_pose(points, pixels, res.pose, cam, sigma=0.5,
+                                           options=tight).pose)
 actual = []
 for df in errors:
     cam = jp.PinholeCamera(camera.fx + df, camera.fy + df, camera.cx, camera.cy)
@@ -116,7 +117,7 @@ along `u` and re-solve.""")
 code("""i = int(order[0])
 h = 0.05
 moved = pixels.copy(); moved[i, 0] += h
-p_new = jp.refine_pose(res.pose, points, moved, camera, sigma=0.5, rtol=1e-13, atol=1e-15).pose
+p_new = jp.refine_pose(points, moved, res.pose, camera, sigma=0.5, options=tight).pose
 fd = tangent(p_new, res.pose) / h
 print("finite difference :", np.array2string(fd, precision=7))
 print("implicit derivative:", np.array2string(np.asarray(sens.d_pixels[:, i, 0]), precision=7))""")
@@ -128,7 +129,7 @@ differentiated with respect to any input, here the range with respect to the foc
 to all model points at once.""")
 
 code("""def range_of(cam, pts):
-    return jp.refine_pose(res.pose, pts, pixels, cam, sigma=0.5, rtol=1e-13, atol=1e-15).pose.t[2]
+    return jp.refine_pose(pts, pixels, res.pose, cam, sigma=0.5, options=tight).pose.t[2]
 
 g_cam, g_pts = jax.grad(range_of, argnums=(0, 1))(camera, jnp.asarray(points))
 print("d tz / d fx = %.4e m/px (sensitivity: %.4e)" % (g_cam.fx, sens.d_intrinsics[2, 0]))

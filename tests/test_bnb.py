@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from bnb_numpy import branch_and_bound_numpy
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -96,8 +97,7 @@ def test_without_heuristic_and_numpy_host_loop_agree():
         res = check_against_brute(blocks, 6, criterion, heuristic=False)
         assert int(res.status) == Status.OK
         res = branch_and_bound(blocks, 6, criterion=criterion)
-        host = bnb_module._branch_and_bound_numpy
-        idx, value, nodes, iters = host(blocks, 6, criterion=criterion)
+        idx, value, nodes, iters = branch_and_bound_numpy(blocks, 6, criterion=criterion)
         np.testing.assert_array_equal(idx, np.asarray(res.idx))
         np.testing.assert_allclose(value, float(res.value), rtol=1e-9)
         assert (nodes, iters) == (int(res.nodes), int(res.iterations))

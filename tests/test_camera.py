@@ -26,7 +26,7 @@ def test_projection_matches_opencv(rng):
     rvec, tvec = rng.normal(size=3) * 0.2, np.array([0.1, -0.2, 1.0])
     pose = Pose.from_rotvec(rvec, tvec)
     ref, _ = cv2.projectPoints(pts, rvec, tvec, K, SPEED_DIST)
-    np.testing.assert_allclose(cam.project_body(pose, pts), ref[:, 0], atol=1e-8)
+    np.testing.assert_allclose(cam.project(pose.apply(pts)), ref[:, 0], atol=1e-8)
 
 
 def test_undistort_matches_opencv_and_inverts_distort(rng):
@@ -112,7 +112,7 @@ def test_speedplus_keypoints_project_inside_image(speedplus_dir):
         speedplus_dir / "tango_keypoints.csv", delimiter=",", skiprows=1, usecols=(1, 2, 3)
     )
     for label in load_speed_labels(speedplus_dir):
-        px = np.asarray(cam.project_body(label.pose, kp))
+        px = np.asarray(cam.project(label.pose.apply(kp)))
         assert np.all(np.asarray(label.pose.apply(kp))[:, 2] > 0)
         inside = np.all((px >= 0) & (px < [1920, 1200]), axis=1)
         assert inside.sum() >= 8, label.image  # lightbox_img000001 has an antenna cut by the frame

@@ -11,23 +11,55 @@ from scipy.spatial.transform import Rotation
 
 from jaxpose import geometry as g
 
-SEQUENCES = ["xyz", "xzy", "yxz", "yzx", "zxy", "zyx"]
+TAIT_BRYAN = ["XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX"]
+PROPER = ["XYX", "XZX", "YXY", "YZY", "ZXZ", "ZYZ"]
+SEQUENCES = [s for seq in TAIT_BRYAN + PROPER for s in (seq, seq.lower())]  # 24: SciPy's naming
 angles3 = st.lists(st.floats(-1.5, 1.5), min_size=3, max_size=3)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(angles=angles3, seq=st.sampled_from(SEQUENCES))
-def test_euler_matches_scipy_intrinsic_and_round_trips(angles, seq):
+def test_euler_matches_scipy_both_ways(angles, seq):
+    """All 12 sequences, intrinsic (upper case) and extrinsic (lower case), as SciPy names them."""
     angles = np.asarray(angles)
+    if seq.upper() in PROPER:  # SciPy's ranges: middle angle in [0, pi] for proper Euler
+        angles[1] = abs(angles[1]) + 0.05
     R = np.asarray(g.euler_to_dcm(angles, seq))
-    R_ref = Rotation.from_euler(seq.upper(), angles).as_matrix()  # upper case = intrinsic
-    np.testing.assert_allclose(R, R_ref, atol=1e-12)
-    np.testing.assert_allclose(np.asarray(g.dcm_to_euler(R, seq)), angles, atol=1e-9)
+    np.testing.assert_allclose(R, Rotation.from_euler(seq, angles).as_matrix(), atol=1e-12)
+    back = np.asarray(g.dcm_to_euler(R, seq))
+    np.testing.assert_allclose(back, angles, atol=1e-9)
+    np.testing.assert_allclose(back, Rotation.from_matrix(R).as_euler(seq), atol=1e-9)
+
+
+@pytest.mark.parametrize("seq", TAIT_BRYAN + PROPER)
+def test_every_sequence_against_scipy_on_a_grid(seq):
+    """Away from gimbal lock, every rotation of a grid converts both ways like SciPy."""
+    rng = np.random.default_rng(7)
+    R = Rotation.random(200, random_state=rng)
+    for s in (seq, seq.lower()):
+        ref = R.as_euler(s)
+        middle = ref[:, 1] if seq in TAIT_BRYAN else ref[:, 1] - np.pi / 2
+        keep = np.abs(np.abs(middle) - np.pi / 2) > 1e-3  # not at gimbal lock
+        np.testing.assert_allclose(
+            np.asarray(g.dcm_to_euler(R.as_matrix(), s))[keep], ref[keep], atol=1e-9
+        )
+        np.testing.assert_allclose(g.euler_to_dcm(ref, s), R.as_matrix(), atol=1e-12)
+
+
+def test_default_sequence_is_intrinsic_xyz():
+    """The default rotation did not change: roll about x, then the new y, then the new z."""
+    a = np.array([0.1, -0.2, 0.3])
+    assert g.DEFAULT_EULER_SEQUENCE == "XYZ"
+    Rx, Ry, Rz = (np.asarray(g.elementary_rotation(k, a[k])) for k in range(3))
+    np.testing.assert_allclose(g.euler_to_dcm(a), Rx @ Ry @ Rz, atol=1e-15)
+    np.testing.assert_allclose(g.euler_to_dcm(a, "xyz"), Rz @ Ry @ Rx, atol=1e-15)
+    np.testing.assert_allclose(g.Pose.from_euler(a, np.zeros(3)).euler(), a, atol=1e-12)
 
 
 def test_bad_euler_sequence_and_shapes():
-    with pytest.raises(ValueError, match="Tait-Bryan"):
-        g.euler_to_dcm(np.zeros(3), "xyx")
+    for bad in ("xxy", "XyZ", "xyzz", "abc", "XX", 3):
+        with pytest.raises(ValueError, match="upper case for intrinsic"):
+            g.euler_to_dcm(np.zeros(3), bad)
     with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
         g.euler_to_dcm(np.zeros(4))
     with pytest.raises(ValueError, match=r"3, 3"):
@@ -111,11 +143,15 @@ def test_pose_apply_inverse_compose(rng):
     np.testing.assert_allclose((p1 @ p2).apply(x), p1.apply(p2.apply(x)), atol=1e-12)
     np.testing.assert_allclose(p1.apply(x), x @ np.asarray(p1.R).T + np.asarray(p1.t), atol=1e-12)
     xi = rng.normal(size=6) * 0.1
-    p3 = p1.retract(xi)
-    dR, dt = g.se3_exp(xi)
-    np.testing.assert_allclose(
-        p3.apply(x), p1.apply(x) @ np.asarray(dR).T + np.asarray(dt), atol=1e-12
-    )
+    p3 = p1.retract(xi)  # the tangent convention: R <- exp([omega]_x) R, t <- t + rho
+    dR = scipy.linalg.expm(np.asarray(g.hat(xi[3:])))
+    np.testing.assert_allclose(p3.R, dR @ np.asarray(p1.R), atol=1e-12)
+    np.testing.assert_allclose(p3.t, np.asarray(p1.t) + xi[:3], atol=1e-15)
+    # properties: quat, rotvec; euler a method (it takes a sequence)
+    np.testing.assert_allclose(p1.rotvec, Rotation.from_matrix(p1.R).as_rotvec(), atol=1e-12)
+    q = np.asarray(p2.quat)
+    ref = Rotation.from_matrix(p2.R).as_quat()[[3, 0, 1, 2]]
+    np.testing.assert_allclose(q * np.sign(q[0]), ref * np.sign(ref[0]), atol=1e-12)
     with pytest.raises(ValueError, match="Pose needs"):
         g.Pose(np.eye(3), np.zeros(2))
 

@@ -8,6 +8,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import jaxpose
 from jaxpose import PinholeCamera, Pose
@@ -20,7 +22,7 @@ from jaxpose.core.residuals import line_from_segment, line_residuals
 CAMERA = PinholeCamera.from_focal_length(0.05, 5e-6, (2048, 2048))
 
 
-def scene(seed, n_lines=6, n_points=0, seq="xyz"):
+def scene(seed, n_lines=6, n_points=0, seq="XYZ"):
     """Random segments (and points) of a ~1 m target seen at ~10 m, tilted."""
     rng = np.random.default_rng(seed)
     angles = np.deg2rad(rng.uniform(-30.0, 30.0, 3))
@@ -34,7 +36,7 @@ def scene(seed, n_lines=6, n_points=0, seq="xyz"):
 
 def unit_normals(segments, pose):
     """Unit normals of the projected segments (pixels), by NumPy."""
-    pix = np.asarray(CAMERA.project_body(pose, jnp.asarray(segments.reshape(-1, 3)))).reshape(
+    pix = np.asarray(CAMERA.project(pose.apply(jnp.asarray(segments.reshape(-1, 3))))).reshape(
         -1, 2, 2
     )
     d = pix[:, 1] - pix[:, 0]
@@ -74,7 +76,7 @@ def test_rows_equal_normal_times_point_jacobian_closed_form():
             np.testing.assert_allclose(sign * L[j, k], ref, rtol=1e-9, atol=1e-6)
 
 
-@pytest.mark.parametrize("seq", ["xyz", "zyx"])
+@pytest.mark.parametrize("seq", ["XYZ", "zyx"])
 def test_rows_equal_normal_times_point_jacobian_euler(seq):
     segments, _, pose = scene(1, seq=seq)
     L = np.asarray(line_jacobians(segments, pose, CAMERA, sequence=seq))
@@ -85,11 +87,11 @@ def test_rows_equal_normal_times_point_jacobian_euler(seq):
 
 
 @pytest.mark.parametrize(
-    ("seq", "parameterization"), [("xyz", "euler"), ("zyx", "euler"), ("xyz", "tangent")]
+    ("seq", "parameterization"), [("XYZ", "euler"), ("zyx", "euler"), ("XYZ", "tangent")]
 )
 def test_jacobian_matches_finite_differences_of_the_eq9_residual(seq, parameterization):
     segments, _, pose = scene(2, seq=seq)
-    pix = CAMERA.project_body(pose, jnp.asarray(segments.reshape(-1, 3))).reshape(-1, 2, 2)
+    pix = CAMERA.project(pose.apply(jnp.asarray(segments.reshape(-1, 3)))).reshape(-1, 2, 2)
     observed = line_from_segment(pix[:, 0], pix[:, 1])  # the line seen at the true pose
 
     def residuals(x):
@@ -125,6 +127,37 @@ def test_block_is_psd_rank_two_and_below_its_endpoints_as_points():
         # Two distances along n carry no more than the four pixel coordinates of the endpoints.
         gap = np.linalg.eigvalsh(P[j].sum(0) - A[j])
         assert gap[0] > -1e-8 * ev[-1]
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    z=st.floats(2.0, 50.0),
+    parameterization=st.sampled_from(["euler", "tangent"]),
+)
+def test_line_block_never_exceeds_its_endpoints_and_its_rows_are_normal_projections(
+    seed, z, parameterization
+):
+    rng = np.random.default_rng(seed)
+    pose = Pose.from_euler(rng.uniform(-1.0, 1.0, 3), np.r_[rng.uniform(-0.3, 0.3, 2), z])
+    segments = rng.uniform(-0.5, 0.5, (3, 2, 3))
+    L = np.asarray(line_jacobians(segments, pose, CAMERA, parameterization=parameterization))
+    H = np.asarray(
+        point_jacobians(segments.reshape(-1, 3), pose, CAMERA, parameterization=parameterization)
+    ).reshape(3, 2, 2, 6)
+    n = unit_normals(segments, pose)
+    scale = np.abs(H).max()
+    # |row| = |n^T H_k| whatever the sign convention, and the row lies in the span of H_k's rows.
+    np.testing.assert_allclose(
+        np.abs(np.einsum("jkl,jkl->jk", L, np.einsum("ji,jkil->jkl", n, H))),
+        np.sum(L**2, -1),
+        rtol=1e-8,
+        atol=1e-8 * scale**2,
+    )
+    A = np.einsum("jki,jkl->jil", L, L)
+    P = np.einsum("jkai,jkal->jil", H, H)
+    for j in range(3):
+        assert np.linalg.eigvalsh(P[j] - A[j])[0] > -1e-9 * np.linalg.norm(P[j])
 
 
 def _line_motions(segment, pose):
@@ -233,6 +266,18 @@ def test_jit_vmap_and_gradient_of_the_mixed_dop():
             pdop((flat + e).reshape(segments.shape)) - pdop((flat - e).reshape(segments.shape))
         ) / (2 * h)
         np.testing.assert_allclose(g.reshape(-1)[i], fd, rtol=1e-4, atol=1e-12)
+
+    # ... and with respect to the pose (through the observed line and the Jacobian point).
+    def adop_at(t):
+        p = Pose(pose.R, t)
+        A = jnp.sum(information_blocks(points, p, CAMERA), 0)
+        return dop_from_information(
+            A + jnp.sum(line_information_blocks(segments, p, CAMERA), 0)
+        ).adop
+
+    gt = np.asarray(jax.grad(adop_at)(pose.t))
+    fd = [(adop_at(pose.t + h * e) - adop_at(pose.t - h * e)) / (2 * h) for e in jnp.eye(3)]
+    np.testing.assert_allclose(gt, fd, rtol=1e-4)
     # vmap of grad: one gradient per pose.
     gv = jax.vmap(
         lambda p: jax.grad(lambda s: jnp.sum(line_information_blocks(s, p, CAMERA)))(segments)
@@ -268,6 +313,16 @@ def test_bad_input_raises_value_error_naming_the_argument():
         )
     with pytest.raises(ValueError, match="parameterization"):
         line_information_blocks(segments, pose, CAMERA, parameterization="quaternion")
+    with pytest.raises(ValueError, match="parameterization"):
+        line_jacobians(segments, pose, CAMERA, parameterization="quaternion")
+    with pytest.raises(ValueError, match="sigma"):
+        line_information_blocks(segments, pose, CAMERA, sigma=np.ones(len(segments) + 1))
+    with pytest.raises(ValueError, match="sigma"):
+        line_information_blocks(segments, pose, CAMERA, sigma=-1.0)
+    with pytest.raises(ValueError, match="sigma"):
+        line_information_blocks(segments, pose, CAMERA, sigma=np.r_[np.nan, np.ones(5)])
+    with pytest.raises(ValueError, match="pose"):
+        line_information_blocks(segments, pose.R, CAMERA)
 
 
 # ----------------------------------------------------------------------------- mixed selection
@@ -327,6 +382,14 @@ def test_exhaustive_and_branch_and_bound_on_mixed_blocks_equal_brute_force(seed)
         if unique:
             np.testing.assert_array_equal(got, best)
             np.testing.assert_array_equal(bb.idx, best)
+
+
+def test_exhaustive_float32_kernel_on_mixed_blocks_returns_the_float64_optimum():
+    blocks = np.stack([mixed_blocks(seed) for seed in range(3)])
+    f64 = sel.exhaustive_batch(blocks, M)
+    f32 = sel.exhaustive_batch(blocks, M, kernel_dtype=jnp.float32)
+    for name in ("pdop_idx", "adop_idx", "pdop", "adop"):
+        np.testing.assert_array_equal(getattr(f32, name), getattr(f64, name))
 
 
 def test_optimal_mixed_subsets_use_lines_and_beat_points_only():

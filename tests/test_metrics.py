@@ -65,7 +65,7 @@ def test_reprojection_error_2d_eq22():
     cam = PinholeCamera(500.0, 500.0, 320.0, 240.0)
     p = pose()
     pts = jnp.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0]])
-    pix = cam.project_body(p, pts)
+    pix = cam.project(p.apply(pts))
     assert float(reprojection_error_2d(p, pts, pix, cam)) == pytest.approx(0.0, abs=1e-9)
     off = pix + jnp.array([[3.0, 4.0], [0.0, 0.0], [0.0, 0.0]])
     assert float(reprojection_error_2d(p, pts, off, cam)) == pytest.approx(5.0 / 3)

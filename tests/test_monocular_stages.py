@@ -131,3 +131,22 @@ def test_stage_breakdown_counts_each_stage():
     counts = stage_counts([rec, rec2])
     assert counts["hypothesis_close"] == 2 and counts["roi_ok"] == 1
     assert counts["success"] == 1 and counts["success_cumulative"] == 0
+
+
+def test_classify_rule():
+    from jaxpose.pipelines.monocular import CONFIDENCE, classify
+
+    th = dict(
+        CONFIDENCE, high_score=0.02, high_coverage=0.9, high_orientation=0.7, high_margin=0.01
+    )
+    good = dict(orientation=0.8, margin=0.05)
+    assert classify(0.015, 0.95, th, **good) == "high"
+    assert classify(0.015, 0.95, th, orientation=0.6, margin=0.05) == "low"  # edges disagree
+    assert classify(0.015, 0.95, th, orientation=0.8, margin=0.001) == "low"  # a rival is close
+    assert classify(0.015, 0.95, th, orientation=0.8, margin=float("inf")) == "high"  # no rival
+    assert classify(0.015, 0.8, th, **good) == "low"
+    assert classify(0.03, 0.95, th, **good) == "low"
+    assert classify(th["low_score"] * 1.01, 0.95, th, **good) == "position-only"
+    assert classify(float("inf"), 0.95, th, **good) == "position-only"
+    assert classify(float("nan"), 0.95, th, **good) == "position-only"
+    assert classify(0.015, 0.95, th) == "high"  # terms off: the score and coverage decide

@@ -153,6 +153,65 @@ def test_visible_edges_are_not_behind_a_face(camera, rng):
                 assert hit >= np.linalg.norm(p_cam) - 5e-3, f"edge {e} visible behind a face"
 
 
+def _occluded(points_cam, model, R, t):
+    """Independent ray casting: is each camera-frame point behind a face of the model? A face
+    (convex, planar) hides a point when the ray from the camera centre to it crosses the face's
+    plane nearer than 0.999 of its depth and inside the face's polygon."""
+    hidden = np.zeros(len(points_cam), bool)
+    for face in model.faces:
+        V = model.vertices[list(face)] @ R.T + t  # (k, 3)
+        n = np.cross(V[1] - V[0], V[2] - V[0])
+        denom = points_cam @ n
+        s = (V[0] @ n) / np.where(np.abs(denom) > 1e-12, denom, np.nan)  # ray x = s * p
+        X = s[:, None] * points_cam
+        sides = np.stack(
+            [np.cross(b - a, X - a) @ n for a, b in zip(V, np.roll(V, -1, axis=0), strict=True)]
+        )
+        inside = np.all(sides >= -1e-9, axis=0) | np.all(sides <= 1e-9, axis=0)
+        hidden |= inside & (s > 0) & (s < 0.999)
+    return hidden
+
+
+def test_occlusion_hides_antennas_behind_the_body(camera):
+    """Antennas behind the body are hidden, and only they: for poses where the body covers part
+    of an antenna (found by an independent ray cast against the model's faces), the renderer's
+    visible fraction of each antenna matches the ray-cast share of unoccluded samples."""
+    m = tango()
+    n_edges = len(m.edges)
+    rng = np.random.default_rng(5)
+    checked = occluded_seen = 0
+    for _ in range(60):
+        pose = random_pose(rng, camera, range_m=(4, 8))
+        R, t = np.asarray(pose.R), np.asarray(pose.t)
+        s = np.linspace(0.0, 1.0, 49)
+        fractions = {}
+        for a, (base, tip) in enumerate(m.antenna_points):
+            pts = (base + s[:, None] * (tip - base)) @ R.T + t
+            pix = project_points(camera, pts)
+            on_image = np.all((pix >= 0) & (pix <= [639, 479]), axis=1)
+            if not on_image.all():
+                break
+            fractions[n_edges + a] = 1.0 - _occluded(pts, m, R, t).mean()
+        else:
+            if min(fractions.values()) > 0.9:
+                continue  # nothing occluded: not a test of occlusion
+            r = render(m, pose, camera, rng=rng)
+            got = dict(zip(r.visible.edge_ids.tolist(), r.visible.fraction.tolist(), strict=True))
+            for e, expected in fractions.items():
+                seen = got.get(e, 0.0)
+                if expected < 0.05:
+                    assert seen == 0.0  # wholly hidden: not reported
+                elif expected > 0.95:
+                    assert seen > 0.9
+                else:  # partly hidden: the longest visible run is at most the visible share
+                    assert seen <= expected + 0.05
+                occluded_seen += expected < 0.5
+            checked += 1
+        if checked >= 4 and occluded_seen >= 2:
+            break
+    assert checked >= 4 and occluded_seen >= 2
+
+
 def test_background_noise_blur_and_hooks(camera):
     m = tango()
     base = render(m, front_pose(), camera, rng=1, noise_sigma=0.0, blur_sigma_px=0.0)

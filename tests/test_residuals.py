@@ -31,9 +31,9 @@ def test_point_residuals_match_opencv(rng):
     pose = _pose(rng)
     P = rng.uniform(-0.5, 0.5, (12, 3))
     observed = rng.uniform(0, 600, (12, 2))
-    rvec = np.asarray(pose.rotvec())
+    rvec = np.asarray(pose.rotvec)
     proj, _ = cv2.projectPoints(P, rvec, np.asarray(pose.t), np.asarray(CAM.K), None)
-    e = point_residuals(pose, P, observed, CAM)
+    e = point_residuals(P, observed, pose, CAM)
     np.testing.assert_allclose(e, proj[:, 0] - observed, atol=1e-9)
 
 
@@ -53,22 +53,22 @@ def test_line_from_segment_passes_through_endpoints_and_gives_pixel_distances():
 def test_line_residuals_zero_on_the_line_and_signed_off_it(rng):
     pose = _pose(rng)
     seg = jnp.asarray(rng.uniform(-0.5, 0.5, (4, 2, 3)))
-    ends = CAM.project_body(pose, seg.reshape(-1, 3)).reshape(4, 2, 2)
+    ends = CAM.project(pose.apply(seg.reshape(-1, 3))).reshape(4, 2, 2)
     # Observed segments: sub-segments of the projected ones (same lines, other endpoints).
     s_obs = ends[:, 0] + 0.2 * (ends[:, 1] - ends[:, 0])
     e_obs = ends[:, 0] + 0.7 * (ends[:, 1] - ends[:, 0])
     lines = line_from_segment(s_obs, e_obs)
-    np.testing.assert_allclose(line_residuals(pose, seg, lines, CAM), 0.0, atol=1e-9)
+    np.testing.assert_allclose(line_residuals(seg, lines, pose, CAM), 0.0, atol=1e-9)
     # Shift the observation 3 px along the normal: both endpoints are 3 px away, same sign.
     d = (e_obs - s_obs) / jnp.linalg.norm(e_obs - s_obs, axis=-1, keepdims=True)
     normal = jnp.stack([-d[:, 1], d[:, 0]], -1)
     shifted = line_from_segment(s_obs + 3 * normal, e_obs + 3 * normal)
-    r = line_residuals(pose, seg, shifted, CAM)
+    r = line_residuals(seg, shifted, pose, CAM)
     np.testing.assert_allclose(jnp.abs(r), 3.0, atol=1e-9)
     assert np.all(np.sign(r[:, 0]) == np.sign(r[:, 1]))
     # The line's scale does not matter; a reversed line flips the sign.
-    np.testing.assert_allclose(line_residuals(pose, seg, 7.0 * shifted, CAM), r, atol=1e-9)
-    np.testing.assert_allclose(line_residuals(pose, seg, -shifted, CAM), -r, atol=1e-9)
+    np.testing.assert_allclose(line_residuals(seg, 7.0 * shifted, pose, CAM), r, atol=1e-9)
+    np.testing.assert_allclose(line_residuals(seg, -shifted, pose, CAM), -r, atol=1e-9)
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -118,34 +118,34 @@ def test_defaults_and_bad_kernel():
 def test_joint_cost_plain_and_masked(rng):
     pose = _pose(rng)
     P = rng.uniform(-0.5, 0.5, (10, 3))
-    pix = np.asarray(CAM.project_body(pose, jnp.asarray(P))) + rng.normal(size=(10, 2))
+    pix = np.asarray(CAM.project(pose.apply(jnp.asarray(P)))) + rng.normal(size=(10, 2))
     sigma = 0.7
     info = isotropic_information(sigma, 10)
-    e = point_residuals(pose, P, pix, CAM)
+    e = point_residuals(P, pix, pose, CAM)
     expected = float(jnp.sum(e**2)) / sigma**2
-    assert abs(float(joint_cost(pose, P, pix, CAM, point_information=info)) - expected) < 1e-9
+    assert abs(float(joint_cost(P, pix, pose, CAM, point_information=info)) - expected) < 1e-9
     # Masked-out entries (even NaN) change nothing.
     P2 = np.concatenate([P, np.full((3, 3), np.nan)])
     pix2 = np.concatenate([pix, np.full((3, 2), np.nan)])
     mask = np.arange(13) < 10
     c2 = joint_cost(
-        pose, P2, pix2, CAM, point_information=isotropic_information(sigma, 13), mask=mask
+        P2, pix2, pose, CAM, point_information=isotropic_information(sigma, 13), mask=mask
     )
     assert abs(float(c2) - expected) < 1e-9
-    g = jax.grad(lambda p: joint_cost(p, P2, pix2, CAM, mask=mask))(pose)
+    g = jax.grad(lambda p: joint_cost(P2, pix2, p, CAM, mask=mask))(pose)
     assert np.all(np.isfinite(np.asarray(g.t)))
 
 
 def test_joint_cost_points_and_lines_with_kernel(rng):
     pose = _pose(rng)
     P = rng.uniform(-0.5, 0.5, (6, 3))
-    pix = np.asarray(CAM.project_body(pose, jnp.asarray(P))) + 4.0
+    pix = np.asarray(CAM.project(pose.apply(jnp.asarray(P)))) + 4.0
     seg = rng.uniform(-0.5, 0.5, (3, 2, 3))
-    ends = np.asarray(CAM.project_body(pose, jnp.asarray(seg.reshape(-1, 3)))).reshape(3, 2, 2)
+    ends = np.asarray(CAM.project(pose.apply(jnp.asarray(seg.reshape(-1, 3))))).reshape(3, 2, 2)
     lines = line_from_segment(jnp.asarray(ends[:, 0] + 2.0), jnp.asarray(ends[:, 1] + 2.0))
-    c = joint_cost(pose, P, pix, CAM, segments_body=seg, lines_img=lines, robust="huber")
-    s_p = jnp.sum(point_residuals(pose, P, pix, CAM) ** 2, -1)
-    s_l = jnp.sum(line_residuals(pose, seg, lines, CAM) ** 2, -1)
+    c = joint_cost(P, pix, pose, CAM, segments_body=seg, lines_img=lines, robust="huber")
+    s_p = jnp.sum(point_residuals(P, pix, pose, CAM) ** 2, -1)
+    s_l = jnp.sum(line_residuals(seg, lines, pose, CAM) ** 2, -1)
     expected = jnp.sum(robust_rho("huber", s_p)) + jnp.sum(robust_rho("huber", s_l))
     assert abs(float(c) - float(expected)) < 1e-9
 
@@ -153,12 +153,12 @@ def test_joint_cost_points_and_lines_with_kernel(rng):
 def test_bad_shapes_raise(rng):
     pose = _pose(rng)
     with pytest.raises(ValueError, match="points_body"):
-        point_residuals(pose, np.zeros((4, 2)), np.zeros((4, 2)), CAM)
+        point_residuals(np.zeros((4, 2)), np.zeros((4, 2)), pose, CAM)
     with pytest.raises(ValueError, match="same length"):
-        point_residuals(pose, np.zeros((4, 3)), np.zeros((5, 2)), CAM)
+        point_residuals(np.zeros((4, 3)), np.zeros((5, 2)), pose, CAM)
     with pytest.raises(ValueError, match="segments_body"):
-        line_residuals(pose, np.zeros((4, 3)), np.zeros((4, 3)), CAM)
+        line_residuals(np.zeros((4, 3)), np.zeros((4, 3)), pose, CAM)
     with pytest.raises(ValueError, match="one rotation"):
         point_residuals(
-            Pose(jnp.zeros((2, 3, 3)), jnp.zeros((2, 3))), np.zeros((4, 3)), np.zeros((4, 2)), CAM
+            np.zeros((4, 3)), np.zeros((4, 2)), Pose(jnp.zeros((2, 3, 3)), jnp.zeros((2, 3))), CAM
         )

@@ -16,7 +16,15 @@ import pytest
 from pnp_scenes import BATCH, K, N, angle, scenes
 
 import jaxpose
-from jaxpose import PinholeCamera, Pose, Status, solve_pnp
+from jaxpose import (
+    PinholeCamera,
+    PnPOptions,
+    Pose,
+    RansacOptions,
+    RefineOptions,
+    Status,
+    solve_pnp,
+)
 from jaxpose.core.geometry import so3_exp
 
 CAM_DIST = PinholeCamera(800.0, 790.0, 322.0, 238.0, jnp.array([-0.08, 0.02, 1e-3, -1e-3, 0.0]))
@@ -57,7 +65,7 @@ def test_single_problem_noise_free_with_K_and_with_a_distorted_camera(rng):
     assert angle(np.asarray(res.R), R[0]) < 1e-10
     np.testing.assert_allclose(np.asarray(res.t), t[0], atol=1e-9)
     assert float(res.reprojection_error) < 1e-8
-    pix_d = CAM_DIST.project_body(Pose(jnp.asarray(R[0]), jnp.asarray(t[0])), jnp.asarray(P[0]))
+    pix_d = CAM_DIST.project(Pose(jnp.asarray(R[0]), jnp.asarray(t[0])).apply(jnp.asarray(P[0])))
     res = solve_pnp(P[0], pix_d, CAM_DIST)
     assert angle(np.asarray(res.R), R[0]) < 1e-10
     assert float(res.reprojection_error) < 1e-8
@@ -95,7 +103,17 @@ def test_planar_long_range_as_often_right_as_opencv_ippe(rng):
 def test_dlt_and_closed_form_only(rng):
     P, pix, R, _ = scenes(rng, depth=4.0, noise=0.3)
     for method, refine in (("dlt", "lm"), ("epnp", None)):
-        res = solve_pnp(P, pix, K, method=method, refine=refine)
+        res = solve_pnp(
+            P,
+            pix,
+            K,
+            options=PnPOptions(
+                method=method,
+                refine=(
+                    None if refine is None else RefineOptions(method=refine, rtol=1e-6, atol=1e-9)
+                ),
+            ),
+        )
         assert np.all(np.asarray(res.status) == Status.OK), method
         assert np.all(angle(np.asarray(res.R), R) < np.radians(2.0)), method
 
@@ -105,7 +123,16 @@ def test_ransac_with_robust_refinement(rng):
     P, pix, R, _ = scenes(rng, depth=5.0, noise=0.3)
     bad = np.argsort(rng.random((BATCH, N)), axis=1) < int(0.4 * N)  # 40% outliers in each
     pix = np.where(bad[..., None], pix + rng.uniform(30, 150, pix.shape), pix)
-    res = solve_pnp(P, pix, K, method="ransac", robust="huber", ransac_threshold_px=3.0)
+    res = solve_pnp(
+        P,
+        pix,
+        K,
+        options=PnPOptions(
+            method="ransac",
+            refine=RefineOptions(rtol=1e-6, atol=1e-9, robust="huber"),
+            ransac=RansacOptions(threshold_px=3.0),
+        ),
+    )
     assert np.all(np.asarray(res.status) == Status.OK)
     assert np.all(angle(np.asarray(res.R), R) < np.radians(1.0))
     np.testing.assert_array_equal(np.asarray(res.inliers), ~bad)
@@ -122,7 +149,7 @@ def mixed_batch(count=69):
 def test_large_batches_run_in_chunks_and_refine_planar_problems_twice():
     """Above FUSED_MAX problems: closed form, a planarity check, then refinement, by chunks."""
     P, pix, R = mixed_batch()
-    res = solve_pnp(P, pix, K, chunk=32)
+    res = solve_pnp(P, pix, K, options=PnPOptions(chunk=32))
     assert res.R.shape == (len(P), 3, 3)
     assert np.all(np.asarray(res.status) == Status.OK)
     err = angle(np.asarray(res.R), R)  # one planar scene is ill-conditioned: 5 deg, as OpenCV's
@@ -136,8 +163,8 @@ def test_host_threads_give_the_same_poses_and_statuses():
     P, pix, _ = mixed_batch(70)
     pix = pix.copy()
     pix[5, 3] = np.nan  # one bad problem in the first part, none in the others
-    one = solve_pnp(P, pix, K, chunk=32, throw=False, workers=1)
-    three = solve_pnp(P, pix, K, chunk=32, throw=False, workers=3)
+    one = solve_pnp(P, pix, K, throw=False, options=PnPOptions(chunk=32, workers=1))
+    three = solve_pnp(P, pix, K, throw=False, options=PnPOptions(chunk=32, workers=3))
     assert len(P) % 3 != 0  # the parts are padded
     status = np.asarray(three.status)
     assert status.shape == (len(P),) and status[5] == Status.NONFINITE_INPUT
@@ -145,14 +172,14 @@ def test_host_threads_give_the_same_poses_and_statuses():
     np.testing.assert_allclose(np.asarray(three.R), np.asarray(one.R), atol=1e-8)
     np.testing.assert_allclose(np.asarray(three.t), np.asarray(one.t), atol=1e-8)
     with pytest.raises(ValueError, match="workers"):
-        solve_pnp(P, pix, K, workers=0)
+        solve_pnp(P, pix, K, options=PnPOptions(workers=0))
 
 
 @pytest.mark.slow
 def test_two_devices_give_the_same_poses(tmp_path):
     """With two (forced host) devices the batch is split over them, padded to an even size."""
     P, pix, _ = mixed_batch()
-    one = solve_pnp(P, pix, K, chunk=32)
+    one = solve_pnp(P, pix, K, options=PnPOptions(chunk=32))
     np.savez(tmp_path / "in.npz", P=P, pix=pix, K=K)
     code = (
         "import jax, numpy as np; jax.config.update('jax_enable_x64', True);"
@@ -191,9 +218,15 @@ def test_bad_input_raises_clear_value_errors(rng):
     with pytest.raises(ValueError, match="do not broadcast"):
         solve_pnp(np.stack([P, P]), np.stack([pix, pix, pix]), K)
     with pytest.raises(ValueError, match="method"):
-        solve_pnp(P, pix, K, method="p3p")
+        solve_pnp(P, pix, K, options=PnPOptions(method="p3p"))
     with pytest.raises(ValueError, match="robust"):
-        solve_pnp(P, pix, K, refine=None, robust="huber")
+        solve_pnp(P, pix, K, options=PnPOptions(refine=RefineOptions(robust="l1")))
+    with pytest.raises(ValueError, match="PnPOptions.refine must be a RefineOptions"):
+        PnPOptions(refine="lm")
+    with pytest.raises(ValueError, match="options must be a PnPOptions"):
+        solve_pnp(P, pix, K, options={"method": "epnp"})
+    with pytest.raises(ValueError, match="needs at least 6 points"):
+        solve_pnp(P[:5], pix[:5], K, options=PnPOptions(method="dlt"))
     with pytest.raises(ValueError, match="camera"):
         solve_pnp(P, pix, np.eye(4))
     nan = P.copy()

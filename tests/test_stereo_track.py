@@ -108,20 +108,46 @@ def test_tracker_rejects_unrectified_rigs():
 
 
 def test_keypoint_budget_follows_the_target_area():
+    """One keypoint per spacing^2 pixels of target (rounded to 100, within [100, n_points]); the
+    apparent area is the count of bright pixels (checked on a drawn disc)."""
+    from jaxpose.pipelines.stereo.tracker import target_area
+
+    tracker = StereoTracker(RIG, None)
+    assert tracker.feature_options(8.0**2 * 1234).n_points == 1200
+    assert tracker.feature_options(8.0**2 * 5000).n_points == 2000  # never above the budget
+    assert tracker.feature_options(10.0).n_points == 100
+    assert tracker.feature_options(None).n_points == 2000
+    wide = StereoTracker(RIG, None, options=TrackerOptions(keypoint_spacing_px=16.0))
+    assert wide.feature_options(8.0**2 * 1234).n_points == 300
+    fixed = StereoTracker(RIG, None, options=TrackerOptions(keypoint_spacing_px=None))
+    assert fixed.feature_options(8.0**2 * 1234).n_points == 2000
+    img = np.zeros((768, 1024), np.uint8)
+    vv, uu = np.mgrid[:768, :1024]
+    img[(uu - 500) ** 2 + (vv - 400) ** 2 < 200**2] = 120
+    assert target_area(img) == pytest.approx(np.pi * 200**2, rel=0.02)
+    with pytest.raises(ValueError, match="keypoint_spacing_px"):
+        TrackerOptions(keypoint_spacing_px=0.0)
+
+
+def test_search_radius_follows_the_measured_prediction_error(frames):
+    """After a tracked frame the radius is 3 x the 90th percentile of the landmarks' predicted
+    vs fitted pixel distance + 3 sigma (clipped to [r0 / 2, 4 r0]), recomputed here by hand."""
     from jaxpose.core.geometry import Pose
 
-    def budget(depth, **kw):
-        pose = Pose(np.eye(3), np.array([0.0, 0.0, depth]))
-        return StereoTracker(RIG, pose, options=TrackerOptions(**kw)).feature_options().n_points
-
-    # the target's apparent area goes as 1/depth^2: 2000 keypoints at 2 m, 2000 * 4/9 at 3 m
-    assert budget(2.0) == 2000
-    assert budget(1.5) == 2000  # never above the budget
-    assert budget(3.0) == 900
-    assert budget(4.0) == 500
-    assert budget(3.0, points_ref_depth_m=None) == 2000
-    with pytest.raises(ValueError, match="points_ref_depth_m"):
-        StereoTracker(RIG, options=TrackerOptions(points_ref_depth_m=0.0))
+    tracker = StereoTracker(RIG, frames[0].pose)
+    X = np.random.default_rng(0).uniform(-0.3, 0.3, (50, 3))
+    pose = Pose(np.asarray(frames[0].pose.R), np.asarray(frames[0].pose.t))
+    shifted = Pose(np.asarray(pose.R), np.asarray(pose.t) + np.array([0.004, 0.0, 0.0]))
+    tracker._update_radius(X, shifted, pose)
+    fx = float(RIG.left.fx)
+    z = (X @ np.asarray(pose.R).T + np.asarray(pose.t))[:, 2]
+    expected = 3 * np.percentile(fx * 0.004 / z, 90) + 3.0
+    assert tracker._radius == pytest.approx(expected, rel=1e-6)
+    tracker._update_radius(X, pose, pose)  # a perfect prediction: the floor r0 / 2
+    assert tracker._radius == pytest.approx(6.0)
+    far = Pose(np.asarray(pose.R), np.asarray(pose.t) + np.array([0.2, 0.0, 0.0]))
+    tracker._update_radius(X, far, pose)  # the ceiling 4 r0
+    assert tracker._radius == pytest.approx(48.0)
 
 
 def test_stereo_track_command_json(tmp_path, capsys):
@@ -217,3 +243,41 @@ def test_measured_line_sigma_is_the_ratio_of_the_residual_scales():
     assert slow.line_scale == pytest.approx(0.9 + 0.1 * 0.5, rel=0.01)
     with pytest.raises(ValueError, match="line_scale_memory"):
         StereoTracker(RIG, None, options=TrackerOptions(line_scale_memory=1.0))
+
+
+def test_an_all_nan_first_frame_is_a_status_and_the_map_starts_later(frames):
+    tracker = StereoTracker(RIG, frames[0].pose)
+    nan = np.full(frames[0].left.shape, np.nan)
+    res = tracker.process(nan, nan)
+    assert res.status == Status.TOO_FEW_POINTS
+    assert np.all(np.isnan(res.R)) and np.all(np.isnan(res.t))
+    assert len(tracker.map.points) == 0
+    res = tracker.process(frames[0].left, frames[0].right)
+    assert res.status == Status.OK and len(tracker.map.points) > 100
+    res = tracker.process(frames[1].left, frames[1].right)
+    assert res.status == Status.OK
+
+
+def test_identity_start_tracks_the_motion_relative_to_the_first_frame(frames):
+    """Started at the identity (target frame = first left camera frame), the pose at frame k is
+    T_k T_0^-1 of the true poses; stereo-track's summary aligns it back on the first frame."""
+    from jaxpose.core.geometry import Pose
+    from jaxpose.studies.stereo_track import summarize
+
+    tracker = StereoTracker(RIG, None)
+    results = [tracker.process(fr.left, fr.right) for fr in frames]
+    T0_inv = frames[0].pose.inverse()
+    for fr, res in zip(frames, results, strict=True):
+        assert res.status == Status.OK
+        rel = fr.pose @ T0_inv
+        R = np.asarray(rel.R)
+        angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
+        assert angle < 0.5
+        assert np.linalg.norm(res.t - np.asarray(rel.t)) < 0.02
+    np.testing.assert_allclose(results[0].R, np.eye(3))
+    rep = summarize(results, [fr.pose for fr in frames], [0.1] * len(frames))["summary"]
+    assert max(rep["rms_position_mm"]) < 20.0 and max(rep["rms_attitude_deg"]) < 0.5
+    # a wrong first truth moves every aligned estimate: the alignment is really applied
+    shifted = [Pose(np.asarray(frames[0].pose.R), np.asarray(frames[0].pose.t) + 0.1)]
+    rep2 = summarize(results, shifted + [fr.pose for fr in frames[1:]], [0.1] * len(frames))
+    assert max(rep2["summary"]["rms_position_mm"]) > 50.0

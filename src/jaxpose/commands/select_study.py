@@ -72,7 +72,12 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--random-attitude", action="store_true", help="draw each angle in [-A, A] per case"
     )
-    g.add_argument("--sequence", default=d.sequence, help="Euler sequence of the attitude state")
+    g.add_argument(
+        "--sequence",
+        default=d.sequence,
+        help="Euler sequence of the attitude state, named as SciPy names them (upper case "
+        "intrinsic, lower case extrinsic)",
+    )
     g.add_argument(
         "--plane-size-m",
         type=positive_float,

@@ -78,3 +78,14 @@ def check_mask(mask, n: int, name: str = "mask", *, prefix: str = "") -> Array:
     if mask.shape != (n,):
         raise ValueError(f"{prefix}{name} must have shape ({n},); got {mask.shape}")
     return mask.astype(bool)
+
+
+def is_rotation(R) -> Array:
+    """Whether ``R`` (``(..., 3, 3)``) is a rotation: ``R^T R = I`` to ``max(1e-6, 1e3 eps)``
+    entry-wise and ``det R > 0`` (a traced boolean; NaN gives ``False``)."""
+    R = jnp.asarray(R)
+    tol = max(1e-6, 1e3 * float(jnp.finfo(R.dtype).eps))
+    eye = jnp.eye(3, dtype=R.dtype)
+    gram = jnp.swapaxes(R, -1, -2) @ R
+    ortho = jnp.all(jnp.abs(gram - eye) <= tol, axis=(-2, -1))
+    return ortho & (jnp.linalg.det(R) > 0)

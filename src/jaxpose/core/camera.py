@@ -42,6 +42,13 @@ class PinholeCamera(eqx.Module):
 
     def __init__(self, fx, fy, cx, cy, dist=None, *, width: int = 0, height: int = 0):
         self.fx, self.fy, self.cx, self.cy = (as_float(v) for v in (fx, fy, cx, cy))
+        for name in ("fx", "fy"):
+            value = getattr(self, name)
+            if not isinstance(value, jax.core.Tracer) and np.any(np.asarray(value) <= 0):
+                raise ValueError(
+                    f"PinholeCamera: {name} (focal length in pixels) must be positive; got "
+                    f"{np.asarray(value).tolist()} (a mirrored image is not a camera model)"
+                )
         if dist is None:
             dist = jnp.zeros(5, dtype=self.fx.dtype)
         dist = as_float(dist)
@@ -173,7 +180,9 @@ class PinholeCamera(eqx.Module):
     def project(self, points_cam: Float[Array, "... 3"]) -> Float[Array, "... 2"]:
         """Pixels of camera-frame points (with distortion).
 
-        Points with ``z <= 0`` give finite but meaningless pixels (``z`` is guarded); use
+        The one projection of the library: body points seen at a pose are
+        ``camera.project(pose.apply(points_body))``. Points with ``z <= 0`` give finite but
+        meaningless pixels (``z`` is guarded); use
         :meth:`in_front` to mask them. Gradients are NaN-free everywhere.
         """
         z = points_cam[..., 2]
@@ -181,12 +190,6 @@ class PinholeCamera(eqx.Module):
         xy = points_cam[..., :2] / z_safe[..., None]
         xy = self.distort(xy)
         return jnp.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], axis=-1)
-
-    def project_body(
-        self, pose: Pose, points_body: Float[Array, "... n 3"]
-    ) -> Float[Array, "... n 2"]:
-        """Pixels of body-frame points seen at ``pose``."""
-        return self.project(pose.apply(points_body))
 
     @staticmethod
     def in_front(points_cam: Float[Array, "... 3"], min_depth: float = 1e-9) -> Bool[Array, "..."]:

@@ -21,9 +21,11 @@ choice for covariance propagation). PDOP does not depend on the choice.
 A DOP is computed from the sum of per-point ``6 x 6`` information blocks ``A_i = H_i^T H_i /
 sigma_i^2``; this is what makes subset search cheap (:mod:`jaxpose.core.select`).
 
-Bad geometry never gives a silent NaN: the figures are ``inf`` and a :class:`~jaxpose.core.status.Status`
-says why (fewer than 4 points, a point behind the camera, a singular ``H^T H``, NaN input).
-Eager calls with ``throw=True`` (the default) raise ``ValueError`` instead.
+Bad geometry never gives a silent NaN: the figures are ``inf`` and a
+:class:`~jaxpose.core.status.Status` says why (fewer than 4 points, a point behind the camera, a
+singular ``H^T H``, NaN input, a pose whose ``R`` is not a rotation). Eager calls with
+``throw=True`` (the default) raise ``ValueError`` instead; wrong shapes, a non-positive ``sigma``
+and unknown options raise ``ValueError`` always.
 """
 
 from __future__ import annotations
@@ -31,11 +33,19 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, Int
 
-from jaxpose.core._checks import check_mask, check_pose, check_rows
+from jaxpose.core._checks import check_mask, check_pose, check_rows, is_rotation
 from jaxpose.core.camera import PinholeCamera, as_camera
-from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose, dcm_to_euler, euler_to_dcm, so3_exp
+from jaxpose.core.geometry import (
+    DEFAULT_EULER_SEQUENCE,
+    Pose,
+    dcm_to_euler,
+    euler_to_dcm,
+    parse_euler_sequence,
+    so3_exp,
+)
 from jaxpose.core.status import Status, throw_for_status
 
 __all__ = [
@@ -47,6 +57,8 @@ __all__ = [
     "observation_jacobian",
     "point_jacobians",
 ]
+
+PARAMETERIZATIONS = ("euler", "tangent")
 
 MIN_POINTS = 4
 """At least four coplanar points make ``H^T H`` non-singular (Ning et al., Sec. 5.1.2)."""
@@ -88,7 +100,9 @@ def _state_to_pixels(pose: Pose, camera: PinholeCamera, sequence: str, parameter
             return so3_exp(eps) @ pose.R
 
     else:
-        raise ValueError(f"parameterization must be 'euler' or 'tangent'; got {parameterization!r}")
+        raise ValueError(
+            f"parameterization must be one of {PARAMETERIZATIONS}; got {parameterization!r}"
+        )
 
     def pixels(x, p):
         rho = rotation(x[3:]) @ p + x[:3]
@@ -147,6 +161,21 @@ def information_blocks(
     )
     w = _weights(points_body.shape[0], H.dtype, sigma, mask)
     return jnp.einsum("nki,nkj,n->nij", H, H, w)
+
+
+def _check_sigma(sigma, n: int, dtype):
+    """``sigma`` as ``(n,)`` (or ``None``); a ``ValueError`` for a wrong shape and, when its values
+    are known (not traced), for a value that is not positive and finite."""
+    if sigma is None:
+        return None
+    sigma = jnp.asarray(sigma, dtype=dtype)
+    if sigma.ndim > 1 or (sigma.ndim == 1 and sigma.shape[0] != n):
+        raise ValueError(f"sigma must be a scalar or have shape ({n},); got {sigma.shape}")
+    if not isinstance(sigma, jax.core.Tracer):
+        bad = ~(np.asarray(sigma) > 0) | ~np.isfinite(np.asarray(sigma))
+        if bad.any():
+            raise ValueError(f"sigma (pixel noise) must be positive and finite; got {sigma}")
+    return jnp.broadcast_to(sigma, (n,))
 
 
 def _weights(n, dtype, sigma, mask):
@@ -231,8 +260,23 @@ def dop(
     points_body = _validate(points_body, pose)
     camera = as_camera(camera)
     n = points_body.shape[0]
-    dtype = points_body.dtype
+    parse_euler_sequence(sequence)
+    if parameterization not in PARAMETERIZATIONS:
+        raise ValueError(
+            f"parameterization must be one of {PARAMETERIZATIONS}; got {parameterization!r}"
+        )
     valid = check_mask(mask, n)
+    sigma = _check_sigma(sigma, n, points_body.dtype)
+    res = _dop(points_body, pose, camera, sigma, valid, sequence, parameterization)
+    if throw:
+        res = throw_for_status(res, "dop", "pdop", min_points=MIN_POINTS)
+    return res
+
+
+@eqx.filter_jit
+def _dop(points_body, pose, camera, sigma, valid, sequence, parameterization) -> DOPResult:
+    """The compiled body of :func:`dop` (one compilation per shape, dtype and option set)."""
+    dtype = points_body.dtype
     finite_in = (
         jnp.all(jnp.isfinite(points_body) | ~valid[:, None])
         & jnp.all(jnp.isfinite(pose.R))
@@ -262,8 +306,13 @@ def dop(
     res = dop_from_information(A)
     count = jnp.sum(valid)
     status = jnp.select(
-        [~finite_in, count < MIN_POINTS, behind],
-        [Status.NONFINITE_INPUT, Status.TOO_FEW_POINTS, Status.BEHIND_CAMERA],
+        [~finite_in, ~is_rotation(pose_safe.R), count < MIN_POINTS, behind],
+        [
+            Status.NONFINITE_INPUT,
+            Status.NOT_A_ROTATION,
+            Status.TOO_FEW_POINTS,
+            Status.BEHIND_CAMERA,
+        ],
         res.status,
     ).astype(jnp.int32)
     bad = status != Status.OK
@@ -274,6 +323,4 @@ def dop(
         Q=jnp.where(bad, inf, res.Q),
         status=status,
     )
-    if throw:
-        res = throw_for_status(res, "DOP", "pdop")
     return res

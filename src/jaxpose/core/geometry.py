@@ -7,12 +7,22 @@ Conventions (the conventions page of the docs):
 * Quaternions are scalar-first ``(w, x, y, z)``; :func:`quat_to_dcm` is the *active* rotation
   matrix of the quaternion (SciPy's ``Rotation.from_quat([x, y, z, w]).as_matrix()``).
 * Angles are radians.
-* Euler angles: ``euler_to_dcm(angles, sequence="xyz")`` is the product of *active* elementary
-  rotations ``R_{s0}(a0) @ R_{s1}(a1) @ R_{s2}(a2)`` (an intrinsic ``s0-s1-s2`` sequence), where
-  ``R_x(a)`` rotates vectors by ``a`` about ``x``. Any Tait-Bryan sequence (three distinct axes)
-  is accepted. The default :data:`DEFAULT_EULER_SEQUENCE` is ``"xyz"``: roll ``phi`` about ``x``,
-  pitch ``theta`` about ``y``, yaw ``psi`` about ``z`` (Ning et al. 2018, eq. 2, whose exact order
-  is lost).
+* Euler angles are named as SciPy names them (``scipy.spatial.transform.Rotation.from_euler``):
+  upper case is intrinsic, lower case extrinsic. ``euler_to_dcm(angles, "XYZ")`` is the product
+  of *active* elementary rotations ``R_X(a0) @ R_Y(a1) @ R_Z(a2)`` (rotate about ``x``, then about
+  the new ``y``, then about the newest ``z``); ``"xyz"`` is ``R_z(a2) @ R_y(a1) @ R_x(a0)``
+  (about the fixed ``x``, then the fixed ``y``, then the fixed ``z``). ``R_x(a)`` rotates vectors
+  by ``a`` about ``x``. All twelve sequences are accepted: six Tait-Bryan (three distinct axes)
+  and six proper Euler (first axis = last axis, e.g. ``"ZXZ"``). The default
+  :data:`DEFAULT_EULER_SEQUENCE` is ``"XYZ"``: roll ``phi`` about ``x``, pitch ``theta`` about
+  ``y``, yaw ``psi`` about ``z`` (Ning et al. 2018, eq. 2, which does not state the order).
+* Tangent convention (one for the whole library): a perturbation ``xi = (rho, omega)`` (metres,
+  radians) acts on the left in the camera frame, ``R <- exp([omega]_x) R`` and ``t <- t + rho``
+  (:meth:`Pose.retract`). With this chart ``rho`` is the position error itself, so the first
+  three rows of a covariance or a DOP matrix in these coordinates are the position's; DOP's
+  ``parameterization="tangent"``, the refinement's steps,
+  :func:`~jaxpose.core.refine.pose_covariance` and :func:`~jaxpose.core.refine.sensitivity` all use
+  it. (The SE(3) exponential, which couples ``rho`` with ``omega``, is :func:`se3_exp`.)
 
 Every function broadcasts over leading batch axes. The so(3) exponential and logarithm are
 NaN-safe in value *and* gradient at the identity and near a half turn (double-``jnp.where`` with
@@ -22,6 +32,7 @@ Taylor branches, dtype-dependent thresholds), following jaxlie's approach.
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -35,6 +46,7 @@ __all__ = [
     "dcm_to_quat",
     "elementary_rotation",
     "euler_to_dcm",
+    "parse_euler_sequence",
     "hat",
     "quat_conjugate",
     "quat_multiply",
@@ -48,7 +60,8 @@ __all__ = [
     "vee",
 ]
 
-DEFAULT_EULER_SEQUENCE = "xyz"
+DEFAULT_EULER_SEQUENCE = "XYZ"
+"""Intrinsic x-y-z (SciPy's ``"XYZ"``): roll, pitch, yaw about the moving axes."""
 _AXES = {"x": 0, "y": 1, "z": 2}
 
 
@@ -57,14 +70,28 @@ def _eps(x: Array) -> float:
     return 1e-6 if jnp.asarray(x).dtype == jnp.float32 else 1e-12
 
 
-def _parse_sequence(sequence: str) -> tuple[int, int, int]:
-    seq = sequence.lower()
-    if len(seq) != 3 or any(c not in _AXES for c in seq) or len(set(seq)) != 3:
+def parse_euler_sequence(sequence: str) -> tuple[tuple[int, int, int], bool]:
+    """Axes ``(i, j, k)`` (0 = x) and ``intrinsic`` of an Euler sequence named as SciPy names it.
+
+    Three letters from ``xyz``, all upper case (intrinsic) or all lower case (extrinsic), no two
+    consecutive axes equal (Tait-Bryan ``"XYZ"``, proper Euler ``"ZXZ"``).
+    """
+    ok = (
+        isinstance(sequence, str)
+        and len(sequence) == 3
+        and (sequence.isupper() or sequence.islower())
+        and all(c in "xyz" for c in sequence.lower())
+    )
+    if ok:
+        i, j, k = (_AXES[c] for c in sequence.lower())
+        ok = i != j and j != k
+    if not ok:
         raise ValueError(
-            f"Euler sequence must be three distinct axes from 'xyz' (a Tait-Bryan sequence such "
-            f"as 'xyz' or 'zyx'); got {sequence!r}"
+            "Euler sequence must be three axes from 'xyz', upper case for intrinsic or lower case "
+            "for extrinsic rotations (SciPy's naming), no two consecutive axes equal, e.g. 'XYZ', "
+            f"'zyx' or 'ZXZ'; got {sequence!r}"
         )
-    return _AXES[seq[0]], _AXES[seq[1]], _AXES[seq[2]]
+    return (i, j, k), sequence.isupper()
 
 
 # ----------------------------------------------------------------------------- so(3) helpers
@@ -171,7 +198,10 @@ def se3_exp(xi: Float[Array, "... 6"]) -> tuple[Float[Array, "... 3 3"], Float[A
 def quat_normalize(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     """Unit quaternion with the same direction (scalar-first)."""
     q = check_last(q, 4, "q")
-    return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    norm = jnp.linalg.norm(q, axis=-1, keepdims=True)
+    if not isinstance(norm, jax.core.Tracer) and np.any(np.asarray(norm) == 0):
+        raise ValueError("q must be a non-zero quaternion (w, x, y, z); got a zero quaternion")
+    return q / norm
 
 
 def quat_to_dcm(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
@@ -262,36 +292,68 @@ def elementary_rotation(axis: int, angle: Float[Array, "..."]) -> Float[Array, "
 def euler_to_dcm(
     angles: Float[Array, "... 3"], sequence: str = DEFAULT_EULER_SEQUENCE
 ) -> Float[Array, "... 3 3"]:
-    """Rotation matrix ``R_{s0}(a0) @ R_{s1}(a1) @ R_{s2}(a2)`` of Euler angles (radians).
+    """Rotation matrix of Euler angles (radians), ``Rotation.from_euler(sequence, angles)``.
 
-    ``angles[..., k]`` is the angle about axis ``sequence[k]``. With the default ``"xyz"``,
-    ``angles = (roll phi, pitch theta, yaw psi)``. Ning et al. 2018 eq. 2 (order lost; see module
-    docstring).
+    ``angles[..., k]`` is the angle about axis ``sequence[k]``. Intrinsic (upper case):
+    ``R_{s0}(a0) @ R_{s1}(a1) @ R_{s2}(a2)``; extrinsic (lower case): ``R_{s2}(a2) @ R_{s1}(a1) @
+    R_{s0}(a0)``. With the default ``"XYZ"``, ``angles = (roll phi, pitch theta, yaw psi)``
+    (Ning et al. 2018 eq. 2; see the module docstring).
     """
     angles = check_last(angles, 3, "angles")
-    i, j, k = _parse_sequence(sequence)
-    return (
-        elementary_rotation(i, angles[..., 0])
-        @ elementary_rotation(j, angles[..., 1])
-        @ elementary_rotation(k, angles[..., 2])
-    )
+    (i, j, k), intrinsic = parse_euler_sequence(sequence)
+    Ra = elementary_rotation(i, angles[..., 0])
+    Rb = elementary_rotation(j, angles[..., 1])
+    Rc = elementary_rotation(k, angles[..., 2])
+    return Ra @ Rb @ Rc if intrinsic else Rc @ Rb @ Ra
+
+
+def _safe_atan2(y: Array, x: Array) -> Array:
+    """``atan2(y, x)``, 0 with a zero (not NaN) gradient at ``x = y = 0`` (gimbal lock)."""
+    ok = (x * x + y * y) > 0
+    return jnp.where(ok, jnp.arctan2(jnp.where(ok, y, 0.0), jnp.where(ok, x, 1.0)), 0.0)
+
+
+def _safe_arcsin(x: Array) -> Array:
+    """``arcsin`` clipped to ``[-1, 1]``, with a finite gradient at ``|x| = 1`` (double-where)."""
+    inside = jnp.abs(x) < 1.0
+    return jnp.where(inside, jnp.arcsin(jnp.where(inside, x, 0.0)), jnp.sign(x) * (jnp.pi / 2))
+
+
+def _intrinsic_angles(R: Array, i: int, j: int, k: int) -> Array:
+    """Angles ``(a, b, c)`` with ``R = R_i(a) R_j(b) R_k(c)`` (``k`` may equal ``i``).
+
+    At gimbal lock the first and third angles are not separable; the first comes out of
+    ``atan2(0, 0) = 0`` there and the gradients stay finite (they are not unique)."""
+    if i != k:  # Tait-Bryan: b in [-pi/2, pi/2]
+        s = 1.0 if (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
+        b = _safe_arcsin(s * R[..., i, k])
+        a = _safe_atan2(-s * R[..., j, k], R[..., k, k])
+        c = _safe_atan2(-s * R[..., i, j], R[..., i, i])
+        return jnp.stack([a, b, c], axis=-1)
+    # Proper Euler: b in [0, pi]; m is the axis that is neither i nor j.
+    m = 3 - i - j
+    s = 1.0 if (i, j, m) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
+    b = jnp.pi / 2 - _safe_arcsin(R[..., i, i])
+    a = _safe_atan2(R[..., j, i], -s * R[..., m, i])
+    c = _safe_atan2(R[..., i, j], s * R[..., i, m])
+    return jnp.stack([a, b, c], axis=-1)
 
 
 def dcm_to_euler(
     R: Float[Array, "... 3 3"], sequence: str = DEFAULT_EULER_SEQUENCE
 ) -> Float[Array, "... 3"]:
-    """Inverse of :func:`euler_to_dcm` for a Tait-Bryan ``sequence``.
+    """Inverse of :func:`euler_to_dcm` (SciPy's ``Rotation.as_euler(sequence)``).
 
-    The middle angle is in ``[-pi/2, pi/2]``, the others in ``(-pi, pi]``. At gimbal lock (middle
-    angle at +-pi/2) the split between first and third angle is not unique.
+    The middle angle is in ``[-pi/2, pi/2]`` (Tait-Bryan) or ``[0, pi]`` (proper Euler), the
+    others in ``(-pi, pi]``. At gimbal lock (middle angle at its bounds) the split between the
+    first and third angle is not unique.
     """
     R = check_matrix(R)
-    i, j, k = _parse_sequence(sequence)
-    s = 1.0 if (i, j, k) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1.0
-    b = jnp.arcsin(jnp.clip(s * R[..., i, k], -1.0, 1.0))
-    a = jnp.arctan2(-s * R[..., j, k], R[..., k, k])
-    c = jnp.arctan2(-s * R[..., i, j], R[..., i, i])
-    return jnp.stack([a, b, c], axis=-1)
+    (i, j, k), intrinsic = parse_euler_sequence(sequence)
+    if intrinsic:
+        return _intrinsic_angles(R, i, j, k)
+    # extrinsic (a0 about i, a1 about j, a2 about k) = intrinsic k-j-i with angles reversed
+    return _intrinsic_angles(R, k, j, i)[..., ::-1]
 
 
 def rotation_angle(
@@ -370,13 +432,18 @@ class Pose(eqx.Module):
         """From an OpenCV-style ``(rvec, tvec)`` pair."""
         return cls(so3_exp(rotvec), jnp.asarray(t))
 
+    @property
     def quat(self) -> Float[Array, "... 4"]:
+        """Scalar-first unit quaternion ``(w, x, y, z)`` with ``w >= 0``."""
         return dcm_to_quat(self.R)
 
+    @property
     def rotvec(self) -> Float[Array, "... 3"]:
+        """Rotation vector (radians), OpenCV's ``rvec``."""
         return so3_log(self.R)
 
     def euler(self, sequence: str = DEFAULT_EULER_SEQUENCE) -> Float[Array, "... 3"]:
+        """Euler angles (radians) in SciPy's ``sequence`` naming (default ``"XYZ"``)."""
         return dcm_to_euler(self.R, sequence)
 
     def apply(self, points_body: Float[Array, "... n 3"]) -> Float[Array, "... n 3"]:
@@ -396,6 +463,11 @@ class Pose(eqx.Module):
         return self.compose(other)
 
     def retract(self, xi: Float[Array, "... 6"]) -> Pose:
-        """Left perturbation ``exp(xi) @ self`` with ``xi = (rho, omega)`` in the camera frame."""
-        dR, dt = se3_exp(xi)
-        return Pose(dR, dt).compose(self)
+        """The library's tangent convention: ``xi = (rho, omega)`` in the camera frame acts on the
+        left, ``R <- exp([omega]_x) R`` and ``t <- t + rho`` (metres, radians).
+
+        Used by the refinement's steps, its covariance and sensitivity, and DOP's ``"tangent"``
+        parameterization, so that ``rho`` is the position error itself.
+        """
+        xi = check_last(xi, 6, "xi")
+        return Pose(so3_exp(xi[..., 3:]) @ self.R, self.t + xi[..., :3])

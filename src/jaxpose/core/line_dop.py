@@ -9,8 +9,8 @@ and contributes the two signed distances, in pixels, of its projected endpoints 
     d_k(x) = (l_1 u_k(x) + l_2 v_k(x) + l_3) / sqrt(l_1^2 + l_2^2),    k = 1, 2,
 
 where ``(u_k, v_k)(x)`` is the pixel of ``P_k`` at the state ``x = (T, eps)`` of
-:mod:`jaxpose.core.dilution` and the observed line ``l`` is held fixed at its value at the true pose
-(the projected endpoints lie on it there, so ``d_k = 0``). Its ``2 x 6`` Jacobian ``L`` at the
+:mod:`jaxpose.core.dilution` and the observed line ``l`` is held fixed at its value at the true
+pose (the projected endpoints lie on it there, so ``d_k = 0``). Its ``2 x 6`` Jacobian ``L`` at the
 true pose gives the information block ``A = L^T L / sigma^2`` in the same state, the same units
 and the same attitude parameterisation as the point blocks of
 :func:`jaxpose.core.dilution.information_blocks`, so point and line blocks add:
@@ -32,44 +32,18 @@ the camera.
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from jaxpose.core._checks import check_mask, check_pose, check_rows
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.dilution import _state_to_pixels
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
 from jaxpose.core.residuals import line_from_segment
 
 __all__ = ["line_information_blocks", "line_jacobians"]
-
-
-def _check_segments(segments_body, pose: Pose) -> Array:
-    segments_body = jnp.asarray(segments_body)
-    if not jnp.issubdtype(segments_body.dtype, jnp.floating):
-        segments_body = segments_body.astype(jnp.result_type(float))
-    if segments_body.ndim != 3 or segments_body.shape[1:] != (2, 3):
-        raise ValueError(
-            "segments_body must have shape (n, 2, 3) (one problem; use jax.vmap for batches); got "
-            f"{segments_body.shape}"
-        )
-    if not isinstance(pose, Pose):
-        raise ValueError(f"pose must be a jaxpose.Pose; got {type(pose).__name__}")
-    if jnp.shape(pose.R) != (3, 3) or jnp.shape(pose.t) != (3,):
-        raise ValueError(
-            f"pose must hold one rotation (3, 3) and one translation (3,); got {jnp.shape(pose.R)} "
-            f"and {jnp.shape(pose.t)} (use jax.vmap for batches)"
-        )
-    return segments_body
-
-
-def _check_mask(mask, n: int) -> Array | None:
-    if mask is None:
-        return None
-    mask = jnp.asarray(mask)
-    if mask.shape != (n,):
-        raise ValueError(f"mask must have shape ({n},); got {mask.shape}")
-    return mask.astype(bool)
 
 
 def _segment_jacobian(x0, pixels, segment: Float[Array, "2 3"]) -> Float[Array, "2 6"]:
@@ -111,8 +85,19 @@ def line_jacobians(
     Returns:
         ``(n, 2, 6)``; zero rows for a segment seen end-on.
     """
-    segments_body = _check_segments(segments_body, pose)
-    camera = as_camera(camera)
+    check_pose(pose)
+    segments_body = check_rows(segments_body, (2, 3), "segments_body")
+    _check_parameterization(parameterization)
+    return _jacobians(segments_body, pose, as_camera(camera), sequence, parameterization)
+
+
+def _check_parameterization(parameterization: str) -> None:
+    if parameterization not in ("euler", "tangent"):
+        raise ValueError(f"parameterization must be 'euler' or 'tangent'; got {parameterization!r}")
+
+
+@eqx.filter_jit
+def _jacobians(segments_body, pose, camera, sequence, parameterization):
     x0, pixels = _state_to_pixels(pose, camera, sequence, parameterization)
     return jax.vmap(lambda s: _segment_jacobian(x0, pixels, s))(segments_body)
 
@@ -139,8 +124,8 @@ def line_information_blocks(
         segments_body: ``(n, 2, 3)`` segment endpoints in the target body frame, metres.
         pose: true relative pose (``x_cam = R p + t``).
         camera: :class:`~jaxpose.core.camera.PinholeCamera` or ``3x3`` ``K``.
-        sigma: noise (pixels) of each endpoint-to-line distance, one per segment or shared;
-            ``None`` for unit weights (the plain DOP).
+        sigma: noise (pixels, positive) of each endpoint-to-line distance, one per segment or
+            shared; ``None`` for unit weights (the plain DOP).
         mask: ``(n,)`` bool, valid segments of a padded set; masked-out ones give zero blocks
             whatever they hold (NaN included).
         sequence, parameterization: attitude state, as in :func:`jaxpose.core.dilution.dop`.
@@ -149,9 +134,25 @@ def line_information_blocks(
         ``(n, 6, 6)`` symmetric positive semi-definite blocks of rank at most 2, state order
         ``(T, eps)``.
     """
-    segments_body = _check_segments(segments_body, pose)
+    check_pose(pose)
+    segments_body = check_rows(segments_body, (2, 3), "segments_body")
+    _check_parameterization(parameterization)
     n = segments_body.shape[0]
-    valid = _check_mask(mask, n)
+    valid = None if mask is None else check_mask(mask, n)
+    if sigma is not None:
+        sigma = jnp.asarray(sigma, dtype=segments_body.dtype)
+        if sigma.shape not in ((), (n,)):
+            raise ValueError(f"sigma must be a scalar or have shape ({n},); got {sigma.shape}")
+        if not isinstance(sigma, jax.core.Tracer) and not bool(
+            jnp.all((sigma > 0) & jnp.isfinite(sigma))
+        ):
+            raise ValueError(f"sigma (pixel noise) must be positive and finite; got {sigma}")
+    return _blocks(segments_body, pose, as_camera(camera), sigma, valid, sequence, parameterization)
+
+
+@eqx.filter_jit
+def _blocks(segments_body, pose, camera, sigma, valid, sequence, parameterization):
+    n = segments_body.shape[0]
     if valid is not None:
         # Masked-out segments are replaced by a harmless one in front of the camera (values and
         # gradients stay finite whatever they held), then their blocks are zeroed.
@@ -159,12 +160,10 @@ def line_information_blocks(
             jnp.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]], segments_body.dtype) - pose.t
         ) @ pose.R
         segments_body = jnp.where(valid[:, None, None], segments_body, dummy)
-    L = line_jacobians(
-        segments_body, pose, camera, sequence=sequence, parameterization=parameterization
-    )
+    L = _jacobians(segments_body, pose, camera, sequence, parameterization)
     w = jnp.ones(n, dtype=L.dtype)
     if sigma is not None:
-        w = w / jnp.broadcast_to(jnp.asarray(sigma, dtype=L.dtype), (n,)) ** 2
+        w = w / jnp.broadcast_to(sigma.astype(L.dtype), (n,)) ** 2
     blocks = jnp.einsum("nki,nkj,n->nij", L, L, w)
     if valid is not None:
         blocks = jnp.where(valid[:, None, None], blocks, 0.0)

@@ -100,7 +100,7 @@ def reprojection_error_2d(
 ) -> Float[Array, ...]:
     """``E_2D`` (eq. 22): mean pixel distance between image points and projected model points
     over the valid points (``inf`` when none is valid)."""
-    d = jnp.linalg.norm(camera.project_body(pose, points_body) - pixels, axis=-1)
+    d = jnp.linalg.norm(camera.project(pose.apply(points_body)) - pixels, axis=-1)
     if mask is None:
         return jnp.mean(d, axis=-1)
     mask = jnp.asarray(mask)

@@ -71,24 +71,26 @@ whitened residual (ORB-SLAM's choice); Tukey at 4.6851 (95% efficiency in 1-D).
 
 
 def point_residuals(
-    pose: Pose,
     points_body: Float[Array, "n 3"],
     pixels: Float[Array, "n 2"],
+    pose: Pose,
     camera: PinholeCamera | Array,
 ) -> Float[Array, "n 2"]:
-    """Reprojection errors ``proj(R p_i + t) - pixels_i`` in pixels (Yang et al. 2024 eq. 8, sign flipped).
+    """Reprojection errors ``proj(R p_i + t) - pixels_i`` in pixels.
+
+    Yang et al. 2024 eq. 8, sign flipped (see the module docstring).
 
     Args:
-        pose: body-to-camera pose (``x_cam = R p + t``).
         points_body: ``(n, 3)`` model points, metres.
         pixels: ``(n, 2)`` observed pixels ``(u, v)``.
+        pose: body-to-camera pose (``x_cam = R p + t``).
         camera: :class:`~jaxpose.core.camera.PinholeCamera` or ``3x3`` ``K``.
     """
     check_pose(pose)
     points_body = check_rows(points_body, (3,), "points_body")
     pixels = check_rows(pixels, (2,), "pixels")
     check_same_length(points_body, pixels, "points_body", "pixels")
-    return as_camera(camera).project_body(pose, points_body) - pixels
+    return as_camera(camera).project(pose.apply(points_body)) - pixels
 
 
 def line_from_segment(s: Float[Array, "... 2"], e: Float[Array, "... 2"]) -> Float[Array, "... 3"]:
@@ -115,21 +117,22 @@ def _line_distance(lines_img: Array, pix: Array) -> Array:
 
 
 def line_residuals(
-    pose: Pose,
     segments_body: Float[Array, "k 2 3"],
     lines_img: Float[Array, "k 3"],
+    pose: Pose,
     camera: PinholeCamera | Array,
 ) -> Float[Array, "k 2"]:
     """Signed pixel distances of the projected 3-D segment endpoints to the observed lines.
 
-    Yang et al. 2024 eqs. 7 and 9: ``d = l . (proj(R P + t), 1) / sqrt(l1^2 + l2^2)`` for the start and
-    end point of each segment. A degenerate observed line (``l1 = l2 = 0``) gives zeros.
+    Yang et al. 2024 eqs. 7 and 9: ``d = l . (proj(R P + t), 1) / sqrt(l1^2 + l2^2)`` for the
+    start and end point of each segment. A degenerate observed line (``l1 = l2 = 0``) gives
+    zeros.
 
     Args:
-        pose: body-to-camera pose.
         segments_body: ``(k, 2, 3)`` segment endpoints in the body frame, metres.
         lines_img: ``(k, 3)`` homogeneous image lines, e.g. :func:`line_from_segment` of the
             observed segment endpoints (any scale).
+        pose: body-to-camera pose.
         camera: :class:`~jaxpose.core.camera.PinholeCamera` or ``3x3`` ``K``.
 
     Returns:
@@ -139,7 +142,7 @@ def line_residuals(
     segments_body = check_rows(segments_body, (2, 3), "segments_body")
     lines_img = check_rows(lines_img, (3,), "lines_img")
     check_same_length(segments_body, lines_img, "segments_body", "lines_img")
-    pix = as_camera(camera).project_body(pose, segments_body.reshape(-1, 3)).reshape(-1, 2, 2)
+    pix = as_camera(camera).project(pose.apply(segments_body.reshape(-1, 3))).reshape(-1, 2, 2)
     return _line_distance(lines_img, pix)
 
 
@@ -234,9 +237,9 @@ def _mahalanobis2(residuals: Array, information: Array | None) -> Array:
 
 
 def joint_cost(
-    pose: Pose,
     points_body: Float[Array, "n 3"],
     pixels: Float[Array, "n 2"],
+    pose: Pose,
     camera: PinholeCamera | Array,
     *,
     point_information: Float[Array, "n 2 2"] | None = None,
@@ -260,7 +263,7 @@ def joint_cost(
     m = check_mask(mask, points_body.shape[0])
     pts = jnp.where(m[:, None], points_body, 0.0)
     pix = jnp.where(m[:, None], pixels, 0.0)
-    s = _mahalanobis2(point_residuals(pose, pts, pix, camera), point_information)
+    s = _mahalanobis2(point_residuals(pts, pix, pose, camera), point_information)
     cost = jnp.sum(jnp.where(m, robust_rho(robust, s, robust_scale), 0.0))
     if segments_body is not None or lines_img is not None:
         if segments_body is None or lines_img is None:
@@ -270,6 +273,6 @@ def joint_cost(
         lm = check_mask(line_mask, segments_body.shape[0], "line_mask")
         seg = jnp.where(lm[:, None, None], segments_body, 0.0)
         lin = jnp.where(lm[:, None], lines_img, jnp.array([1.0, 0.0, 0.0], lines_img.dtype))
-        sl = _mahalanobis2(line_residuals(pose, seg, lin, camera), line_information)
+        sl = _mahalanobis2(line_residuals(seg, lin, pose, camera), line_information)
         cost = cost + jnp.sum(jnp.where(lm, robust_rho(robust, sl, robust_scale), 0.0))
     return cost

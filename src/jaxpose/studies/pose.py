@@ -128,9 +128,9 @@ def _tangent_errors(R_est, t_est, pose: Pose):
 @jax.jit
 def _solve_batch(pose0, pixels, points_body, camera, sigma):
     """Every trial of a group in one call (compiled once per point count)."""
-    return jax.vmap(lambda p0, u: refine_pose(p0, points_body, u, camera, sigma=sigma))(
-        pose0, pixels
-    )
+    return jax.vmap(
+        lambda p0, u: refine_pose(points_body, u, p0, camera, sigma=sigma, throw=False)
+    )(pose0, pixels)
 
 
 def _solver_camera(camera: PinholeCamera) -> PinholeCamera:
@@ -159,12 +159,12 @@ def run_group(
     key = jax.random.fold_in(jax.random.PRNGKey(seed), int(round(sigma * 1e6)) % 2**32)
     key = jax.random.fold_in(key, geometry.seed)
     k_noise, k_init = jax.random.split(key)
-    clean = camera.project_body(pose, P)
+    clean = camera.project(pose.apply(P))
     pixels = clean + sigma * jax.random.normal(k_noise, (trials, n, 2), dtype=clean.dtype)
     if init == "epnp":
         from jaxpose.core.pnp import epnp
 
-        init_res = jax.jit(jax.vmap(lambda u: epnp(P, u, camera)))(pixels)
+        init_res = jax.jit(jax.vmap(lambda u: epnp(P, u, camera, throw=False)))(pixels)
         pose0 = init_res.pose
     elif init == "perturbed":
         pose0 = _initial_poses(pose, trials, perturbation, k_init)
@@ -177,7 +177,7 @@ def run_group(
     elapsed = time.perf_counter() - t0
     ok = np.asarray(res.status) == Status.OK
     err = np.asarray(_tangent_errors(res.pose.R, res.pose.t, pose))[ok]
-    cov = np.asarray(pose_covariance(pose, P, camera, sigma=sigma))
+    cov = np.asarray(pose_covariance(P, pose, camera, sigma=sigma))
     pred = np.sqrt(np.diag(cov))
     emp = err.std(axis=0, ddof=1)
     nees = float(np.mean(np.einsum("ti,ij,tj->t", err, np.linalg.inv(cov), err)))

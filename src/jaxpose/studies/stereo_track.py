@@ -1,27 +1,31 @@
 """``jaxpose stereo-track``: render (or read) a stereo sequence of a tumbling target and track it.
 
-Yang et al. 2024 end to end: :mod:`jaxpose.vision.stereo_render` draws the sequence
-(two turns at 10.2 deg/s by default, the paper's lab rate), :class:`jaxpose.pipelines.stereo.
-StereoTracker` tracks it, and this module writes
+Yang et al. 2024 end to end: :mod:`jaxpose.vision.stereo_render` draws the sequence (two turns at
+10.2 deg/s by default, the paper's lab rate), :class:`jaxpose.pipelines.stereo.StereoTracker`
+tracks it, and this module writes
 
 * ``trajectory.csv``: per frame the estimated and true target pose in the left camera, the chaser
   position in the target frame (the paper's Figs. 3-4 quantity: the hovering chaser seen from the
   spinning target moves on a circle), status, feature counts and errors;
-* ``fig3_position_track.png`` (3-D chaser track, estimate vs truth), ``fig4_position.png``
-  (per-axis chaser position and its error over time), ``fig5_attitude.png`` (per-axis attitude
-  and its error);
-* with ``--json``, a last line ``{"frames", "rms_position_mm": [x, y, z], "rms_attitude_deg":
-  [r, p, y], "lost_frames", "fps"}``.
+* ``fig3_position_track.png`` (3-D chaser track, estimate and truth, equal scale),
+  ``fig4_position.png`` (per-axis chaser position and its error over time), ``fig5_attitude.png``
+  (per-axis attitude and its error);
+* ``summary.json`` and, with ``--json``, a last line ``{"frames", "rms_position_mm": [x, y, z],
+  "rms_attitude_deg": [r, p, y], "lost_frames", "fps"}`` (``null`` for what was not measured).
+
+Start: ``--init truth`` (default for a rendered sequence, as the paper initialises) gives the
+tracker the true first pose; ``--init identity`` starts without ground truth: the target frame is
+the first left camera frame. Errors are always reported after aligning the first tracked frame,
+``est_k est_0^-1 truth_0`` (a no-op for ``--init truth``).
 
 Errors: position ``c_est - c_true`` with ``c = -R^T t`` (chaser in target axes, mm); attitude the
-``xyz`` Euler angles (roll, pitch, yaw) of ``R_est R_true^T`` (deg). RMS over tracked frames
+``XYZ`` Euler angles (roll, pitch, yaw) of ``R_est R_true^T`` (deg). RMS over tracked frames
 (lost frames are counted apart). ``fps`` counts tracking only (rendering excluded).
 
-``--images DIR`` reads ``DIR/left/*.png`` and ``DIR/right/*.png`` (sorted, paired) and
-``DIR/calibration.json`` (``{"left": camera, "right": camera, "R_rl": 3x3, "t_rl": [3]}``, cameras
-in the ``camera.json`` layout of :func:`jaxpose.io.load_camera`); the pair is rectified with
-OpenCV when needed, the first frame defines the target frame (identity pose) and no errors are
-computed.
+``--images DIR`` reads a stereo folder (layout in :mod:`jaxpose.studies._stereo_folder`:
+``calibration.json``, ``left/*.png``, ``right/*.png``, optional ``poses.csv``); the pairs are
+rectified with OpenCV, the tracker starts at the identity and errors are computed only when
+``poses.csv`` is given.
 """
 
 from __future__ import annotations
@@ -34,39 +38,105 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["add_arguments", "run", "track_sequence", "summarize", "write_outputs"]
+__all__ = [
+    "MAX_FRAMES",
+    "add_arguments",
+    "run",
+    "summarize",
+    "track_sequence",
+    "write_outputs",
+]
+
+#: Most frames a run may plan (two turns at a very slow spin would never finish).
+MAX_FRAMES = 20000
+
+_RENDER_DEFAULTS = {
+    "rate_deg_s": 10.2,
+    "range_m": 2.0,
+    "blur": 0.0,
+    "glints": 0.0,
+    "seed": 0,
+    "image_size": (1024, 768),
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from jaxpose.commands._common import (
+        add_figures_argument,
+        add_image_size_argument,
+        add_out_argument,
+        add_progress_argument,
+        finite_float,
+        nonnegative_float,
+        nonnegative_int,
+        positive_float,
+        positive_int,
+    )
+
+    d = _RENDER_DEFAULTS
     parser.add_argument(
-        "--frames", type=int, default=None, help="frames to render (default: two full turns)"
+        "--frames",
+        type=positive_int,
+        default=None,
+        help=f"frames to track, 2 to {MAX_FRAMES} (default: two full turns; with --images: all "
+        "pairs, else the first N)",
     )
     parser.add_argument(
-        "--rate-deg-s", type=float, default=10.2, help="spin rate, deg/s (default 10.2)"
+        "--rate-deg-s",
+        type=finite_float,
+        default=d["rate_deg_s"],
+        help=f"spin rate of the rendered target, deg/s; two turns must fit in {MAX_FRAMES} frames",
     )
     parser.add_argument(
-        "--range-m", type=float, default=2.0, help="chaser-target range, m (default 2)"
+        "--range-m",
+        type=positive_float,
+        default=d["range_m"],
+        help="chaser-target range of the rendering, m, above 0.5",
     )
     parser.add_argument(
-        "--blur", type=float, default=0.0, help="motion blur: exposure / frame interval (0..1)"
+        "--blur",
+        type=nonnegative_float,
+        default=d["blur"],
+        help="motion blur of the rendering: exposure / frame interval, 0 to 1.5",
     )
     parser.add_argument(
-        "--glints", type=float, default=0.0, help="specular glint strength (0: none; 1.5 strong)"
+        "--glints",
+        type=nonnegative_float,
+        default=d["glints"],
+        help="specular glint strength of the rendering (0: none, 1.5: strong)",
     )
     parser.add_argument(
-        "--frame-rate-hz", type=float, default=5.0, help="camera frame rate (default 5)"
+        "--frame-rate-hz", type=positive_float, default=5.0, help="camera frame rate, Hz"
     )
-    parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument(
-        "--image-size", default="1024x768", help="rendered image size WxH (default 1024x768)"
+        "--seed", type=nonnegative_int, default=d["seed"], help="sensor-noise seed of the rendering"
     )
-    parser.add_argument("--points-only", action="store_true", help="track with ORB points only")
+    add_image_size_argument(parser, d["image_size"], help="rendered image size, pixels")
     parser.add_argument(
-        "--images", type=Path, default=None, help="folder with left/, right/ and calibration.json"
+        "--init",
+        choices=("truth", "identity"),
+        default=None,
+        help="first pose: the rendered truth, or the identity (target frame = first left camera "
+        "frame; errors after aligning the first frame) (default: truth; identity with --images)",
     )
-    parser.add_argument("--out", type=Path, default=Path("runs/stereo-track"), help="output folder")
-    parser.add_argument("--no-figures", action="store_true", help="skip the figures")
-    parser.add_argument("--json", action="store_true", help="print the summary as a JSON last line")
+    parser.add_argument(
+        "--points-only",
+        action="store_true",
+        help="track with ORB points only (the paper's comparison)",
+    )
+    parser.add_argument(
+        "--images",
+        type=Path,
+        default=None,
+        help="a stereo folder: calibration.json, left/*.png, right/*.png, optional poses.csv "
+        "(default: render a sequence)",
+    )
+    add_out_argument(parser, "stereo-track", "trajectory, figures and summary")
+    add_figures_argument(parser)
+    add_progress_argument(parser)
+    parser.add_argument(
+        "--json", action="store_true", help="print the summary as a JSON last line on stdout"
+    )
 
 
 def _euler_deg(R: np.ndarray) -> np.ndarray:
@@ -78,10 +148,12 @@ def _euler_deg(R: np.ndarray) -> np.ndarray:
 def track_sequence(
     frames, rig, *, use_lines: bool = True, initial_pose=None, options=None, progress=None
 ):
-    """Track an iterable of frames (objects with ``left``, ``right``, optional ``pose``, ``roi``).
+    """Track an iterable of frames (objects with ``left``, ``right``, optional ``pose``).
 
-    Returns ``(results, truths, seconds)``: the :class:`~jaxpose.pipelines.stereo.FrameResult` of
-    each frame, the true poses (``None`` where unknown) and the tracking time of each frame.
+    ``initial_pose``: the tracker's first pose (``None``: the first frame's ``pose``, the truth
+    of a rendered sequence, or the identity when it has none). Returns ``(results, truths,
+    seconds)``: the :class:`~jaxpose.pipelines.stereo.FrameResult` of each frame, the true poses
+    (``None`` where unknown) and the tracking time of each frame.
     """
     from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
 
@@ -103,10 +175,27 @@ def track_sequence(
     return results, truths, seconds
 
 
-def summarize(results, truths, seconds) -> dict:
-    """Per-axis RMS errors, lost frames and frame rate (module docstring), plus per-frame rows."""
+def _alignment(results, truths):
+    """``est_j^-1 truth_j`` of the first tracked frame ``j`` with a truth (module docstring):
+    right-multiplied to every estimate, it maps the tracker's target frame onto the true one."""
+    from jaxpose.core.geometry import Pose
     from jaxpose.core.status import Status
 
+    for res, truth in zip(results, truths, strict=True):
+        if truth is not None and res.status == Status.OK:
+            est = Pose(res.R, res.t)
+            return est.inverse() @ Pose(np.asarray(truth.R, float), np.asarray(truth.t, float))
+    return None
+
+
+def summarize(results, truths, seconds) -> dict:
+    """Per-axis RMS errors after aligning the first tracked frame, lost frames and frame rate
+    (module docstring), plus per-frame rows. Values not measured (no truth, one frame) are
+    ``None``."""
+    from jaxpose.core.geometry import Pose
+    from jaxpose.core.status import Status
+
+    align = _alignment(results, truths)
     rows, pos_err, att_err = [], [], []
     for res, truth in zip(results, truths, strict=True):
         row = {
@@ -119,13 +208,17 @@ def summarize(results, truths, seconds) -> dict:
             "rms_px": res.rms_px,
         }
         ok = res.status == Status.OK
-        c_est = -res.R.T @ res.t if ok else np.full(3, np.nan)
-        row.update({f"t_est_{a}": v for a, v in zip("xyz", res.t, strict=True)})
+        R_est, t_est = res.R, res.t
+        if ok and align is not None:
+            aligned = Pose(R_est, t_est) @ align
+            R_est, t_est = np.asarray(aligned.R, float), np.asarray(aligned.t, float)
+        c_est = -R_est.T @ t_est if ok else np.full(3, np.nan)
+        row.update({f"t_est_{a}": v for a, v in zip("xyz", t_est, strict=True)})
         row.update({f"chaser_est_{a}": v for a, v in zip("xyz", c_est, strict=True)})
         row.update(
             {
                 f"euler_est_{a}_deg": v
-                for a, v in zip("xyz", _euler_deg(res.R) if ok else [np.nan] * 3, strict=True)
+                for a, v in zip("xyz", _euler_deg(R_est) if ok else [np.nan] * 3, strict=True)
             }
         )
         if truth is not None:
@@ -138,7 +231,7 @@ def summarize(results, truths, seconds) -> dict:
             )
             if ok:
                 e_pos = (c_est - c_true) * 1000.0
-                e_att = _euler_deg(res.R @ Rt.T)
+                e_att = _euler_deg(R_est @ Rt.T)
                 pos_err.append(e_pos)
                 att_err.append(e_att)
             else:
@@ -147,16 +240,18 @@ def summarize(results, truths, seconds) -> dict:
             row.update({f"err_att_{a}_deg": v for a, v in zip("xyz", e_att, strict=True)})
         rows.append(row)
 
-    def rms(e):
-        return np.sqrt(np.mean(np.square(e), axis=0)).tolist() if len(e) else [float("nan")] * 3
+    def rms(e, digits):
+        if not len(e):
+            return None
+        return [round(float(x), digits) for x in np.sqrt(np.mean(np.square(e), axis=0))]
 
-    total = float(np.sum(seconds[1:])) if len(seconds) > 1 else float("nan")
+    total = float(np.sum(seconds[1:])) if len(seconds) > 1 else 0.0
     summary = {
         "frames": len(results),
-        "rms_position_mm": [round(x, 3) for x in rms(pos_err)],
-        "rms_attitude_deg": [round(x, 4) for x in rms(att_err)],
+        "rms_position_mm": rms(pos_err, 3),
+        "rms_attitude_deg": rms(att_err, 4),
         "lost_frames": int(sum(r.status != Status.OK for r in results)),
-        "fps": round((len(seconds) - 1) / total, 2) if total > 0 else float("nan"),
+        "fps": round((len(seconds) - 1) / total, 2) if total > 0 else None,
     }
     return {"summary": summary, "rows": rows}
 
@@ -166,11 +261,13 @@ def write_outputs(report: dict, out, dt: float, title: str, *, figures: bool = T
     frame) and, with ``figures``, the paper's Figs. 3-5 (``fig3_position_track.png``,
     ``fig4_position.png``, ``fig5_attitude.png``); ``dt`` is the frame interval in seconds,
     ``title`` names the mode in the figures."""
+    from jaxpose.studies._stereo_figures import write_figures
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     _write_csv(report["rows"], out / "trajectory.csv")
     if figures:
-        _figures(report["rows"], out, dt, title)
+        write_figures(report["rows"], out, dt, title)
 
 
 def _write_csv(rows, path: Path) -> None:
@@ -182,172 +279,93 @@ def _write_csv(rows, path: Path) -> None:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
 
 
-def _figures(rows, out: Path, dt: float, title: str) -> None:
-    import matplotlib
+def _rendered(args):
+    """Scene, rig and frames of a rendered run; ``ValueError`` naming the option."""
+    from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    def col(name):
-        return np.array([r.get(name, np.nan) for r in rows], dtype=float)
-
-    time_s = col("frame") * dt
-    has_truth = "chaser_true_x" in rows[0]
-    fig = plt.figure(figsize=(6, 5))
-    ax = fig.add_subplot(projection="3d")
-    ax.plot(col("chaser_est_x"), col("chaser_est_y"), col("chaser_est_z"), label="estimate")
-    if has_truth:
-        ax.plot(
-            col("chaser_true_x"), col("chaser_true_y"), col("chaser_true_z"), "--", label="truth"
-        )
-    ax.set_xlabel("x (m)"), ax.set_ylabel("y (m)"), ax.set_zlabel("z (m)")
-    ax.set_title(f"Chaser position in the target frame ({title})")
-    ax.legend()
-    fig.savefig(out / "fig3_position_track.png", dpi=110)
-    plt.close(fig)
-    for name, est, true, err, unit in (
-        ("fig4_position.png", "chaser_est_{}", "chaser_true_{}", "err_pos_{}_mm", ("m", "mm")),
-        (
-            "fig5_attitude.png",
-            "euler_est_{}_deg",
-            "euler_true_{}_deg",
-            "err_att_{}_deg",
-            ("deg", "deg"),
-        ),
-    ):
-        fig, axes = plt.subplots(
-            2 if has_truth else 1, 1, figsize=(8, 6 if has_truth else 3.2), squeeze=False
-        )
-        for a in "xyz":
-            axes[0, 0].plot(time_s, col(est.format(a)), label=f"{a} estimate")
-            if has_truth:
-                axes[0, 0].plot(time_s, col(true.format(a)), "--", lw=0.8, label=f"{a} truth")
-                axes[1, 0].plot(time_s, col(err.format(a)), label=a)
-        axes[0, 0].set_ylabel(unit[0])
-        axes[0, 0].legend(ncol=3, fontsize=7)
-        if has_truth:
-            axes[1, 0].set_ylabel(f"error ({unit[1]})")
-            axes[1, 0].legend(ncol=3, fontsize=7)
-        axes[-1, 0].set_xlabel("time (s)")
-        axes[0, 0].set_title(title)
-        fig.tight_layout()
-        fig.savefig(out / name, dpi=110)
-        plt.close(fig)
-
-
-def _image_frames(folder: Path):
-    """Rig and frames of a folder of rectified-or-not image pairs (module docstring)."""
-    import cv2
-
-    from jaxpose.core.camera import StereoCamera
-    from jaxpose.io import load_camera
-    from jaxpose.vision.stereo_rectify import rectify
-
-    calib = folder / "calibration.json"
-    if not calib.is_file():
-        raise ValueError(f"{calib} not found (left/right cameras and R_rl, t_rl)")
-    data = json.loads(calib.read_text())
-    tmp = folder / ".left_camera.json"
-    cams = []
-    for side in ("left", "right"):
-        tmp.write_text(json.dumps(data[side]))
-        cams.append(load_camera(tmp))
-    tmp.unlink()
-    rig = StereoCamera(
-        cams[0],
-        cams[1],
-        np.asarray(data.get("R_rl", np.eye(3)), float),
-        np.asarray(data["t_rl"], float),
-    )
-    lefts = sorted((folder / "left").glob("*.png"))
-    rights = sorted((folder / "right").glob("*.png"))
-    if not lefts or len(lefts) != len(rights):
+    d = {k: getattr(args, k) for k in _RENDER_DEFAULTS}
+    if d["range_m"] <= 0.5:
         raise ValueError(
-            f"{folder}: need as many left/*.png as right/*.png (got {len(lefts)}, {len(rights)})"
+            f"--range-m must exceed 0.5 m (the target is 1 m across); got {d['range_m']}"
         )
-    rect = rectify(rig)
-    rectified = rect.rectified_camera()
-
-    class _Frame:
-        def __init__(self, a, b):
-            self.left, self.right = a, b
-
-    def gen():
-        for a, b in zip(lefts, rights, strict=True):
-            la, rb = rect.remap(
-                cv2.imread(str(a), cv2.IMREAD_GRAYSCALE), cv2.imread(str(b), cv2.IMREAD_GRAYSCALE)
+    if d["blur"] > 1.5:
+        raise ValueError(f"--blur must be in [0, 1.5] (exposure / frame interval); got {d['blur']}")
+    if args.frames is None:
+        if d["rate_deg_s"] == 0:
+            raise ValueError("--rate-deg-s 0 never completes two turns; set --frames")
+        planned = 720.0 / abs(d["rate_deg_s"]) * args.frame_rate_hz + 1
+        if planned > MAX_FRAMES:
+            raise ValueError(
+                f"two turns at --rate-deg-s {d['rate_deg_s']} and --frame-rate-hz "
+                f"{args.frame_rate_hz} are {planned:.3g} frames, over the limit of {MAX_FRAMES}; "
+                f"raise --rate-deg-s, lower --frame-rate-hz or set --frames"
             )
-            yield _Frame(la, rb)
-
-    return rectified, gen(), len(lefts)
+    scene = StereoScene(
+        rate_deg_s=d["rate_deg_s"],
+        range_m=d["range_m"],
+        frame_rate_hz=args.frame_rate_hz,
+        frames=args.frames,
+        blur=d["blur"],
+        glints=d["glints"],
+        seed=d["seed"],
+    )
+    rig = default_rig(*d["image_size"])
+    return rig, render_sequence(scene, rig), scene.n_frames(), d["range_m"]
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
-
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    use_lines = not args.points_only
-    if args.images is not None:
-        rig, frames, n = _image_frames(Path(args.images))
-        dt = 1.0 / args.frame_rate_hz
-        from jaxpose.core.geometry import Pose
-
-        initial = Pose.identity()
-    else:
-        if args.range_m <= 0.5:
-            raise ValueError(
-                f"--range-m must exceed 0.5 m (the target is 1 m across); got {args.range_m}"
-            )
-        if not 0.0 <= args.blur <= 1.0:
-            raise ValueError(f"--blur must be in [0, 1]; got {args.blur}")
-        scene = StereoScene(
-            rate_deg_s=args.rate_deg_s,
-            range_m=args.range_m,
-            frame_rate_hz=args.frame_rate_hz,
-            frames=args.frames,
-            blur=args.blur,
-            glints=args.glints,
-            seed=args.seed,
-        )
-        try:
-            width, height = (int(v) for v in str(args.image_size).lower().split("x"))
-        except ValueError:
-            raise ValueError(
-                f"--image-size must look like 1024x768; got {args.image_size!r}"
-            ) from None
-        rig = default_rig(width, height)
-        n = scene.n_frames()
-        frames = render_sequence(scene, rig)
-        dt, initial = 1.0 / scene.frame_rate_hz, None
+    from jaxpose.core.geometry import Pose
     from jaxpose.pipelines.stereo import TrackerOptions
 
-    opts = TrackerOptions(
-        use_lines=use_lines, depth_range_m=(0.3, max(8.0, 3 * getattr(args, "range_m", 2.0)))
-    )
-    with tqdm(total=n, disable=args.json, desc="stereo-track") as bar:
+    if args.frames is not None and not 2 <= args.frames <= MAX_FRAMES:
+        raise ValueError(f"--frames must be between 2 and {MAX_FRAMES}; got {args.frames}")
+    w, h = args.image_size
+    if w < 64 or h < 48:
+        raise ValueError(f"--image-size must be at least 64x48; got {w}x{h}")
+    use_lines = not args.points_only
+    dt = 1.0 / args.frame_rate_hz
+    if args.images is not None:
+        given = [
+            "--" + k.replace("_", "-")
+            for k, v in _RENDER_DEFAULTS.items()
+            if tuple(np.atleast_1d(getattr(args, k))) != tuple(np.atleast_1d(v))
+        ]
+        if given:
+            raise ValueError(
+                f"{', '.join(given)} set the rendering and do not apply to --images; leave "
+                f"{'it' if len(given) == 1 else 'them'} out"
+            )
+        if args.init == "truth":
+            raise ValueError("--init truth needs a rendered sequence; --images starts at identity")
+        from jaxpose.studies._stereo_folder import open_stereo_folder
+
+        folder = open_stereo_folder(args.images)
+        rig, n = folder.rig, len(folder) if args.frames is None else min(args.frames, len(folder))
+        frames = folder.frames(n)
+        initial, range_m = Pose.identity(), 2.0
+    else:
+        rig, frames, n, range_m = _rendered(args)
+        initial = Pose.identity() if args.init == "identity" else None
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    opts = TrackerOptions(use_lines=use_lines, depth_range_m=(0.3, max(8.0, 3 * range_m)))
+    with tqdm(total=n, disable=args.no_progress, desc="stereo-track", unit="frame") as bar:
         results, truths, seconds = track_sequence(
             frames, rig, use_lines=use_lines, initial_pose=initial, options=opts, progress=bar
         )
     report = summarize(results, truths, seconds)
     mode = "points+lines" if use_lines else "points only"
     write_outputs(report, out, dt, mode, figures=not args.no_figures)
+    tracked = results[1:] or results
     stage = {
-        k: float(np.mean([r.timings.get(k, 0.0) for r in results[1:]])) for k in results[0].timings
+        k: float(np.mean([r.timings.get(k, 0.0) for r in tracked])) for k in results[0].timings
     }
-    (out / "summary.json").write_text(
-        json.dumps(
-            {
-                **report["summary"],
-                "mean_stage_s": stage,
-                "mode": "points+lines" if use_lines else "points-only",
-            },
-            indent=1,
-        )
-    )
     s = report["summary"]
+    (out / "summary.json").write_text(
+        json.dumps({**s, "mean_stage_s": stage, "mode": mode.replace(" ", "-")}, indent=1)
+    )
     if args.json:
         print(json.dumps(s))
     else:

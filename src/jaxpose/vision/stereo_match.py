@@ -2,8 +2,8 @@
 
 The images must be rectified (epipolar lines are image rows: an ideal side-by-side rig such as
 :meth:`jaxpose.core.camera.StereoCamera.from_baseline`, or images warped with
-:meth:`~jaxpose.core.camera.StereoCamera.rectify` and its ``rectified_camera()``). For a left feature
-at ``(u, v)`` the right match is searched on row ``v`` over the integer disparities
+:func:`jaxpose.vision.stereo_rectify.rectify` and its ``rectified_camera()``). For a left
+feature at ``(u, v)`` the right match is searched on row ``v`` over the integer disparities
 ``d_min..d_max`` (from the depth range, :func:`disparity_range`):
 
 * eq. 4: zero-mean NCC between the ``w x w`` left patch and each right patch; the best score
@@ -159,6 +159,27 @@ def _gather(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarr
     return np.concatenate(rows, 0).reshape(shape)
 
 
+def _strips(image: np.ndarray, c0: np.ndarray, v: np.ndarray, width: int, wr: int, hr: int):
+    """``(N, wr, width)`` float32 strips of ``image``: integer columns ``c0 .. c0 + width - 1``,
+    rows ``v - hr .. v + hr`` at the sub-pixel ``v`` (linear interpolation between the two
+    integer rows; the image edge replicated beyond the border). Slices of a padded copy: no
+    per-sample interpolation along the row, which the parabola over integer disparities does
+    not need."""
+    H, W = image.shape
+    N = len(c0)
+    vi = np.floor(v).astype(np.int64)
+    frac = (v - vi).astype(np.float32)[:, None, None]
+    pad_x = int(max(0, -c0.min(), c0.max() + width - W)) if N else 0
+    pad_y = int(max(0, hr - vi.min(), vi.max() + hr + 2 - H)) if N else 0
+    padded = cv2.copyMakeBorder(image, pad_y, pad_y, pad_x, pad_x, cv2.BORDER_REPLICATE)
+    rows = vi - hr + pad_y
+    cols = c0 + pad_x
+    out = np.empty((N, wr + 1, width), np.float32)
+    for n in range(N):
+        out[n] = padded[rows[n] : rows[n] + wr + 1, cols[n] : cols[n] + width]
+    return out[:, :-1] * (1.0 - frac) + out[:, 1:] * frac
+
+
 def match_points_stereo(
     left: np.ndarray,
     right: np.ndarray,
@@ -198,38 +219,38 @@ def match_points_stereo(
         np.broadcast_to(rows_y, (N, wr, w)),
     )
     D = d_max - d_min + 1
-    cols = (u - d_max - h)[:, None] + np.arange(D + w - 1)[None, :]  # (N, D + w - 1)
-    strip = _gather(
-        Rimg,
-        np.broadcast_to(cols[:, None, :], (N, wr, D + w - 1)),
-        np.broadcast_to(rows_y, (N, wr, D + w - 1)),
-    ).astype(np.float64)
+    c0 = np.floor(u).astype(np.int64) - d_max - h  # first column of each right strip
+    strip = _strips(Rimg, c0, v, D + w - 1, wr, hr)  # (N, wr, D + w - 1) float32
     a = patch.astype(np.float64)
     a = a - a.mean(axis=(1, 2), keepdims=True)
     aa = (a * a).sum(axis=(1, 2))
-    # windowed sums of the strip along the row (box filter via cumulative sums)
-    col1 = strip.sum(axis=1)  # (N, D + w - 1)
-    col2 = (strip * strip).sum(axis=1)
+    # windowed sums of the strip along the row (box filter via cumulative sums, float64)
+    col1 = strip.sum(axis=1, dtype=np.float64)  # (N, D + w - 1)
+    col2 = (strip.astype(np.float64) ** 2).sum(axis=1)
     c1 = np.concatenate([np.zeros((N, 1)), np.cumsum(col1, 1)], 1)
     c2 = np.concatenate([np.zeros((N, 1)), np.cumsum(col2, 1)], 1)
     s1 = c1[:, w:] - c1[:, :-w]  # (N, D)
     s2 = c2[:, w:] - c2[:, :-w]
     bb = np.maximum(s2 - s1 * s1 / (w * wr), 0.0)
-    # cross term sum_ik a[n,i,k] strip[n,i,j+k], one window column at a time (no (N,w,D,w) copy)
-    ab = np.zeros((N, D))
+    # cross term sum_ik a[n,i,k] strip[n,i,j+k], one window column at a time (no (N,w,D,w)
+    # copy), in float32: 8-bit pixels times zero-mean patch values over wr * w terms keep about
+    # six significant digits, and float32 is several times faster here than float64
+    a32 = a.astype(np.float32)
+    ab = np.zeros((N, D), np.float32)
     for k in range(w):
-        ab += np.einsum("ni,nij->nj", a[:, :, k], strip[:, :, k : k + D])
+        ab += np.einsum("ni,nij->nj", a32[:, :, k], strip[:, :, k : k + D])
+    ab = ab.astype(np.float64)
     den = np.sqrt(aa[:, None] * bb)
     score = np.where(den > 1e-9, ab / np.where(den > 1e-9, den, 1.0), -1.0)
     # a window reaching outside the right image is not a candidate
-    centre = (u - d_max)[:, None] + np.arange(D)[None, :]
+    centre = (c0 + h)[:, None] + np.arange(D)[None, :]
     score = np.where((centre - h >= 0) & (centre + h <= W - 1), score, -1.0)
     j = np.argmax(score, axis=1)
     best = score[np.arange(N), j]
     inner = (j > 0) & (j < D - 1)
     jm, jp = np.clip(j - 1, 0, D - 1), np.clip(j + 1, 0, D - 1)
     off = parabolic_offset(score[np.arange(N), jm], best, score[np.arange(N), jp])
-    u_right = u - d_max + j + np.where(inner, off, 0.0)
+    u_right = c0 + h + j + np.where(inner, off, 0.0)
     texture = np.sqrt(aa / (w * wr)) >= options.min_texture
     inside = (v - hr >= 0) & (v + hr <= H - 1) & (u - h >= 0) & (u + h <= W - 1)
     ok = inner & (best >= options.ncc_threshold) & texture & inside

@@ -1,8 +1,8 @@
 """Stereo rectification with OpenCV (``cv2.stereoRectify`` + ``cv2.initUndistortRectifyMap``).
 
-The vision-layer half of :meth:`jaxpose.core.camera.StereoCamera.rectify`: it turns a rig into the maps
-that warp both images so that epipolar lines become image rows, as the epipolar search of Yang et
-al. 2024 (Sec. 3) assumes when it scans along a row.
+It turns a :class:`jaxpose.core.camera.StereoCamera` into the maps that warp both images so that
+epipolar lines become image rows, as the epipolar search of Yang et al. 2024 (Sec. 3) assumes when
+it scans along a row.
 """
 
 from __future__ import annotations

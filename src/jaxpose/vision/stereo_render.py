@@ -9,8 +9,12 @@ textures) once per camera and turned into an 8-bit image by
 * :func:`tumbler_model`: a 1 m target (box body, one solar wing, two antennas) and
   :func:`tumbler_textures`, a body-attached quilt of blanket patches (corners for ORB, texture for
   NCC) and solar cells on the wing;
-* the motion: ``R(t) = R_view R_axis(omega t)``, target origin on the boresight at ``range_m``;
-  the Sun direction may drift in the camera frame (``sun_rate_deg_s``);
+* the motion: a spin at ``rate_deg_s`` about a body axis (``spin_axis_body``, the body z axis by
+  default, or any axis off the principal axes), optionally with nutation: that axis tilted by
+  ``nutation_deg`` from a fixed direction about which it precesses at ``precession_deg_s`` (the
+  kinematics of a torque-free tumbling body); target origin on the boresight at ``range_m``;
+* the Sun direction drifts in the camera frame (``sun_rate_deg_s``) and may sweep a further
+  ``sun_sweep_deg`` over the sequence (both about the camera y axis);
 * glints: a per-pixel Blinn-Phong lobe (the view direction changes across a flat face, so the
   highlight is a spot that moves as the target turns), added to the radiance;
 * motion blur: the radiance averaged over sub-frame poses spread over the exposure
@@ -140,8 +144,14 @@ class StereoScene:
         frames: number of frames (``None``: two full turns).
         tilt_deg: angle between the spin axis and the image's up direction, towards the camera.
         size_m: target size.
+        spin_axis_body: body-frame spin axis (normalised; default body z, a principal axis).
+        nutation_deg: angle between the spin axis and the precession axis (0: a flat spin).
+        precession_deg_s: precession rate of the spin axis about the precession axis (the
+            spin axis' rest direction, tilted towards the camera by ``tilt_deg``).
         sun_dir_cam: initial direction to the Sun (camera frame).
         sun_rate_deg_s: drift of the Sun direction about the camera y axis.
+        sun_sweep_deg: further rotation of the Sun direction about the camera y axis, spread
+            linearly over the sequence (a light that sweeps across the target).
         blur: exposure / frame interval (0: no motion blur).
         blur_samples: most sub-frame renderings averaged for the blur (cost: one rendering each).
         glints: per-pixel specular strength (0: none); ``shininess`` its exponent.
@@ -155,8 +165,12 @@ class StereoScene:
     frames: int | None = None
     tilt_deg: float = 20.0
     size_m: float = 1.0
+    spin_axis_body: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    nutation_deg: float = 0.0
+    precession_deg_s: float = 0.0
     sun_dir_cam: tuple[float, float, float] = (0.5, -0.6, -0.62)
     sun_rate_deg_s: float = 0.5
+    sun_sweep_deg: float = 0.0
     blur: float = 0.0
     blur_samples: int = 3
     glints: float = 0.0
@@ -196,15 +210,42 @@ def _rot(axis: int, a: float) -> np.ndarray:
     return R
 
 
+def _align_to_z(axis) -> np.ndarray:
+    """The smallest rotation taking the unit vector ``axis`` onto ``z`` (identity for ``z``)."""
+    a = np.asarray(axis, float)
+    n = np.linalg.norm(a)
+    if not n > 0:
+        raise ValueError(f"spin_axis_body must be a non-zero vector; got {axis}")
+    a = a / n
+    z = np.array([0.0, 0.0, 1.0])
+    v, c = np.cross(a, z), float(a @ z)
+    if np.linalg.norm(v) < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + K + K @ K / (1.0 + c)
+
+
 def scene_pose(scene: StereoScene, time_s: float) -> tuple[np.ndarray, np.ndarray]:
     """True ``(R, t)`` of the target in the left camera at ``time_s``.
 
-    ``R_view`` puts body z (the spin axis) along the image's up direction (camera -y), tilted by
-    ``tilt_deg`` towards the camera so that the top face is visible; the body spins about z.
+    ``R(t) = R_view R_z(precession t) R_x(nutation) R_z(spin t) A``: ``A`` takes the body spin
+    axis onto z, the body spins about it, the spin axis is tilted by the nutation angle and
+    precesses about the rest direction, and ``R_view`` puts that direction along the image's up
+    direction (camera -y), tilted by ``tilt_deg`` towards the camera so that the top face is
+    visible. With the defaults (spin about body z, no nutation) ``R = R_view R_z(spin t)``.
     """
     base = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # body z -> camera -y
     R_view = _rot(0, np.radians(scene.tilt_deg)) @ base
     R = R_view @ _rot(2, np.radians(scene.rate_deg_s) * time_s)
+    if scene.nutation_deg or scene.precession_deg_s:
+        R = (
+            R_view
+            @ _rot(2, np.radians(scene.precession_deg_s) * time_s)
+            @ _rot(0, np.radians(scene.nutation_deg))
+            @ _rot(2, np.radians(scene.rate_deg_s) * time_s)
+        )
+    if tuple(scene.spin_axis_body) != (0.0, 0.0, 1.0):
+        R = R @ _align_to_z(scene.spin_axis_body)
     return R, np.array([0.0, 0.0, scene.range_m])
 
 
@@ -257,6 +298,8 @@ def render_stereo_frame(
     offsets = [0.0] if n_sub == 1 else list(np.linspace(-0.5, 0.5, n_sub) * scene.blur * dt)
     images, roi = [], np.full(4, np.nan)
     sun_axis_angle = np.radians(scene.sun_rate_deg_s) * time_s
+    if scene.sun_sweep_deg:
+        sun_axis_angle += np.radians(scene.sun_sweep_deg) * index / max(scene.n_frames() - 1, 1)
     sun = _rot(1, sun_axis_angle) @ np.asarray(scene.sun_dir_cam, float)
     sun /= np.linalg.norm(sun)
     rays_cache = {} if _rays is None else _rays

@@ -9,7 +9,8 @@ Every solver takes **one** problem, ``points_body (n, 3)`` (metres, target body 
 * :func:`epnp`: EPnP (Lepetit, Moreno-Noguer, Fua 2009; Sharma et al. 2018, eqs. 17-22);
 * :func:`dlt`: the direct linear transform (``>= 6`` non-coplanar points);
 * :func:`ransac_pnp`: RANSAC over EPnP (Sharma et al. 2018, eq. 35 for the hypothesis count);
-* :func:`solve_pnp`: the eager entry point, batched, with refinement and statuses;
+* :func:`solve_pnp`: the eager entry point, batched, with refinement and statuses, configured
+  by one :class:`PnPOptions` (:class:`RansacOptions`, :class:`~jaxpose.core.refine.RefineOptions`);
 * :func:`planar_flip`: the mirrored candidate of a planar target far away.
 """
 
@@ -17,11 +18,15 @@ from jaxpose.core.pnp._batch import THREAD_MIN_PROBLEMS as THREAD_MIN_PROBLEMS
 from jaxpose.core.pnp._dlt import dlt as dlt
 from jaxpose.core.pnp._epnp import epnp as epnp
 from jaxpose.core.pnp._epnp import planar_flip as planar_flip
+from jaxpose.core.pnp._options import METHODS as METHODS
+from jaxpose.core.pnp._options import SOLVE_REFINE as SOLVE_REFINE
+from jaxpose.core.pnp._options import PnPOptions as PnPOptions
+from jaxpose.core.pnp._options import RansacOptions as RansacOptions
+from jaxpose.core.pnp._options import ransac_iterations as ransac_iterations
 from jaxpose.core.pnp._problem import COLLINEAR_TOL as COLLINEAR_TOL
 from jaxpose.core.pnp._problem import DLT_MIN_POINTS as DLT_MIN_POINTS
 from jaxpose.core.pnp._problem import MIN_POINTS as MIN_POINTS
 from jaxpose.core.pnp._problem import PLANAR_TOL as PLANAR_TOL
-from jaxpose.core.pnp._ransac import ransac_iterations as ransac_iterations
 from jaxpose.core.pnp._ransac import ransac_pnp as ransac_pnp
 from jaxpose.core.pnp._result import PnPResult as PnPResult
 from jaxpose.core.pnp._solve import solve_pnp as solve_pnp

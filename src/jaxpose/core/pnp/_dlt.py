@@ -6,10 +6,11 @@ The ``3 x 4`` projection matrix from ``>= 6`` non-coplanar points (Hartley norma
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from jaxpose.core.camera import PinholeCamera
+from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.pnp._linalg import _rms_px
 from jaxpose.core.pnp._problem import (
     DLT_MIN_POINTS,
@@ -21,6 +22,7 @@ from jaxpose.core.pnp._problem import (
     _solution_status,
 )
 from jaxpose.core.pnp._result import PnPResult
+from jaxpose.core.status import throw_for_status
 
 
 def _dlt_core(points_body, xy, weights, fxy, planar_tol) -> _EPnPOut:
@@ -62,6 +64,7 @@ def dlt(
     *,
     mask: Bool[Array, " n"] | None = None,
     planar_tol: float = PLANAR_TOL,
+    throw: bool = True,
 ) -> PnPResult:
     """Direct linear transform for ``>= 6`` non-coplanar points (one problem).
 
@@ -69,10 +72,19 @@ def dlt(
     vector of the ``2n x 12`` system (3-D points centred and scaled first, Hartley); ``R`` is the
     closest rotation to its left ``3 x 3`` block (SVD), ``t`` its last column over the mean
     singular value. Coplanar points give ``DEGENERATE`` (use :func:`epnp`), fewer than six valid
-    points ``TOO_FEW_POINTS``.
+    points ``TOO_FEW_POINTS``. ``throw=True`` (the default) raises for a status other than
+    ``OK``; pass ``throw=False`` under ``vmap`` and read ``status``.
     """
+    res = _dlt_compiled(points_body, pixels, as_camera(camera), mask, float(planar_tol))
+    if throw:
+        res = throw_for_status(res, "dlt", "reprojection_error", min_points=DLT_MIN_POINTS)
+    return res
+
+
+@eqx.filter_jit
+def _dlt_compiled(points_body, pixels, camera, mask, planar_tol) -> PnPResult:
+    """The compiled body of :func:`dlt` (shape checks at trace time)."""
     prob = _problem(points_body, pixels, camera, mask, "dlt")
-    out = _dlt_core(
-        prob.points_body, prob.xy, prob.valid.astype(prob.points_body.dtype), prob.fxy, planar_tol
-    )
+    weights = prob.valid.astype(prob.points_body.dtype)
+    out = _dlt_core(prob.points_body, prob.xy, weights, prob.fxy, planar_tol)
     return _conclude(prob, out, DLT_MIN_POINTS)

@@ -29,12 +29,13 @@ EPnP (Lepetit, Moreno-Noguer, Fua 2009; Sharma et al. 2018, eqs. 17-22)
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Bool, Float
 
-from jaxpose.core.camera import PinholeCamera
+from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.pnp._linalg import (
     _argmin_onehot,
@@ -58,6 +59,7 @@ from jaxpose.core.pnp._problem import (
     _solution_status,
 )
 from jaxpose.core.pnp._result import PnPResult
+from jaxpose.core.status import throw_for_status
 
 _GAUSS_NEWTON_STEPS = 5  # OpenCV epnp.cpp
 _PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))  # control-point pairs, OpenCV order
@@ -221,6 +223,7 @@ def epnp(
     *,
     mask: Bool[Array, " n"] | None = None,
     planar_tol: float = PLANAR_TOL,
+    throw: bool = True,
 ) -> PnPResult:
     """EPnP pose of one problem (Lepetit et al. 2009; Sharma et al. 2018, eqs. 17-22).
 
@@ -230,6 +233,8 @@ def epnp(
         camera: :class:`~jaxpose.core.camera.PinholeCamera` or a ``3 x 3`` ``K``.
         mask: ``(n,)`` bool, the valid points of a padded set (default: all).
         planar_tol: planarity threshold on ``sqrt(l3 / l1)`` of the centred points' scatter.
+        throw: raise for a status other than ``OK`` (``ValueError`` eagerly, an Equinox runtime
+            error under ``jit``); pass ``False`` under ``vmap`` and read ``status``.
 
     Returns:
         :class:`PnPResult`; ``status`` is ``TOO_FEW_POINTS`` (fewer than 4 valid points),
@@ -237,16 +242,16 @@ def epnp(
         or ``BEHIND_CAMERA`` (a valid point at or behind the camera in the solution).
         ``reprojection_error`` is the RMS over the valid points, pixels.
 
-    Pure JAX: ``jax.jit(jax.vmap(epnp, in_axes=(0, 0, None)))`` solves a batch. Not meant to
+    Pure JAX: ``jax.jit(jax.vmap(lambda p, u: epnp(p, u, camera, throw=False)))`` solves a
+    batch. Not meant to
     be differentiated (the closed form has branches and repeated eigenvalues); derivatives of
     a pose come from :func:`jaxpose.core.refine.refine_pose` / :func:`jaxpose.solve_pnp` with
     refinement, by implicit differentiation at the optimum.
     """
-    prob = _problem(points_body, pixels, camera, mask, "epnp")
-    out = _epnp_core(
-        prob.points_body, prob.xy, prob.valid.astype(prob.points_body.dtype), prob.fxy, planar_tol
-    )
-    return _conclude(prob, out, MIN_POINTS)
+    res = _epnp_compiled(points_body, pixels, as_camera(camera), mask, float(planar_tol))
+    if throw:
+        res = throw_for_status(res, "epnp", "reprojection_error", min_points=MIN_POINTS)
+    return res
 
 
 def planar_flip(pose: Pose, centroid: Float[Array, 3], normal: Float[Array, 3]) -> Pose:
@@ -264,3 +269,12 @@ def planar_flip(pose: Pose, centroid: Float[Array, 3], normal: Float[Array, 3]) 
     eye = jnp.eye(3, dtype=pose.R.dtype)
     R = (eye - 2.0 * jnp.outer(d, d)) @ pose.R @ (eye - 2.0 * jnp.outer(normal, normal))
     return Pose(R, c - R @ centroid)
+
+
+@eqx.filter_jit
+def _epnp_compiled(points_body, pixels, camera, mask, planar_tol) -> PnPResult:
+    """The compiled body of :func:`epnp` (shape checks at trace time)."""
+    prob = _problem(points_body, pixels, camera, mask, "epnp")
+    weights = prob.valid.astype(prob.points_body.dtype)
+    out = _epnp_core(prob.points_body, prob.xy, weights, prob.fxy, planar_tol)
+    return _conclude(prob, out, MIN_POINTS)

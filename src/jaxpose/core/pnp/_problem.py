@@ -145,7 +145,7 @@ def _finish(out: _EPnPOut, status, inliers, points_body, pixels, camera) -> PnPR
     pose = Pose(jnp.where(ok, out.R, jnp.eye(3, dtype=dtype)), jnp.where(ok, out.t, 0.0))
     rms = out.rms
     if isinstance(camera.dist, jax.core.Tracer) or camera.has_distortion():
-        d = camera.project_body(pose, points_body) - pixels
+        d = camera.project(pose.apply(points_body)) - pixels
         e2 = jnp.where(inliers, jnp.sum(d * d, axis=-1), 0.0)
         rms = jnp.sqrt(jnp.sum(e2) / jnp.maximum(jnp.sum(inliers), 1).astype(dtype))
     rms = jnp.where(ok, rms, jnp.inf)

@@ -2,13 +2,11 @@
 
 Minimal samples of ``sample_size`` points drawn at random, EPnP on every hypothesis in one
 ``vmap``-ed call, inliers by reprojection error; the number of hypotheses is Sharma et al. 2018
-eq. 35, ``k = log(1 - p) / log(1 - w^s)`` (:func:`ransac_iterations`), fixed before compilation
-from the largest outlier fraction to be handled.
+eq. 35, ``k = log(1 - p) / log(1 - w^s)`` (:func:`~jaxpose.core.pnp.ransac_iterations`), fixed
+before compilation from the largest outlier fraction to be handled.
 """
 
 from __future__ import annotations
-
-import math
 
 import equinox as eqx
 import jax
@@ -16,50 +14,13 @@ import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Bool, Float
 
-from jaxpose.core.camera import PinholeCamera
+from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.pnp._epnp import _epnp_core
 from jaxpose.core.pnp._linalg import _mm, _rms_px
-from jaxpose.core.pnp._problem import MIN_POINTS, PLANAR_TOL, _conclude, _Problem, _problem
+from jaxpose.core.pnp._options import RansacOptions
+from jaxpose.core.pnp._problem import PLANAR_TOL, _conclude, _Problem, _problem
 from jaxpose.core.pnp._result import PnPResult
-from jaxpose.core.status import Status
-
-
-def ransac_iterations(confidence: float, inlier_fraction: float, sample_size: int = 6) -> int:
-    """Number of random hypotheses of Sharma et al. 2018, eq. 35: ``log(1-p) / log(1-w^s)``.
-
-    ``confidence`` is ``p``, the probability that at least one sample is outlier-free;
-    ``inlier_fraction`` is eq. 35's ``w / (m n)`` (with known correspondences, the fraction of
-    correct ones); ``sample_size`` is the exponent (6 in the paper: EPnP on six points).
-    """
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence must be in (0, 1); got {confidence}")
-    if not 0.0 < inlier_fraction <= 1.0:
-        raise ValueError(f"inlier_fraction must be in (0, 1]; got {inlier_fraction}")
-    if sample_size < 1:
-        raise ValueError(f"sample_size must be positive; got {sample_size}")
-    good = inlier_fraction**sample_size
-    if good >= 1.0:
-        return 1
-    return max(1, math.ceil(math.log(1.0 - confidence) / math.log1p(-good)))
-
-
-def _ransac_options(threshold_px, confidence, max_outlier_fraction, sample_size, num_hypotheses):
-    """Validated static RANSAC options (``ValueError`` at trace time)."""
-    if not threshold_px > 0:
-        raise ValueError(f"threshold_px must be positive; got {threshold_px}")
-    if not 0.0 <= max_outlier_fraction < 1.0:
-        raise ValueError(f"max_outlier_fraction must be in [0, 1); got {max_outlier_fraction}")
-    if sample_size < MIN_POINTS:
-        raise ValueError(f"sample_size must be at least {MIN_POINTS}; got {sample_size}")
-    if num_hypotheses is None:
-        num_hypotheses = ransac_iterations(confidence, 1.0 - max_outlier_fraction, sample_size)
-    if int(num_hypotheses) < 1:
-        raise ValueError(f"num_hypotheses must be positive; got {num_hypotheses}")
-    return {
-        "threshold_px": float(threshold_px),
-        "sample_size": int(sample_size),
-        "num_hypotheses": int(num_hypotheses),
-    }
+from jaxpose.core.status import Status, throw_for_status
 
 
 def _ransac_core(prob: _Problem, key, *, threshold_px, sample_size, num_hypotheses, planar_tol):
@@ -108,27 +69,47 @@ def ransac_pnp(
     *,
     key: Array,
     mask: Bool[Array, " n"] | None = None,
-    threshold_px: float = 8.0,
-    confidence: float = 0.999,
-    max_outlier_fraction: float = 0.5,
-    sample_size: int = 6,
-    num_hypotheses: int | None = None,
+    options: RansacOptions = RansacOptions(),
     planar_tol: float = PLANAR_TOL,
+    throw: bool = True,
 ) -> PnPResult:
     """RANSAC over EPnP for one problem whose correspondences hold outliers.
 
-    ``num_hypotheses`` (default: :func:`ransac_iterations` of ``confidence`` and
-    ``1 - max_outlier_fraction``: 439 for 50% outliers, ``p = 0.999`` and 6-point samples)
-    minimal samples are drawn among the valid points, EPnP solves all of them in one
-    ``vmap``-ed call, and each hypothesis is scored by its inliers (reprojection error below
-    ``threshold_px``, in front of the camera), ties broken by the truncated squared error (MSAC).
-    EPnP on the inliers of the best hypothesis gives the pose, kept if it has at least as many
-    inliers. ``inliers`` of the result marks them and ``reprojection_error`` is their RMS;
-    ``NO_SOLUTION`` when fewer than ``sample_size`` inliers remain.
+    ``options.hypotheses`` minimal samples (Sharma et al. 2018 eq. 35 unless given) are drawn
+    among the valid points, EPnP solves all of them in one ``vmap``-ed call, and each hypothesis
+    is scored by its inliers (reprojection error below ``options.threshold_px``, in front of the
+    camera), ties broken by the truncated squared error (MSAC). EPnP on the inliers of the best
+    hypothesis gives the pose, kept if it has at least as many inliers.
+
+    Args:
+        points_body: ``(n, 3)`` points in the target body frame, metres
+            (``n >= options.sample_size``).
+        pixels: ``(n, 2)`` measured (distorted) pixels.
+        camera: :class:`~jaxpose.core.camera.PinholeCamera` or a ``3 x 3`` ``K``.
+        key: JAX PRNG key of the samples.
+        mask: ``(n,)`` bool, the valid points of a padded set (default: all).
+        options: :class:`RansacOptions`.
+        planar_tol: planarity threshold of EPnP.
+        throw: raise for a status other than ``OK`` (``ValueError`` eagerly, an Equinox runtime
+            error under ``jit``); pass ``False`` under ``vmap`` and read ``status``.
+
+    Returns:
+        :class:`PnPResult`; ``inliers`` marks the inliers and ``reprojection_error`` is their RMS;
+        ``NO_SOLUTION`` when fewer than ``options.sample_size`` inliers remain.
     """
-    opts = _ransac_options(
-        threshold_px, confidence, max_outlier_fraction, sample_size, num_hypotheses
-    )
+    if not isinstance(options, RansacOptions):
+        raise ValueError(f"options must be a RansacOptions; got {type(options).__name__}")
+    res = _ransac_compiled(points_body, pixels, as_camera(camera), key, mask, options, planar_tol)
+    if throw:
+        res = throw_for_status(
+            res, "ransac_pnp", "reprojection_error", min_points=options.sample_size
+        )
+    return res
+
+
+@eqx.filter_jit
+def _ransac_compiled(points_body, pixels, camera, key, mask, options, planar_tol) -> PnPResult:
+    """The compiled body of :func:`ransac_pnp` (shape checks at trace time)."""
     prob = _problem(points_body, pixels, camera, mask, "ransac_pnp")
-    out, inliers = _ransac_core(prob, key, planar_tol=planar_tol, **opts)
-    return _conclude(prob, out, opts["sample_size"], inliers)
+    out, inliers = _ransac_core(prob, key, planar_tol=float(planar_tol), **options._core())
+    return _conclude(prob, out, options.sample_size, inliers)

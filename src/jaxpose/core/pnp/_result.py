@@ -34,3 +34,8 @@ class PnPResult(eqx.Module):
     @property
     def t(self) -> Float[Array, "... 3"]:
         return self.pose.t
+
+    @property
+    def rvec(self) -> Float[Array, "... 3"]:
+        """Rotation vector of ``R`` (radians), OpenCV's ``rvec`` (``t`` is its ``tvec``)."""
+        return self.pose.rotvec

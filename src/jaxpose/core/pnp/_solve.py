@@ -3,8 +3,8 @@
 ``jaxpose.solve_pnp(points_body, pixels, camera)`` takes ``(..., n, 3)`` body points and their
 ``(..., n, 2)`` measured pixels with any leading batch axes, solves every problem with one
 compiled function (EPnP, DLT or RANSAC over EPnP from :mod:`jaxpose.core.pnp`, then
-:func:`jaxpose.core.refine.refine_pose`) and returns a :class:`~jaxpose.core.pnp.PnPResult` with the same
-leading axes.
+:func:`jaxpose.core.refine.refine_pose`) and returns a :class:`~jaxpose.core.pnp.PnPResult` with the
+same leading axes.
 
 Planar targets far away are two-fold ambiguous; when a batch holds planar problems and
 ``refine`` is on, each planar problem is refined from both the EPnP pose and its mirror
@@ -12,8 +12,8 @@ Planar targets far away are two-fold ambiguous; when a batch holds planar proble
 
 Errors, in the house style: wrong shapes and options raise ``ValueError`` at once; bad values
 (NaN, fewer than four valid points, collinear points, points behind the camera in the solution,
-no convergence) give a :class:`~jaxpose.core.status.Status` per problem, and with ``throw=True`` (the
-default) a ``ValueError`` naming each failure and where it happened. Pass ``throw=False`` for
+no convergence) give a :class:`~jaxpose.core.status.Status` per problem, and with ``throw=True``
+(the default) a ``ValueError`` naming each failure and where it happened. Pass ``throw=False`` for
 batches so that one bad problem does not cost the others.
 """
 
@@ -32,7 +32,6 @@ from jaxpose.core._checks import float_dtype
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.pnp._batch import (
-    CHUNK,
     _flat,
     _in_threads,
     _map,
@@ -41,33 +40,19 @@ from jaxpose.core.pnp._batch import (
 )
 from jaxpose.core.pnp._dlt import _dlt_core
 from jaxpose.core.pnp._epnp import _epnp_core, planar_flip
+from jaxpose.core.pnp._options import PnPOptions, RansacOptions
 from jaxpose.core.pnp._problem import (
     DLT_MIN_POINTS,
     MIN_POINTS,
-    PLANAR_TOL,
     _conclude,
     _kept,
     _Problem,
     _problem,
 )
-from jaxpose.core.pnp._ransac import _ransac_core, _ransac_options
+from jaxpose.core.pnp._ransac import _ransac_core
 from jaxpose.core.pnp._result import PnPResult
+from jaxpose.core.refine import RefineOptions, refine_pose
 from jaxpose.core.status import Status, throw_for_status
-
-METHODS = ("epnp", "dlt", "ransac")
-REFINE_METHODS = ("lm", "gauss-newton", "newton-raphson")
-ROBUST_KERNELS = ("huber", "cauchy", "tukey")
-
-
-def _check_options(method, refine, robust):
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}; got {method!r}")
-    if refine is not None and refine not in REFINE_METHODS:
-        raise ValueError(f"refine must be None or one of {REFINE_METHODS}; got {refine!r}")
-    if robust is not None and robust not in ROBUST_KERNELS:
-        raise ValueError(f"robust must be None or one of {ROBUST_KERNELS}; got {robust!r}")
-    if robust is not None and refine is None:
-        raise ValueError("robust kernels act in the refinement: pass refine='lm' (or another)")
 
 
 def _solve(prob: _Problem, method: str, planar_tol: float, key=None, ransac=None):
@@ -79,8 +64,8 @@ def _solve(prob: _Problem, method: str, planar_tol: float, key=None, ransac=None
     if method == "dlt":
         out = _dlt_core(prob.points_body, prob.xy, weights, prob.fxy, planar_tol)
         return _conclude(prob, out, DLT_MIN_POINTS), out
-    out, inliers = _ransac_core(prob, key, planar_tol=planar_tol, **ransac)
-    return _conclude(prob, out, ransac["sample_size"], inliers), out
+    out, inliers = _ransac_core(prob, key, planar_tol=planar_tol, **ransac._core())
+    return _conclude(prob, out, ransac.sample_size, inliers), out
 
 
 def _batch_shape(points_body, pixels, mask) -> tuple[tuple[int, ...], int]:
@@ -122,8 +107,8 @@ class _Static:
 
     method: str
     planar_tol: float
-    ransac: tuple | None  # sorted (name, value) pairs of _ransac_options
-    refine: tuple | None  # (method, robust, max_steps, rtol, atol)
+    ransac: RansacOptions | None
+    refine: RefineOptions | None
     undistort: bool
     chunk: int
 
@@ -143,11 +128,10 @@ def _initial(points_body, pixels, mask, keys, camera, cfg: _Static) -> _Initial:
     """The closed-form (or RANSAC) solution of every problem, with the plane for a mirror pose.
 
     ``keys``: RANSAC's PRNG key per problem (``None`` for the other methods)."""
-    ransac = None if cfg.ransac is None else dict(cfg.ransac)
 
     def one(p, x, m, k=None):
         prob = _problem(p, x, camera, m, "solve_pnp", cfg.undistort)
-        res, out = _solve(prob, cfg.method, cfg.planar_tol, key=k, ransac=ransac)
+        res, out = _solve(prob, cfg.method, cfg.planar_tol, key=k, ransac=cfg.ransac)
         return _Initial(res, out.centroid, out.normal)
 
     args = (points_body, pixels, mask) + (() if keys is None else (keys,))
@@ -156,9 +140,6 @@ def _initial(points_body, pixels, mask, keys, camera, cfg: _Static) -> _Initial:
 
 def _refined(init: _Initial, points_body, pixels, camera, cfg: _Static, two: bool) -> PnPResult:
     """Refine every problem from its closed-form pose (and, if ``two``, from its mirror)."""
-    from jaxpose.core.refine import refine_pose
-
-    method, robust, max_steps, rtol, atol = cfg.refine
 
     def one(init, p, x):
         # The refined pose's derivatives come from implicit differentiation at the optimum;
@@ -169,16 +150,7 @@ def _refined(init: _Initial, points_body, pixels, camera, cfg: _Static, two: boo
 
         def run(pose):
             return refine_pose(
-                pose,
-                p,
-                x,
-                camera,
-                mask=res.inliers,
-                robust=robust,
-                method=method,
-                max_steps=max_steps,
-                rtol=rtol,
-                atol=atol,
+                p, x, pose, camera, mask=res.inliers, options=cfg.refine, throw=False
             )
 
         ref = run(res.pose)
@@ -266,22 +238,10 @@ def solve_pnp(
     pixels: Float[Array, "... n 2"],
     camera: PinholeCamera | Float[Array, "3 3"],
     *,
-    method: str = "epnp",
-    refine: str | None = "lm",
-    robust: str | None = None,
     mask: Bool[Array, "... n"] | None = None,
-    throw: bool = True,
     key: Array | None = None,
-    ransac_threshold_px: float = 8.0,
-    ransac_confidence: float = 0.999,
-    max_outlier_fraction: float = 0.5,
-    num_hypotheses: int | None = None,
-    max_steps: int = 50,
-    rtol: float = 1e-6,
-    atol: float = 1e-9,
-    planar_tol: float = PLANAR_TOL,
-    chunk: int = CHUNK,
-    workers: int | None = None,
+    options: PnPOptions = PnPOptions(),
+    throw: bool = True,
 ) -> PnPResult:
     """Pose of a target from 3-D/2-D point correspondences, for one problem or a batch.
 
@@ -289,67 +249,45 @@ def solve_pnp(
         points_body: ``(..., n, 3)`` model points in the body frame, metres (``n >= 4``).
         pixels: ``(..., n, 2)`` their measured (distorted) pixels. Leading axes of
             ``points_body``, ``pixels`` and ``mask`` broadcast (one model for many images works).
-        camera: :class:`~jaxpose.core.camera.PinholeCamera` (with its distortion) or a ``3 x 3`` ``K``;
-            one camera for the whole batch.
-        method: ``"epnp"`` (:func:`jaxpose.core.pnp.epnp`), ``"dlt"`` (``>= 6`` non-coplanar points)
-            or ``"ransac"`` (:func:`jaxpose.core.pnp.ransac_pnp`: RANSAC over EPnP for outliers).
-        refine: ``"lm"``, ``"gauss-newton"``, ``"newton-raphson"`` (Sharma et al. 2018 eqs. 23-29) or
-            ``None`` (closed-form pose only); :func:`jaxpose.core.refine.refine_pose`.
-        robust: ``None``, ``"huber"``, ``"cauchy"`` or ``"tukey"`` kernel in the refinement.
+        camera: :class:`~jaxpose.core.camera.PinholeCamera` (with its distortion) or a
+            ``3 x 3`` ``K``; one camera for the whole batch.
         mask: ``(..., n)`` bool, the valid points of padded sets.
-        throw: raise ``ValueError`` when any problem fails (leave ``True`` for one problem; pass
-            ``False`` for batches and read ``status``).
         key: PRNG key of RANSAC (default ``jax.random.key(0)``), split over the batch.
-        ransac_threshold_px: inlier threshold in pixels (OpenCV's default, 8).
-        ransac_confidence, max_outlier_fraction: fix the number of hypotheses through Sharma et
-            al. eq. 35 (:func:`jaxpose.core.pnp.ransac_iterations`), or give ``num_hypotheses``.
-        max_steps: iteration budget of the refinement.
-        rtol, atol: the refinement stops after an accepted step with ``|dt| <= atol + rtol |t|``
-            (metres) and ``|dw| <= atol + rtol`` (radians). Convergence is quadratic, so the
-            pose is then much closer than that to the optimum: the defaults give the same errors
-            as ``refine_pose``'s tighter ones to 1e-12 relative, with one step fewer on average.
-        planar_tol: planarity threshold of EPnP (:data:`jaxpose.core.PLANAR_TOL`).
-        chunk: batches larger than this run as a loop over chunks of this size.
-        workers: host threads that share a large batch on a CPU (each runs the same compiled
-            solver on an equal part). ``None``: one per CPU core available to this process, at
-            most one per :data:`THREAD_MIN_PROBLEMS` problems, and 1 on accelerators or with
-            several JAX devices (the batch is then split over the devices instead).
+        options: :class:`PnPOptions`: the closed-form method (``"epnp"``, ``"dlt"``,
+            ``"ransac"``), the refinement (:class:`~jaxpose.core.refine.RefineOptions`: LM,
+            Gauss-Newton or Sharma et al. 2018's Newton-Raphson, eqs. 23-29; a robust kernel;
+            or ``None`` for the closed-form pose only), RANSAC's options, batching.
+        throw: raise ``ValueError`` when any problem fails (the default); pass ``False`` for
+            batches and read ``status``.
 
     Returns:
-        :class:`~jaxpose.core.PnPResult` with the batch's leading axes: ``pose`` (``R``, ``t``
+        :class:`~jaxpose.core.pnp.PnPResult` with the batch's leading axes: ``pose`` (``R``, ``t``
         with ``x_cam = R @ x_body + t``), ``status``, ``reprojection_error`` (RMS pixels over
         the points used), ``inliers`` and ``planar``. Failed problems have ``R = I``, ``t = 0``,
         an infinite error and a non-zero status.
 
     Raises:
-        ValueError: shapes that do not match, fewer than 4 points, an unknown option; with
-            ``throw=True``, any problem whose status is not ``OK`` (NaN input, too few valid
-            points, collinear or otherwise degenerate points, points behind the camera, ...).
+        ValueError: shapes that do not match, fewer points than the method needs, a camera that
+            is not one; with ``throw=True``, any problem whose status is not ``OK`` (NaN input,
+            too few valid points, collinear or otherwise degenerate points, points behind the
+            camera, ...), naming each failure and where it happened.
     """
-    _check_options(method, refine, robust)
-    if workers is not None and (not isinstance(workers, int | np.integer) or workers < 1):
-        raise ValueError(f"workers must be a positive integer or None; got {workers!r}")
+    if not isinstance(options, PnPOptions):
+        raise ValueError(f"options must be a PnPOptions; got {type(options).__name__}")
+    method = options.method
     batch, n = _batch_shape(points_body, pixels, mask)
-    if method == "ransac" and n < 6:
-        raise ValueError(f"method='ransac' draws 6-point samples; got n = {n}")
-    if method == "dlt" and n < DLT_MIN_POINTS:
-        raise ValueError(f"method='dlt' needs at least {DLT_MIN_POINTS} points; got n = {n}")
-    intrinsics, undistort = _intrinsics(camera)
-    ransac = None
-    if method == "ransac":
-        opts = _ransac_options(
-            ransac_threshold_px, ransac_confidence, max_outlier_fraction, 6, num_hypotheses
+    if n < options.min_points:
+        raise ValueError(
+            f"solve_pnp(method={method!r}) needs at least {options.min_points} points; got n = {n}"
         )
-        ransac = tuple(sorted(opts.items()))
+    intrinsics, undistort = _intrinsics(camera)
     cfg = _Static(
         method=method,
-        planar_tol=float(planar_tol),
-        ransac=ransac,
-        refine=None
-        if refine is None
-        else (refine, robust, int(max_steps), float(rtol), float(atol)),
+        planar_tol=options.planar_tol,
+        ransac=options.ransac if method == "ransac" else None,
+        refine=options.refine,
         undistort=undistort,
-        chunk=int(chunk),
+        chunk=options.chunk,
     )
     size = int(np.prod(batch, dtype=int))
     flat = () if batch == () else (size,)
@@ -361,12 +299,12 @@ def solve_pnp(
     if method == "ransac":
         key = jax.random.key(0) if key is None else key
         keys = key if batch == () else jax.random.split(key, size)
-    two = refine is not None
+    two = options.refine is not None
     if traced:  # inside the caller's jit: trace the stages into it
         res = _solve_fused(points_body, pixels, mask, keys, intrinsics, cfg=cfg, two=two)
     else:
         devices = jax.local_device_count() if size >= 2 * jax.local_device_count() else 1
-        parts = _thread_parts(size, devices, workers)
+        parts = _thread_parts(size, devices, options.workers)
         args = _pad((points_body, pixels, mask, keys), size, devices * parts)
         if parts == 1:
             res = _solve_eager(args, intrinsics, cfg, two, devices, size)
@@ -383,7 +321,12 @@ def solve_pnp(
     if len(batch) > 1:
         res = jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), res)
     if throw:
-        res = throw_for_status(res, f"solve_pnp(method={method!r})", "reprojection_error")
+        res = throw_for_status(
+            res,
+            f"solve_pnp(method={method!r})",
+            "reprojection_error",
+            min_points=options.min_points,
+        )
     return res
 
 

@@ -20,9 +20,9 @@ Methods (``method=``):
 **Tangent coordinates** (used by ``"lm"``, ``"gauss-newton"``, :func:`pose_covariance` and
 :func:`sensitivity`): ``xi = (dt, dw)``, ``t <- t + dt`` (metres, camera frame) and
 ``R <- exp([dw]_x) R`` (radians, a rotation about camera-frame axes applied on the left). This is
-exactly ``parameterization="tangent"`` of :mod:`jaxpose.core.dilution`, and the solver's point Jacobians are
-:func:`jaxpose.core.dilution.point_jacobians` (line Jacobians follow by the chain rule through the
-projected endpoints): one Jacobian for refinement, covariance and DOP.
+exactly ``parameterization="tangent"`` of :mod:`jaxpose.core.dilution`, and the solver's point
+Jacobians are :func:`jaxpose.core.dilution.point_jacobians` (line Jacobians follow by the chain rule
+through the projected endpoints): one Jacobian for refinement, covariance and DOP.
 
 Robust kernels enter as IRLS weights ``rho'(s)`` recomputed at every iterate; the LM
 acceptance test uses the robust cost itself.
@@ -52,6 +52,7 @@ from jaxpose.core.refine._optimistix import BACKEND_MEASUREMENT as BACKEND_MEASU
 from jaxpose.core.refine._options import BACKENDS as BACKENDS
 from jaxpose.core.refine._options import METHODS as METHODS
 from jaxpose.core.refine._options import MIN_FEATURES as MIN_FEATURES
+from jaxpose.core.refine._options import RefineOptions as RefineOptions
 from jaxpose.core.refine._result import RefineResult as RefineResult
 from jaxpose.core.refine._solve import refine_pose as refine_pose
 from jaxpose.core.refine._uncertainty import PoseSensitivity as PoseSensitivity

@@ -15,33 +15,32 @@ from jaxpose.core.geometry import (
     dcm_to_euler,
     euler_to_dcm,
     hat,
-    so3_exp,
 )
-from jaxpose.core.refine._options import _Config
+from jaxpose.core.refine._options import RefineOptions
 from jaxpose.core.refine._problem import _Problem
 
 
-def _retract(pose: Pose, delta: Array, cfg: _Config) -> Pose:
+def _retract(pose: Pose, delta: Array, cfg: RefineOptions) -> Pose:
     """Apply a step in the method's coordinates (tangent, or Euler angles for Newton-Raphson)."""
     if cfg.method == "newton-raphson":
         eps = dcm_to_euler(pose.R, cfg.sequence)
         return Pose(euler_to_dcm(eps + delta[3:], cfg.sequence), pose.t + delta[:3])
-    return Pose(so3_exp(delta[3:]) @ pose.R, pose.t + delta[:3])
+    return pose.retract(delta)  # the library's tangent convention (Pose.retract)
 
 
-def _parameterization(cfg: _Config) -> str:
+def _parameterization(cfg: RefineOptions) -> str:
     return "euler" if cfg.method == "newton-raphson" else "tangent"
 
 
 def _residuals(pose: Pose, prob: _Problem):
     """Point residuals ``(n, 2)`` and line residuals ``(k, 2)`` in pixels."""
-    e_p = prob.camera.project_body(pose, prob.points) - prob.pixels
-    pe = prob.camera.project_body(pose, prob.segments.reshape(-1, 3)).reshape(-1, 2, 2)
+    e_p = prob.camera.project(pose.apply(prob.points)) - prob.pixels
+    pe = prob.camera.project(pose.apply(prob.segments.reshape(-1, 3))).reshape(-1, 2, 2)
     e_l = jnp.einsum("ki,kmi->km", prob.lines[:, :2], pe) + prob.lines[:, 2:3]
     return e_p, e_l
 
 
-def _robust_terms(e_p, e_l, prob: _Problem, cfg: _Config):
+def _robust_terms(e_p, e_l, prob: _Problem, cfg: RefineOptions):
     """Squared Mahalanobis norms ``s`` of every feature, ``(n,)`` and ``(k,)``."""
     s_p = prob.w_points * jnp.sum(e_p**2, -1)
     s_l = prob.w_lines * jnp.sum(e_l**2, -1)
@@ -55,11 +54,11 @@ def _cost_from_residuals(e_p, e_l, prob, cfg):
     return jnp.sum(rho(s_p)) + jnp.sum(rho(s_l))
 
 
-def _cost(pose: Pose, prob: _Problem, cfg: _Config):
+def _cost(pose: Pose, prob: _Problem, cfg: RefineOptions):
     return _cost_from_residuals(*_residuals(pose, prob), prob, cfg)
 
 
-def _rotation_generators(pose: Pose, cfg: _Config) -> Array:
+def _rotation_generators(pose: Pose, cfg: RefineOptions) -> Array:
     """``G[k] = dR / d theta_k`` (``(3, 3, 3)``) for the method's rotation coordinates."""
     if cfg.method == "newton-raphson":
         eps = dcm_to_euler(pose.R, cfg.sequence)
@@ -75,8 +74,8 @@ def _pixel_rows(pose: Pose, G: Array, points: Array, camera: PinholeCamera):
     D(x_n) dx_n/dX`` where ``D`` is the distortion's ``2 x 2`` Jacobian (two JVPs of
     :meth:`PinholeCamera.distort`) and ``x_n = (X/Z, Y/Z)``; ``dX/dt = I`` and ``dX/dtheta_k =
     G_k p``. Under ``vmap`` everything is element-wise over ``(batch, m)`` (no small matrix
-    products). Equal to :func:`jaxpose.core.dilution.point_jacobians` (tested); at B = 10 000, n = 20 it
-    takes about a third of the CPU time of ``vmap(jacfwd)`` + ``einsum`` normal equations.
+    products). Equal to :func:`jaxpose.core.dilution.point_jacobians` (tested); at B = 10 000,
+    n = 20 it takes about a third of the CPU time of ``vmap(jacfwd)`` + ``einsum`` normal equations.
     """
     R, t = pose.R, pose.t
     P = [points[:, 0], points[:, 1], points[:, 2]]
@@ -103,7 +102,7 @@ def _pixel_rows(pose: Pose, G: Array, points: Array, camera: PinholeCamera):
     return u, v, Ju, Jv
 
 
-def _linearize(pose: Pose, prob: _Problem, cfg: _Config):
+def _linearize(pose: Pose, prob: _Problem, cfg: RefineOptions):
     """IRLS normal equations ``A = J^T W J``, ``g = J^T W e`` and the robust cost at ``pose``."""
     G = _rotation_generators(pose, cfg)
     u, v, Ju, Jv = _pixel_rows(pose, G, prob.points, prob.camera)
@@ -131,4 +130,4 @@ def _linearize(pose: Pose, prob: _Problem, cfg: _Config):
 
 
 def _tangent_cost(xi, pose, prob, cfg):
-    return _cost(Pose(so3_exp(xi[3:]) @ pose.R, pose.t + xi[:3]), prob, cfg)
+    return _cost(pose.retract(xi), prob, cfg)

@@ -15,7 +15,7 @@ from jaxpose.core.refine._model import (
     _linearize,
     _retract,
 )
-from jaxpose.core.refine._options import _Config
+from jaxpose.core.refine._options import RefineOptions
 from jaxpose.core.refine._problem import _Problem
 
 
@@ -68,7 +68,8 @@ _LAMBDA0 = 1e-3
 
 
 def _singular(A: Array) -> Array:
-    """Singularity test of :func:`jaxpose.core.dilution.dop_from_information` (Jacobi-scaled pivots)."""
+    """Singularity test of :func:`jaxpose.core.dilution.dop_from_information` (Jacobi-scaled
+    pivots)."""
     eps = float(jnp.finfo(A.dtype).eps)
     d = jnp.sqrt(jnp.maximum(jnp.diagonal(A), jnp.finfo(A.dtype).tiny))
     L = jnp.linalg.cholesky(A / (d[:, None] * d[None, :]))
@@ -89,7 +90,7 @@ class _State(eqx.Module):
     final: Array  # converged on a negligible next step, which is then taken unverified
 
 
-def _native_solve(pose0: Pose, prob: _Problem, cfg: _Config):
+def _native_solve(pose0: Pose, prob: _Problem, cfg: RefineOptions):
     """One linearisation per iteration: the candidate's normal equations are kept if accepted,
     and the next step is solved from them at once, so that convergence is seen one
     linearisation earlier (a negligible next step is taken without evaluating the cost there:

@@ -14,7 +14,7 @@ from jaxpose.core.geometry import (
 from jaxpose.core.refine._model import (
     _residuals,
 )
-from jaxpose.core.refine._options import _Config
+from jaxpose.core.refine._options import RefineOptions
 from jaxpose.core.refine._problem import _Problem
 
 BACKEND_MEASUREMENT = """\
@@ -35,7 +35,7 @@ in the tests.
 """
 
 
-def _optimistix_solve(pose0: Pose, prob: _Problem, cfg: _Config):
+def _optimistix_solve(pose0: Pose, prob: _Problem, cfg: RefineOptions):
     import optimistix as optx
 
     euler = cfg.method == "newton-raphson"

@@ -15,15 +15,17 @@ class RefineResult(eqx.Module):
 
     Attributes:
         pose: refined pose (the initial pose, sanitised to be finite, when the input was bad).
-        status: ``int32`` :class:`~jaxpose.core.status.Status`: ``OK``, ``NOT_CONVERGED`` (iteration
-            budget spent), ``SINGULAR`` (normal equations not invertible), ``BEHIND_CAMERA`` (a
-            valid point at ``z <= 0`` at the result), ``TOO_FEW_POINTS`` (fewer than
-            :data:`MIN_FEATURES` valid features), ``NONFINITE_INPUT``.
+        status: ``int32`` :class:`~jaxpose.core.status.Status`: ``OK``, ``NOT_CONVERGED``
+            (iteration budget spent), ``SINGULAR`` (normal equations not invertible),
+            ``BEHIND_CAMERA`` (a valid point at ``z <= 0`` at the result), ``NOT_A_ROTATION``
+            (``pose0.R`` is not a rotation), ``TOO_FEW_POINTS`` (fewer than :data:`MIN_FEATURES`
+            valid features), ``NONFINITE_INPUT``.
         rms_px: RMS reprojection error in pixels at the result, ``sqrt(mean |e|^2)`` over the
             valid points' 2-D errors (and the lines' 2-vectors of endpoint distances), unweighted;
             ``inf`` for bad input.
         num_steps: iterations taken.
-        cost: final robust cost (Yang et al. 2024 eq. 10, dimensionless: residuals divided by sigma).
+        cost: final robust cost (Yang et al. 2024 eq. 10, dimensionless: residuals divided by
+            sigma).
     """
 
     pose: Pose

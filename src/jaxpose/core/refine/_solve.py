@@ -5,11 +5,11 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
+from jaxpose.core._checks import is_rotation
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.geometry import (
-    DEFAULT_EULER_SEQUENCE,
     Pose,
 )
 from jaxpose.core.refine._implicit import _with_implicit_grad
@@ -19,16 +19,16 @@ from jaxpose.core.refine._model import (
 )
 from jaxpose.core.refine._native import _native_solve
 from jaxpose.core.refine._optimistix import _optimistix_solve
-from jaxpose.core.refine._options import BACKENDS, MIN_FEATURES, _Config, _config
+from jaxpose.core.refine._options import MIN_FEATURES, RefineOptions
 from jaxpose.core.refine._problem import _prepare
 from jaxpose.core.refine._result import RefineResult
 from jaxpose.core.status import Status, throw_for_status
 
 
 @eqx.filter_jit
-def _refine(pose0, prob, valid, lvalid, finite_input, cfg: _Config, backend: str):
+def _refine(pose0, prob, valid, lvalid, finite_input, cfg: RefineOptions):
     dtype = prob.points.dtype
-    if backend == "native":
+    if cfg.backend == "native":
         pose, steps, converged, singular = _native_solve(
             jax.lax.stop_gradient(pose0), jax.lax.stop_gradient(prob), cfg
         )
@@ -49,10 +49,19 @@ def _refine(pose0, prob, valid, lvalid, finite_input, cfg: _Config, backend: str
     behind = jnp.any(use_p & (depth_p <= 0)) | jnp.any(use_l[:, None] & (depth_l <= 0))
     n_valid = jnp.sum(valid) + jnp.sum(lvalid)
     finite_out = jnp.all(jnp.isfinite(pose.R)) & jnp.all(jnp.isfinite(pose.t)) & jnp.isfinite(cost)
+    rotation = is_rotation(pose0.R)
     status = jnp.select(
-        [~finite_input, n_valid < MIN_FEATURES, behind, singular | ~finite_out, ~converged],
+        [
+            ~finite_input,
+            ~rotation,
+            n_valid < MIN_FEATURES,
+            behind,
+            singular | ~finite_out,
+            ~converged,
+        ],
         [
             Status.NONFINITE_INPUT,
+            Status.NOT_A_ROTATION,
             Status.TOO_FEW_POINTS,
             Status.BEHIND_CAMERA,
             Status.SINGULAR,
@@ -60,7 +69,7 @@ def _refine(pose0, prob, valid, lvalid, finite_input, cfg: _Config, backend: str
         ],
         Status.OK,
     ).astype(jnp.int32)
-    bad_input = (~finite_input) | (n_valid < MIN_FEATURES) | ~finite_out
+    bad_input = (~finite_input) | ~rotation | (n_valid < MIN_FEATURES) | ~finite_out
     inf = jnp.asarray(jnp.inf, dtype)
     pose = jax.tree.map(lambda a, b: jnp.where(bad_input, a, b), pose0, pose)
     return RefineResult(
@@ -73,38 +82,33 @@ def _refine(pose0, prob, valid, lvalid, finite_input, cfg: _Config, backend: str
 
 
 def refine_pose(
-    pose0: Pose,
     points_body: Float[Array, "n 3"],
     pixels: Float[Array, "n 2"],
-    camera: PinholeCamera | Array,
+    pose0: Pose,
+    camera: PinholeCamera | Float[Array, "3 3"],
     *,
-    mask: Array | None = None,
+    mask: Bool[Array, " n"] | None = None,
     sigma: Float[Array, " n"] | float | None = None,
     segments_body: Float[Array, "k 2 3"] | None = None,
     lines_img: Float[Array, "k 3"] | None = None,
-    line_mask: Array | None = None,
+    line_mask: Bool[Array, " k"] | None = None,
     line_sigma: Float[Array, " k"] | float | None = None,
-    robust: str | None = None,
-    robust_scale: float | None = None,
-    method: str = "lm",
-    backend: str = "native",
-    max_steps: int = 50,
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
-    sequence: str = DEFAULT_EULER_SEQUENCE,
-    throw: bool = False,
+    options: RefineOptions = RefineOptions(),
+    throw: bool = True,
 ) -> RefineResult:
     """Refine a pose by minimising point (and line) reprojection errors.
 
-    One problem; use ``jax.vmap`` for batches (sets of different sizes share one compiled
-    function through ``mask``/``line_mask`` padding). Differentiable with respect to every array
-    input by implicit differentiation at the optimum (native back-end; optimistix's
-    ``ImplicitAdjoint`` for the other).
+    The joint robust cost of Yang et al. 2024 eq. 10 over the pose; the methods and the tangent
+    coordinates are described in :mod:`jaxpose.core.refine`. One problem; use ``jax.vmap`` for
+    batches (sets of different sizes share one compiled function through ``mask``/``line_mask``
+    padding), with ``throw=False`` so that one bad lane does not stop the batch. Differentiable
+    with respect to every array input by implicit differentiation at the optimum (native
+    back-end; optimistix's ``ImplicitAdjoint`` for the other).
 
     Args:
-        pose0: initial pose (``x_cam = R p + t``), e.g. from EPnP.
         points_body: ``(n, 3)`` model points, metres.
         pixels: ``(n, 2)`` observed pixels of those points.
+        pose0: initial pose (``x_cam = R p + t``), e.g. from EPnP.
         camera: :class:`~jaxpose.core.camera.PinholeCamera` or ``3x3`` ``K``.
         mask: ``(n,)`` bool, valid points of a padded set (invalid ones may hold NaN).
         sigma: pixel noise per axis, scalar or ``(n,)``; ``None`` is 1 pixel (weights 1/sigma^2).
@@ -113,18 +117,9 @@ def refine_pose(
             (:func:`~jaxpose.core.residuals.line_from_segment` of the observed segment endpoints).
         line_mask: ``(k,)`` bool, valid lines.
         line_sigma: pixel noise of the line distances; defaults to a scalar ``sigma``, else 1.
-        robust: ``None``, ``"huber"``, ``"cauchy"`` or ``"tukey"`` (IRLS, see
-            :mod:`jaxpose.core.residuals`).
-        robust_scale: kernel scale in units of ``sigma`` (default
-            :data:`jaxpose.core.residuals.DEFAULT_ROBUST_SCALE`).
-        method: ``"lm"``, ``"gauss-newton"`` or ``"newton-raphson"`` (module docstring).
-        backend: ``"native"`` (batched closed-form normal equations) or ``"optimistix"``.
-        max_steps: iteration budget.
-        rtol, atol: convergence when an accepted step has ``|dt| <= atol + rtol |t|`` (metres)
-            and ``|dw| <= atol + rtol`` (radians) (optimistix's own test for that back-end).
-        sequence: Euler sequence of ``"newton-raphson"``.
+        options: :class:`RefineOptions` (method, robust kernel, budget, tolerances, back-end).
         throw: raise for a non-``OK`` status (``ValueError`` eagerly, an Equinox runtime error
-            under ``jit``). Leave ``False`` under ``vmap``.
+            under ``jit``); pass ``False`` under ``vmap`` and read ``status``.
 
     Returns:
         :class:`RefineResult`.
@@ -132,11 +127,8 @@ def refine_pose(
     Raises:
         ValueError: wrong shapes or options (at trace time); with ``throw=True``, a bad status.
     """
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}; got {backend!r}")
-    cfg = _config(
-        method, robust, robust_scale, max_steps, rtol, atol, sequence, segments_body is not None
-    )
+    if not isinstance(options, RefineOptions):
+        raise ValueError(f"options must be a RefineOptions; got {type(options).__name__}")
     pose0, prob, valid, lvalid, finite_input = _prepare(
         pose0,
         points_body,
@@ -149,7 +141,7 @@ def refine_pose(
         line_mask,
         line_sigma,
     )
-    res = _refine(pose0, prob, valid, lvalid, finite_input, cfg, backend)
+    res = _refine(pose0, prob, valid, lvalid, finite_input, options)
     if throw:
-        res = throw_for_status(res, "refine_pose", "cost")
+        res = throw_for_status(res, "refine_pose", "cost", min_points=MIN_FEATURES)
     return res

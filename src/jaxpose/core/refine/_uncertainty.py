@@ -5,27 +5,27 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from jaxpose.core._checks import as_float
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.dilution import dop_from_information, point_jacobians
 from jaxpose.core.geometry import (
-    DEFAULT_EULER_SEQUENCE,
     Pose,
 )
-from jaxpose.core.refine._implicit import _implicit_parts
+from jaxpose.core.refine._implicit import _hessian_singular, _implicit_parts
 from jaxpose.core.refine._model import (
     _tangent_cost,
 )
-from jaxpose.core.refine._options import _config
+from jaxpose.core.refine._options import MIN_FEATURES, RefineOptions
 from jaxpose.core.refine._problem import _prepare
 from jaxpose.core.refine._result import RefineResult
+from jaxpose.core.status import Status, throw_for_status
 
 
 def pose_covariance(
-    pose: Pose,
     points_body: Float[Array, "n 3"],
+    pose: Pose,
     camera: PinholeCamera | Array,
     *,
     sigma: Float[Array, " n"] | float = 1.0,
@@ -40,10 +40,10 @@ def pose_covariance(
     Coordinates: ``(dt_x, dt_y, dt_z, dw_x, dw_y, dw_z)`` with ``t_true = t + dt`` (metres,
     camera frame) and ``R_true = exp([dw]_x) R`` (radians, rotation about camera-frame axes,
     applied on the left). The Jacobian is :func:`jaxpose.core.dilution.point_jacobians` with
-    ``parameterization="tangent"`` through :func:`jaxpose.core.dilution.information_blocks`, so this is
-    ``dop(..., parameterization="tangent", sigma=sigma).Q``: one Jacobian for DOP, refinement
-    and covariance. Lines add ``J_l^T J_l / sigma_l^2`` with ``J_l = l_hat^T J`` of their
-    projected endpoints.
+    ``parameterization="tangent"`` through :func:`jaxpose.core.dilution.information_blocks`, so this
+    is ``dop(..., parameterization="tangent", sigma=sigma).Q``: one Jacobian for DOP, refinement and
+    covariance. Lines add ``J_l^T J_l / sigma_l^2`` with ``J_l = l_hat^T J`` of their projected
+    endpoints.
 
     Returns a ``(6, 6)`` matrix, all ``inf`` when the information matrix is singular (fewer
     than three points, collinear points, ...).
@@ -92,6 +92,10 @@ class PoseSensitivity(eqx.Module):
         d_dist: ``(6, 5)`` per unit of each distortion coefficient.
         d_segments_body: ``(6, k, 2, 3)`` (zeros ``(6, 0, 2, 3)`` without lines).
         d_lines_img: ``(6, k, 3)`` per unit of the homogeneous line coefficients as given.
+        status: ``int32`` :class:`~jaxpose.core.status.Status`: ``OK``, ``NONFINITE_INPUT``,
+            ``TOO_FEW_POINTS`` (fewer than three valid features) or ``SINGULAR`` (the Hessian of
+            the cost is not invertible: collinear points, ...). Every Jacobian is ``inf`` when
+            the status is not ``OK``.
     """
 
     d_pixels: Array
@@ -100,39 +104,45 @@ class PoseSensitivity(eqx.Module):
     d_dist: Array
     d_segments_body: Array
     d_lines_img: Array
+    status: Int[Array, ""]
 
 
 def sensitivity(
-    pose: Pose | RefineResult,
     points_body: Float[Array, "n 3"],
     pixels: Float[Array, "n 2"],
-    camera: PinholeCamera | Array,
+    pose: Pose | RefineResult,
+    camera: PinholeCamera | Float[Array, "3 3"],
     *,
-    mask: Array | None = None,
+    mask: Bool[Array, " n"] | None = None,
     sigma: Float[Array, " n"] | float | None = None,
     segments_body: Float[Array, "k 2 3"] | None = None,
     lines_img: Float[Array, "k 3"] | None = None,
-    line_mask: Array | None = None,
+    line_mask: Bool[Array, " k"] | None = None,
     line_sigma: Float[Array, " k"] | float | None = None,
-    robust: str | None = None,
-    robust_scale: float | None = None,
+    options: RefineOptions = RefineOptions(),
+    throw: bool = True,
 ) -> PoseSensitivity:
     """Derivatives of the optimal pose with respect to pixels, 3-D points, lines and intrinsics.
 
     ``pose`` must be the optimum of the same problem (e.g. ``refine_pose(...).pose``, or the
-    :class:`RefineResult` itself). By the implicit function theorem on ``grad_xi C(xi, theta) =
-    0``: ``d xi / d theta = -H^-1 d(grad_xi C) / d theta`` with the exact Hessian ``H`` of the
-    robust cost (``xi`` in the tangent coordinates of :func:`pose_covariance`). This is the same
-    rule that :func:`refine_pose` gives to ``jax.grad``; here all Jacobians at once.
+    :class:`RefineResult` itself), and ``options`` the ones it was refined with (only the robust
+    kernel and its scale matter here). By the implicit function theorem on
+    ``grad_xi C(xi, theta) = 0``: ``d xi / d theta = -H^-1 d(grad_xi C) / d theta`` with the exact
+    Hessian ``H`` of the robust cost (``xi`` in the tangent coordinates of
+    :func:`pose_covariance`). This is the same rule that :func:`refine_pose` gives to
+    ``jax.grad``; here all Jacobians at once.
 
-    Example: ``sensitivity(res, P, u, cam).d_intrinsics[:, 0] * dfx`` is the first-order pose
+    Example: ``sensitivity(P, u, res, cam).d_intrinsics[:, 0] * dfx`` is the first-order pose
     error caused by a focal-length error ``dfx`` (pixels).
+
+    Raises:
+        ValueError: wrong shapes; with ``throw=True`` (the default), a status other than ``OK``.
     """
     if isinstance(pose, RefineResult):
         pose = pose.pose
-    cfg = _config(
-        "lm", robust, robust_scale, 1, 0.0, 0.0, DEFAULT_EULER_SEQUENCE, segments_body is not None
-    )
+    if not isinstance(options, RefineOptions):
+        raise ValueError(f"options must be a RefineOptions; got {type(options).__name__}")
+    cfg = RefineOptions(robust=options.robust, robust_scale=options.robust_scale)
     camera = as_camera(camera)
     # Validate shapes eagerly (ValueError), then compute everything in one compiled call.
     _prepare(
@@ -147,7 +157,7 @@ def sensitivity(
         line_mask,
         line_sigma,
     )
-    return _sensitivity(
+    res = _sensitivity(
         pose,
         points_body,
         pixels,
@@ -160,6 +170,9 @@ def sensitivity(
         line_sigma,
         cfg,
     )
+    if throw:
+        res = throw_for_status(res, "sensitivity", "d_pixels", min_points=MIN_FEATURES)
+    return res
 
 
 @eqx.filter_jit
@@ -177,7 +190,7 @@ def _sensitivity(
     cfg,
 ) -> PoseSensitivity:
     has_lines = segments_body is not None
-    pose_, prob, *_ = _prepare(
+    pose_, prob, valid, lvalid, finite_input = _prepare(
         pose,
         points_body,
         pixels,
@@ -207,14 +220,30 @@ def _sensitivity(
     )
     B = jax.jacrev(grad_xi, argnums=(0, 1, 2, 3, 4) if has_lines else (0, 1, 2))(*args)
     H, _ = _implicit_parts(pose_, prob, cfg)
-    Hinv = jnp.linalg.inv(H)
-    dP, du, dcam, *dlines = jax.tree.map(lambda b: -jnp.tensordot(Hinv, b, axes=1), B)
+    singular = _hessian_singular(H)
+    count = jnp.sum(valid) + jnp.sum(lvalid)
+    status = jnp.select(
+        [~finite_input, count < MIN_FEATURES, singular],
+        [Status.NONFINITE_INPUT, Status.TOO_FEW_POINTS, Status.SINGULAR],
+        Status.OK,
+    ).astype(jnp.int32)
+    bad = status != Status.OK
+    # A safe matrix in the failed branch, so that neither value nor gradient holds NaN.
+    Hinv = jnp.linalg.inv(jnp.where(bad, jnp.eye(6, dtype=dtype), H))
+    inf = jnp.asarray(jnp.inf, dtype)
+
+    def solve(b):
+        out = -jnp.tensordot(Hinv, jnp.where(jnp.isfinite(b), b, 0.0), axes=1)
+        return jnp.where(bad, inf, out)
+
+    dP, du, dcam, *dlines = jax.tree.map(solve, B)
     k = prob.segments.shape[0]
     return PoseSensitivity(
         d_pixels=du,
         d_points_body=dP,
         d_intrinsics=jnp.stack([dcam.fx, dcam.fy, dcam.cx, dcam.cy], axis=-1),
         d_dist=dcam.dist,
-        d_segments_body=dlines[0] if has_lines else jnp.zeros((6, k, 2, 3), dtype),
-        d_lines_img=dlines[1] if has_lines else jnp.zeros((6, k, 3), dtype),
+        d_segments_body=dlines[0] if has_lines else jnp.full((6, k, 2, 3), inf),
+        d_lines_img=dlines[1] if has_lines else jnp.full((6, k, 3), inf),
+        status=status,
     )

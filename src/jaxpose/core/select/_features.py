@@ -4,16 +4,17 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.dilution import information_blocks
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
-from jaxpose.core.select._kernel import check_m
-from jaxpose.core.select.exhaustive import exhaustive
-from jaxpose.core.select.greedy import check_criterion, greedy
-from jaxpose.core.select.quasi import _check_points, _status, _valid, one_step, quasi_optimal
-from jaxpose.core.status import raise_for_status
+from jaxpose.core.select._exhaustive import exhaustive
+from jaxpose.core.select._greedy import check_criterion, greedy
+from jaxpose.core.select._kernel import check_m, subset_dop
+from jaxpose.core.select._quasi import _check_points, _status, _valid, one_step, quasi_optimal
+from jaxpose.core.status import Status, raise_for_status
 
 __all__ = ["METHODS", "select_features"]
 
@@ -85,7 +86,12 @@ def select_features(
         parameterization=parameterization,
     )
     if method == "greedy":
-        return greedy(blocks, m, criterion=criterion, mask=mask)
+        idx = greedy(blocks, m, criterion=criterion, mask=mask)
+        if not np.isfinite(float(subset_dop(blocks, idx)[0])):
+            raise ValueError(
+                f"select_features: {Status.SINGULAR.message} for every subset greedy reached"
+            )
+        return idx
     if method == "exhaustive":
         res = exhaustive(blocks, m, mask=mask, throw=True)
         return res.pdop_idx if criterion == "pdop" else res.adop_idx

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -194,15 +195,28 @@ def subset_dop(blocks: Float[Array, "n 6 6"], idx) -> tuple[Array, Array]:
         idx: ``(m,)`` integer indices into the ``n`` points.
 
     Returns:
-        ``(pdop, adop)`` of ``sum_i blocks[idx_i]`` by :func:`jaxpose.core.dilution.dop_from_information`
-        (metres and radians per pixel of noise).
+        ``(pdop, adop)`` of ``sum_i blocks[idx_i]`` by
+        :func:`jaxpose.core.dilution.dop_from_information` (metres and radians per pixel of noise).
+
+    Raises:
+        ValueError: ``idx`` not 1-D integers, or (eager) an index outside ``[0, n)``; under
+        ``jit`` such an index gives ``inf``.
     """
     blocks = check_blocks(blocks, "subset_dop")
     idx = jnp.asarray(idx)
     if idx.ndim != 1 or not jnp.issubdtype(idx.dtype, jnp.integer):
         raise ValueError(f"subset_dop: idx must be a 1-D integer array; got {idx.dtype}{idx.shape}")
-    res = dop_from_information(jnp.sum(blocks[idx], axis=0))
-    return res.pdop, res.adop
+    n = blocks.shape[0]
+    inside = (idx >= 0) & (idx < n)
+    if not isinstance(idx, jax.core.Tracer) and not bool(jnp.all(inside)):
+        raise ValueError(
+            f"subset_dop: idx must hold indices in [0, {n}); got {np.asarray(idx).tolist()}"
+        )
+    # Traced: an index out of range makes the subset's figures inf (never a clamped index).
+    res = dop_from_information(jnp.sum(blocks[jnp.where(inside, idx, 0)], axis=0))
+    ok = jnp.all(inside)
+    inf = jnp.asarray(jnp.inf, res.pdop.dtype)
+    return jnp.where(ok, res.pdop, inf), jnp.where(ok, res.adop, inf)
 
 
 def n_subsets(n: int, m: int) -> int:

@@ -1,11 +1,11 @@
 """Exact DOP-optimal feature subset by branch and bound (no full enumeration).
 
 Problem (Ning, Zhang, Wang 2018, Sec. 4, "optimal method"): given per-point information blocks
-``A_i = H_i^T H_i / sigma_i^2`` (``(n, 6, 6)``, :func:`jaxpose.core.dilution.information_blocks`), find the
-``m``-subset ``S`` minimising ``PDOP(S) = sqrt(trace(Q[:3, :3]))`` (or ``ADOP``, ``Q[3:, 3:]``) with
-``Q = M_S^-1`` and ``M_S = sum_{i in S} A_i``. The exhaustive method visits all ``C(n, m)`` subsets
-(``C(60, 8) = 2.56e9``); this search visits a few dozen to a few hundred tree nodes for the paper's
-scenario and returns the same subset.
+``A_i = H_i^T H_i / sigma_i^2`` (``(n, 6, 6)``, :func:`jaxpose.core.dilution.information_blocks`),
+find the ``m``-subset ``S`` minimising ``PDOP(S) = sqrt(trace(Q[:3, :3]))`` (or ``ADOP``,
+``Q[3:, 3:]``) with ``Q = M_S^-1`` and ``M_S = sum_{i in S} A_i``. The exhaustive method visits all
+``C(n, m)`` subsets (``C(60, 8) = 2.56e9``); this search visits a few dozen to a few hundred tree
+nodes for the paper's scenario and returns the same subset.
 
 Notation: ``phi(M) = trace(W M^-1)`` with ``W = E^T E`` the selector of the position (PDOP) or
 attitude (ADOP) block, so ``DOP = sqrt(phi)``. ``phi`` is *decreasing* (``M <= M'`` in the PSD
@@ -76,11 +76,11 @@ depth-first search is the depth index itself, and backtracking is ``k -> k - 1``
 an inner ``while_loop`` (Frank-Wolfe with early exit). ``m``, the criterion, the bound kind and the
 options are traced, so the search compiles once per ``(n, dtype)`` (~4 s of CPU time) and runs
 under ``jit`` and ``vmap``. The alternative, a NumPy host loop with the same algorithm
-(:func:`_branch_and_bound_numpy`, kept as the measured competitor and as an independent check in
-the tests: it visits exactly the same nodes and Frank-Wolfe iterations), pays Python and NumPy-call
-overhead at every Frank-Wolfe iteration: at n = 60, m = 8, PDOP it takes 1.08 s median (5 cases)
-against 25 ms for the compiled loop, ~40x. ``vmap`` over 20 cases on CPU runs at 78 ms per case
-(lanes wait for the slowest and ``cond`` becomes ``select``): on CPU call it per case.
+(``branch_and_bound_numpy`` in ``tests/bnb_numpy.py``, the measured competitor and an independent
+check in the tests: it visits exactly the same nodes and Frank-Wolfe iterations), pays Python and
+NumPy-call overhead at every Frank-Wolfe iteration: at n = 60, m = 8, PDOP it takes 1.08 s median (5
+cases) against 25 ms for the compiled loop, ~40x. ``vmap`` over 20 cases on CPU runs at 78 ms per
+case (lanes wait for the slowest and ``cond`` becomes ``select``): on CPU call it per case.
 
 Measurements
 ------------
@@ -124,8 +124,9 @@ import jax.scipy.linalg as jsl
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from jaxpose.core.dilution import MIN_POINTS, dop_from_information
-from jaxpose.core.status import Status, status_message, throw_for_status
+from jaxpose.core.dilution import dop_from_information
+from jaxpose.core.select._kernel import check_m
+from jaxpose.core.status import Status, throw_for_status
 
 __all__ = ["BnBResult", "branch_and_bound"]
 
@@ -138,7 +139,8 @@ class BnBResult(eqx.Module):
 
     Attributes:
         idx: ``(m,)`` indices of the optimal subset, sorted ascending.
-        value: its PDOP or ADOP (the ``criterion``), from :func:`jaxpose.core.dilution.dop_from_information`;
+        value: its PDOP or ADOP (the ``criterion``), from
+        :func:`jaxpose.core.dilution.dop_from_information`;
             ``inf`` when the status is not OK.
         nodes: tree nodes whose bound (or exact value, for leaves) was evaluated, root included.
         iterations: Frank-Wolfe iterations summed over all bound evaluations.
@@ -416,7 +418,8 @@ def branch_and_bound(
 
     Args:
         blocks: ``(n, 6, 6)`` per-point information ``A_i = H_i^T H_i / sigma_i^2`` from
-            :func:`jaxpose.core.dilution.information_blocks` (state order ``(T, eps)``).
+            :func:`jaxpose.core.dilution.information_blocks` (state order ``(T, eps)``), line
+            blocks (:func:`jaxpose.core.line_dop.line_information_blocks`) or a stack of both.
         m: subset size, ``4 <= m <= n`` (static).
         criterion: ``"pdop"`` or ``"adop"``.
         bound: ``"relaxation"`` (default; Frank-Wolfe on the continuous relaxation),
@@ -448,14 +451,7 @@ def branch_and_bound(
         raise ValueError(f"criterion must be 'pdop' or 'adop'; got {criterion!r}")
     if bound not in _BOUNDS:
         raise ValueError(f"bound must be one of {_BOUNDS}; got {bound!r}")
-    m = int(m)
-    if m > n:
-        raise ValueError(f"cannot select m = {m} of n = {n} points (m > n)")
-    if m < MIN_POINTS:
-        raise ValueError(
-            f"m = {m}: {status_message(Status.TOO_FEW_POINTS)} (a DOP needs at least "
-            f"{MIN_POINTS} points)"
-        )
+    m = check_m(m, n, "branch_and_bound")
     if relax_iters < 1 or max_nodes < 1:
         raise ValueError("relax_iters and max_nodes must be positive")
     if rtol is None:
@@ -501,124 +497,3 @@ def _finish(blocks, mask, is_pdop, heuristic_phi, nodes, iters, converged, finit
     ).astype(jnp.int32)
     value = jnp.where(finite & (res.status == Status.OK), value, jnp.inf)
     return value, status, jnp.sqrt(heuristic_phi)
-
-
-# ----------------------------------------------------------------------------- NumPy host loop
-def _branch_and_bound_numpy(
-    blocks, m: int, *, criterion: str = "pdop", relax_iters: int = 16, rtol: float | None = None
-):
-    """The same search as :func:`branch_and_bound` as a recursive NumPy host loop (float64).
-
-    Kept as the measured alternative of the implementation choice (``bench_bnb``) and as an
-    independent check in the tests. Returns ``(idx, dop, nodes, iterations)``.
-    """
-    A = np.asarray(blocks, dtype=np.float64)
-    n = A.shape[0]
-    rtol = math.sqrt(np.finfo(np.float64).eps) if rtol is None else rtol
-    A = 0.5 * (A + np.swapaxes(A, -1, -2))
-    dtot = np.diagonal(A.sum(0)).copy()
-    dtot[dtot <= 0] = 1.0
-    sc = 1.0 / np.sqrt(dtot)
-    A = A * sc[None, :, None] * sc[None, None, :]
-    wsel = np.zeros(6)
-    wsel[_CRITERIA[criterion]] = 1.0 / dtot[_CRITERIA[criterion]]
-    tol = _tolerance(np.float64)
-
-    def phi(M):
-        d = np.diagonal(M, axis1=-2, axis2=-1)
-        positive = np.all(d > 0, axis=-1)
-        s = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
-        S = np.where(positive[..., None, None], M, np.eye(6)) * s[..., :, None] * s[..., None, :]
-        try:
-            L = np.linalg.cholesky(S)
-            ok = positive & (np.min(np.diagonal(L, axis1=-2, axis2=-1), axis=-1) ** 2 > tol)
-        except np.linalg.LinAlgError:
-            if S.ndim == 2:
-                return np.inf, None, False
-            out = [phi(Mi) for Mi in M]
-            return np.array([o[0] for o in out]), None, np.array([o[2] for o in out])
-        L = np.where(ok[..., None, None], L, np.eye(6))
-        Linv = np.linalg.inv(L)
-        Minv = (np.swapaxes(Linv, -1, -2) @ Linv) * s[..., :, None] * s[..., None, :]
-        val = np.sum(wsel * np.diagonal(Minv, axis1=-2, axis2=-1), axis=-1)
-        return np.where(ok, val, np.inf), Minv, ok
-
-    _, Minv, ok = phi(A.sum(0))
-    contrib = np.einsum("kij,ij->k", A, (Minv * wsel) @ Minv) if ok else np.zeros(n)
-    perm = np.argsort(-contrib, kind="stable")
-    A = A[perm]
-    Af = A.reshape(n, 36)
-
-    # Incumbent: greedy backward elimination, then steepest 1-swap.
-    active = np.ones(n, dtype=bool)
-    for _ in range(n - m):
-        vals = np.where(active, phi(A[active].sum(0)[None] - A)[0], np.inf)
-        i = int(np.argmin(vals))
-        active[i if np.isfinite(vals[i]) else int(np.argmax(active))] = False
-    best = float(phi(A[active].sum(0))[0])
-    for _ in range(4 * n if m < n else 0):
-        M = A[active].sum(0)
-        vals = phi((M[None, None] - A[:, None] + A[None, :]).reshape(-1, 6, 6))[0].reshape(n, n)
-        vals = np.where(active[:, None] & ~active[None, :], vals, np.inf)
-        i, j = divmod(int(np.argmin(vals)), n)
-        if not vals[i, j] < best * (1.0 - rtol):
-            break
-        active[i], active[j], best = False, True, float(vals[i, j])
-    best_mask = active.copy()
-    counters = {"nodes": 0, "iters": 0}
-
-    def node_bound(MC, k_next, r, threshold):
-        R = np.arange(n) >= k_next
-        nR = int(R.sum())
-        exact = r == 0 or r == nR
-        w = np.where(R, 1.0 if r == nR else r / max(nR, 1), 0.0) if r > 0 else np.zeros(n)
-        lb = -np.inf
-        for it in range(relax_iters):
-            counters["iters"] += 1
-            M = MC + (w @ Af).reshape(6, 6)
-            val, Minv, ok = phi(M)
-            if not ok:
-                return (np.inf if it == 0 else lb), exact
-            if exact:
-                return float(val), True
-            G = (Minv * wsel) @ Minv
-            g = Af @ G.ravel()
-            top = np.zeros(n, dtype=bool)
-            top[np.argsort(-np.where(R, g, -np.inf), kind="stable")[:r]] = True
-            T = np.sum(G * MC) + g[top].sum()
-            lb = max(lb, val * val / T if T > 0 else np.inf)
-            if lb > threshold or val <= threshold:
-                break
-            D = MC + (top.astype(float) @ Af).reshape(6, 6) - M
-            X = Minv @ D
-            d2 = 2.0 * np.sum(wsel * np.diagonal(X @ X @ Minv))
-            gamma = float(np.clip(np.sum(G * D) / d2 if d2 > 0 else 1.0, 0.0, 0.999))
-            w = (1.0 - gamma) * w + gamma * top
-        return lb, exact
-
-    def visit(chosen, k):
-        nonlocal best, best_mask
-        c = int(chosen.sum())
-        for include in (True, False):
-            if include and not c < m or not include and not n - k - 1 >= m - c:
-                continue
-            child = chosen.copy()
-            child[k] = include
-            r = m - c - int(include)
-            counters["nodes"] += 1
-            lb, exact = node_bound(A[child].sum(0), k + 1, r, best * (1.0 + rtol))
-            if exact:
-                if lb < best:
-                    best, best_mask = lb, child | ((np.arange(n) > k) & (r > 0))
-            elif not lb > best * (1.0 + rtol):
-                visit(child, k + 1)
-
-    counters["nodes"] += 1
-    root_lb, root_exact = node_bound(np.zeros((6, 6)), 0, m, best * (1.0 + rtol))
-    if root_exact:
-        if root_lb < best:
-            best, best_mask = root_lb, np.ones(n, dtype=bool)
-    elif not root_lb > best * (1.0 + rtol):
-        visit(np.zeros(n, dtype=bool), 0)
-    idx = np.sort(perm[best_mask])
-    return idx, math.sqrt(best), counters["nodes"], counters["iters"]

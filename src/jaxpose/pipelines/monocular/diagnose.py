@@ -85,7 +85,7 @@ def stage_breakdown(
     tr = result.trace or {}
     box = true_box(result, truth, model)
     iou = 0.0 if result.roi is None or box is None else _iou(np.asarray(result.roi, float), box)
-    out = {"roi_iou": iou, "roi_ok": iou >= 0.5}
+    out = {"roi_iou": float(iou), "roi_ok": bool(iou >= 0.5)}
     tol = dict(rotation_deg=rotation_deg, translation_m=translation_m)
     if "hypotheses" in tr:
         R, t, ok = tr["hypotheses"]

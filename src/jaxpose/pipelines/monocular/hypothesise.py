@@ -252,15 +252,19 @@ def _pad_batch(arrays, n):
 def _batched_epnp():
     from jaxpose.core.pnp import epnp
 
-    return jax.jit(jax.vmap(lambda p, q, m, cam: epnp(p, q, cam, mask=m), in_axes=(0, 0, 0, None)))
+    return jax.jit(
+        jax.vmap(lambda p, q, m, cam: epnp(p, q, cam, mask=m, throw=False), in_axes=(0, 0, 0, None))
+    )
 
 
 @functools.lru_cache(maxsize=4)
 def _batched_refine():
-    from jaxpose.core.refine import refine_pose
+    from jaxpose.core.refine import RefineOptions, refine_pose
+
+    options = RefineOptions(method="newton-raphson", max_steps=30)
 
     def one(pose, pts, pix, mask, cam):
-        return refine_pose(pose, pts, pix, cam, mask=mask, method="newton-raphson", max_steps=30)
+        return refine_pose(pts, pix, pose, cam, mask=mask, options=options, throw=False)
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, None)))
 

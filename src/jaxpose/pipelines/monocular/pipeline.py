@@ -13,13 +13,14 @@ from jaxpose.pipelines.monocular.classify import classify
 from jaxpose.pipelines.monocular.hypothesise import _ransac_candidates, _svd_candidates
 from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR, InitOptions, InitResult
 from jaxpose.pipelines.monocular.rematch import _e2d, _rematch_refine
-from jaxpose.pipelines.monocular.scene import _edge_scene
+from jaxpose.pipelines.monocular.scene import _as_jax, _edge_scene
 from jaxpose.pipelines.monocular.score import (
     _jit_orientation_term,
     _jit_silhouette_term,
     _score_poses,
 )
 from jaxpose.vision.features import detect
+from jaxpose.vision.image_maps import orientation_maps
 from jaxpose.vision.models import WireframeModel, tango
 from jaxpose.vision.render import visible_edges
 from jaxpose.vision.roi import roi_diagonal
@@ -120,13 +121,25 @@ def initialise_pose(
     sil_iou = None
     if sc.sil_pts is not None:
         sil_iou = 1.0 - float(_jit_silhouette_term()(jnp.asarray(pose.R), jnp.asarray(pose.t), sc))
-    ori = None
-    if sc.ori is not None:
-        ori = 1.0 - float(_jit_orientation_term()(jnp.asarray(pose.R), jnp.asarray(pose.t), sc))
+    # the orientation agreement is evidence for the confidence class even when its ranking
+    # weight is 0 (then its maps are made here, for the final pose only)
+    sc_ori = (
+        sc
+        if sc.ori is not None
+        else sc._replace(
+            **dict(
+                zip(
+                    ("ori", "ori_frame"), _as_jax(orientation_maps(det.image, det.roi)), strict=True
+                )
+            )
+        )
+    )
+    pose_R, pose_t = jnp.asarray(pose.R), jnp.asarray(pose.t)
+    ori = 1.0 - float(_jit_orientation_term()(pose_R, pose_t, sc_ori))
     margin = _margin(poses, np.where(good, key, np.inf), best) / l_roi
     timings["select_s"] = time.perf_counter() - t1
     s_rel = float(score[best]) / l_roi
-    conf = classify(s_rel, coverage, options.confidence)
+    conf = classify(s_rel, coverage, options.confidence, orientation=ori, margin=margin)
     timings["total_s"] = 0.0
     total = time.perf_counter() - t0
     timings = {k: v for k, v in timings.items() if k != "total_s"}

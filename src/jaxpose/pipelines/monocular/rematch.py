@@ -19,22 +19,22 @@ _PAD_MATCH = 48
 
 @functools.lru_cache(maxsize=4)
 def _refine_points_lines():
-    from jaxpose.core.refine import refine_pose
+    from jaxpose.core.refine import RefineOptions, refine_pose
+
+    options = RefineOptions(method="lm", robust="huber", robust_scale=3.0, max_steps=30)
 
     def one(pose, pts, pix, mask, seg_body, lines, lmask, cam):
         return refine_pose(
-            pose,
             pts,
             pix,
+            pose,
             cam,
             mask=mask,
             segments_body=seg_body,
             lines_img=lines,
             line_mask=lmask,
-            robust="huber",
-            robust_scale=3.0,
-            method="lm",
-            max_steps=30,
+            options=options,
+            throw=False,
         )
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, 0, 0, 0, None)))

@@ -16,6 +16,14 @@ from jaxpose.vision.image_maps import SILHOUETTE_GRID
 
 
 def _project(points_cam, cam4):
+    """Pixels ``(..., 2)`` of camera-frame points ``(..., 3)`` in the undistorted image,
+    ``cam4 = [fx, fy, cx, cy]``.
+
+    Not :meth:`jaxpose.core.camera.PinholeCamera.project`, on purpose: points at or behind the
+    camera are divided by ``1e-6`` here, so they land far off the image and drop out of every
+    in-image test of the scores, where the core primitive divides them by 1 and can put them on
+    the image; and ``fx X / z`` rounds differently from ``fx (X / z)``, which changes the
+    pipeline's chosen poses in the last bits (the SPEED+ development errors are kept exactly)."""
     z = points_cam[..., 2]
     zs = jnp.where(z > 1e-6, z, 1e-6)
     return jnp.stack(

@@ -3,12 +3,12 @@ through :meth:`PinholeCamera.project` at padded sizes, homogeneous image lines, 
 
 from __future__ import annotations
 
-import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.core.camera import PinholeCamera
-from jaxpose.core.geometry import Pose
+from jaxpose.core.geometry import Pose, rotation_angle
 
 
 def pad(a: np.ndarray, n: int, fill: float = 0.0) -> np.ndarray:
@@ -23,9 +23,40 @@ def rt(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(pose.R, np.float64), np.asarray(pose.t, np.float64)
 
 
-@eqx.filter_jit
+@jax.jit
 def _project(camera: PinholeCamera, pose: Pose, points):
     return camera.project(pose.apply(points))
+
+
+# Pose operations of every frame, compiled once: eager, each would dispatch a dozen small ops.
+@jax.jit
+def compose(a: Pose, b: Pose) -> Pose:
+    """``a @ b``: apply ``b``, then ``a``."""
+    return a @ b
+
+
+@jax.jit
+def relative(a: Pose, b: Pose) -> Pose:
+    """``a @ b^-1``: the motion from ``b`` to ``a``."""
+    return a @ b.inverse()
+
+
+@jax.jit
+def nearest_rotation(pose: Pose) -> Pose:
+    """The pose with ``R`` returned to the nearest rotation (a quaternion round trip)."""
+    return Pose.from_quat(pose.quat, pose.t)
+
+
+@jax.jit
+def fraction(motion: Pose, steps) -> Pose:
+    """A ``motion`` spread over ``steps`` frames: rotation vector and translation over steps."""
+    return Pose.from_rotvec(motion.rotvec / steps, motion.t / steps)
+
+
+@jax.jit
+def angle_deg(R_a, R_b):
+    """Angle between two rotations, degrees."""
+    return jnp.degrees(rotation_angle(R_a, R_b))
 
 
 def project(camera: PinholeCamera, pose: Pose | None, points_body: np.ndarray) -> np.ndarray:

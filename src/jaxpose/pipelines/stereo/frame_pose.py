@@ -13,9 +13,15 @@ import numpy as np
 
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
-from jaxpose.core.refine import refine_pose
+from jaxpose.core.refine import RefineOptions, refine_pose
 from jaxpose.core.status import Status
-from jaxpose.pipelines.stereo._arrays import find, lines_from_segments, pad, project
+from jaxpose.pipelines.stereo._arrays import (
+    find,
+    lines_from_segments,
+    nearest_rotation,
+    pad,
+    project,
+)
 from jaxpose.pipelines.stereo.keyframes import FrameStereo
 from jaxpose.pipelines.stereo.options import TrackerOptions
 
@@ -28,24 +34,22 @@ def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
     endpoint distance, pixels). Points-only mode passes an all-False ``lmask``: one compiled
     function serves both modes."""
     res = refine_pose(
-        pose0,
         P,
         uv,
+        pose0,
         camera,
         mask=mask,
         sigma=sigma,
-        robust=robust,
-        max_steps=30,
-        rtol=1e-9,
-        atol=1e-10,
         segments_body=S,
         lines_img=L,
         line_mask=lmask,
         line_sigma=line_sigma,
+        options=RefineOptions(robust=robust, max_steps=30, rtol=1e-9, atol=1e-10),
+        throw=False,
     )
     pose = res.pose
-    e_p = jnp.linalg.norm(camera.project_body(pose, P) - uv, axis=-1)
-    pix = camera.project_body(pose, S.reshape(-1, 3)).reshape(-1, 2, 2)
+    e_p = jnp.linalg.norm(camera.project(pose.apply(P)) - uv, axis=-1)
+    pix = camera.project(pose.apply(S.reshape(-1, 3))).reshape(-1, 2, 2)
     n = jnp.linalg.norm(L[:, :2], axis=-1, keepdims=True)
     d = (jnp.einsum("ki,kmi->km", L[:, :2], pix) + L[:, 2:3]) / jnp.where(n > 0, n, 1.0)
     return res, e_p, jnp.max(jnp.abs(d), axis=-1)
@@ -162,7 +166,7 @@ def fit_pose(
     # the LM retraction exp(xi) R keeps whatever departure from orthonormality R has, and the
     # constant-velocity prediction R_k R_(k-1)^T R_k compounds it by 1 + sqrt(2) a frame; a
     # quaternion round trip returns the nearest rotation
-    pose = Pose.from_quat(res.pose.quat(), res.pose.t)
+    pose = nearest_rotation(res.pose)
     return PoseFit(
         pose=pose,
         solver_ok=int(res.status) in (Status.OK, Status.NOT_CONVERGED),

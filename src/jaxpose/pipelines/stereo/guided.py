@@ -22,9 +22,10 @@ def match_points_within(pred, desc, feats, radius, options: FeatureOptions):
     if len(pred) == 0 or len(feats.points) == 0:
         return np.zeros(0, int), np.zeros(0, int)
     tree = cKDTree(feats.points)
-    pairs = tree.query_ball_point(pred, radius)
-    rows = np.repeat(np.arange(len(pred)), [len(p) for p in pairs])
-    cols = np.fromiter((c for p in pairs for c in p), int, count=len(rows))
+    pairs = tree.query_ball_point(pred, radius, return_sorted=True)
+    counts = np.fromiter(map(len, pairs), int, count=len(pairs))
+    rows = np.repeat(np.arange(len(pred)), counts)
+    cols = np.concatenate(pairs).astype(int) if counts.sum() else np.zeros(0, int)
     return knn_ratio_match_pairs(
         desc,
         feats.point_desc,

@@ -33,7 +33,12 @@ class TrackerOptions:
         max_rms_px: a post-fit RMS reprojection error above this is LOST.
         max_jump_deg, max_jump_m: a pose further than this from the prediction is LOST.
         search_radius_px: search-by-projection radius around the landmarks' predicted pixels
-            (constant-velocity prediction); doubled on the frame after a lost one.
+            (constant-velocity prediction) on the first tracked frame; doubled on the frame
+            after a lost one.
+        adaptive_radius: afterwards the radius follows the measured prediction error: three
+            times the 90th percentile of the distance between the landmarks' pixels predicted
+            from the constant-velocity pose and from the fitted pose, plus ``3 sigma_px``, within
+            ``[search_radius_px / 2, 4 search_radius_px]``.
         line_angle_deg: a current segment is a candidate for a landmark segment when their
             directions differ by less than this (and they overlap, within the radius).
         keyframe_every, keyframe_min: the map is updated (stereo triangulation of the frame's
@@ -55,12 +60,11 @@ class TrackerOptions:
         features: the feature options; 2000 ORB keypoints instead of 1200 (chosen on the clean
             2 m sequences, noise seeds 0-2: per-axis RMS position errors at most 10.5 mm instead
             of at most 16.5 mm, at about 2/3 of the frame rate).
-        points_ref_depth_m: the ORB budget ``features.n_points`` holds for a target at this depth;
-            farther, the budget shrinks with the target's apparent area, ``(ref / z)^2`` (``z``:
-            the last tracked depth of the target origin; rounded to 100, never above
-            ``n_points``), i.e. a constant keypoint density on the target. A far target seen
-            with the full budget gets weak extra corners (clean 3 m: worse with 2000 than with
-            1200 keypoints). ``None``: always ``n_points``.
+        keypoint_spacing_px: the ORB budget of a frame is the target's apparent area (its bright
+            pixels on the dark sky, measured on the frame) divided by ``spacing^2``: one keypoint
+            per ``spacing x spacing`` pixels of target, within ``[100, features.n_points]``
+            (about 2000 at 2 m for the 1 m target, 900 at 3 m). A far target seen with the full
+            budget gets weak extra corners. ``None``: always ``features.n_points``.
         line_planes: refine the line landmarks from all their observation planes (the planes
             through each camera centre and the segment, body frame, of every stereo pair that
             matched the landmark; :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe_lines`)
@@ -92,6 +96,7 @@ class TrackerOptions:
     max_jump_deg: float = 10.0
     max_jump_m: float = 0.25
     search_radius_px: float = 12.0
+    adaptive_radius: bool = True
     line_angle_deg: float = 10.0
     keyframe_every: int = 1
     keyframe_min: int = 50
@@ -108,7 +113,7 @@ class TrackerOptions:
     frame_rays: bool = True
     stereo_residuals: bool = True
     features: FeatureOptions = field(default_factory=lambda: FeatureOptions(n_points=2000))
-    points_ref_depth_m: float | None = 2.0
+    keypoint_spacing_px: float | None = 8.0
     line_planes: bool = True
     line_stereo_residuals: bool = True
     measured_line_sigma: bool = True
@@ -116,10 +121,12 @@ class TrackerOptions:
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
 
     def __post_init__(self):
-        if self.points_ref_depth_m is not None and not self.points_ref_depth_m > 0:
+        if self.keypoint_spacing_px is not None and not self.keypoint_spacing_px > 0:
             raise ValueError(
-                f"points_ref_depth_m must be positive or None; got {self.points_ref_depth_m}"
+                f"keypoint_spacing_px must be positive or None; got {self.keypoint_spacing_px}"
             )
+        if not self.search_radius_px > 0:
+            raise ValueError(f"search_radius_px must be positive; got {self.search_radius_px}")
         if not 0.0 <= self.line_scale_memory < 1.0:
             raise ValueError(f"line_scale_memory must be in [0, 1); got {self.line_scale_memory}")
 

@@ -41,8 +41,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.core.camera import StereoCamera
-from jaxpose.core.geometry import Pose, rotation_angle
+from jaxpose.core.geometry import Pose
 from jaxpose.core.status import Status
+from jaxpose.pipelines.stereo._arrays import angle_deg, compose, fraction, project, relative, rt
 from jaxpose.pipelines.stereo.frame_pose import fit_pose
 from jaxpose.pipelines.stereo.guided import match_by_projection
 from jaxpose.pipelines.stereo.keyframes import (
@@ -60,7 +61,7 @@ from jaxpose.pipelines.stereo.options import (
 from jaxpose.vision.stereo_features import FeatureOptions, extract
 from jaxpose.vision.stereo_match import disparity_range
 
-__all__ = ["StereoTracker", "as_gray_uint8", "target_roi"]
+__all__ = ["StereoTracker", "as_gray_uint8", "target_area", "target_roi"]
 
 
 def target_roi(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> np.ndarray | None:
@@ -71,6 +72,13 @@ def target_roi(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> np.n
     if len(uu) < 4:
         return None
     return np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float) * step
+
+
+def target_area(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> float:
+    """Apparent area of the target, pixels: the pixels brighter than ``threshold`` (a target on a
+    dark sky), counted on a ``step``-subsampled image."""
+    small = np.asarray(image)[::step, ::step]
+    return float(np.count_nonzero(small > threshold)) * step * step
 
 
 def as_gray_uint8(image, name: str = "image") -> np.ndarray:
@@ -98,7 +106,7 @@ def _fractional_step(motion: Pose, steps: int) -> Pose:
     translation divided by ``steps``)."""
     if steps <= 1:
         return motion
-    return Pose.from_rotvec(motion.rotvec() / steps, motion.t / steps)
+    return fraction(motion, float(steps))
 
 
 class StereoTracker:
@@ -165,24 +173,52 @@ class StereoTracker:
         self._rejected_l: set = set()
         self.index = 0
         self._line_scale = 1.0  # running ratio of line to point residual scales (line_sigma)
+        self._radius = float(options.search_radius_px)  # search-by-projection radius
 
     # ------------------------------------------------------------------ scene-dependent settings
-    def feature_options(self) -> FeatureOptions:
-        """The feature options of the next frame: the ORB budget scaled to a constant keypoint
-        density on the target (``points_ref_depth_m``)."""
+    def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
+        """The feature options of a frame whose target covers ``target_area_px`` pixels: the ORB
+        budget at one keypoint per ``keypoint_spacing_px^2`` pixels of target (a constant
+        keypoint density on the target, whatever its range and attitude)."""
         o = self.options
-        z, ref = self._last_depth, o.points_ref_depth_m
-        if ref is None or z is None or not np.isfinite(z) or z <= ref:
+        if o.keypoint_spacing_px is None or target_area_px is None:
             return o.features
-        n = int(round(o.features.n_points * (ref / z) ** 2, -2))
+        n = int(round(target_area_px / o.keypoint_spacing_px**2, -2))
         return replace(o.features, n_points=max(100, min(o.features.n_points, n)))
 
-    def _disparities(self) -> tuple[int, int]:
-        """Disparities searched: around the last known target depth (``+- depth_margin_m``) when
-        there is one, else the whole ``depth_range_m``."""
+    def _update_radius(self, landmarks_xyz: np.ndarray, pose_pred: Pose, pose: Pose) -> None:
+        """The next frame's search radius from this frame's prediction error (``adaptive_radius``):
+        the pixels of the matched landmarks at the predicted and at the fitted pose."""
+        o = self.options
+        if not o.adaptive_radius or len(landmarks_xyz) < 10:
+            return
+        cam = self.rig.left
+        moved = np.linalg.norm(
+            project(cam, pose_pred, landmarks_xyz) - project(cam, pose, landmarks_xyz), axis=1
+        )
+        r = 3.0 * float(np.percentile(moved, 90)) + 3.0 * o.sigma_px
+        self._radius = float(np.clip(r, 0.5 * o.search_radius_px, 4.0 * o.search_radius_px))
+
+    def _disparities(self, pose_pred: Pose | None = None) -> tuple[int, int]:
+        """Disparities searched. With a map and a predicted pose: the depths of the landmarks
+        visible from the prediction (5th to 95th percentile), widened by half their spread
+        plus ``depth_margin_m / 8`` each side (structure turning into view lies within the
+        target, whose visible depth extent the map measures); else around the last known target
+        depth (``+- depth_margin_m``); else the whole ``depth_range_m``."""
         o = self.options
         lo, hi = o.depth_range_m
         z = self._last_depth
+        if o.depth_margin_m is not None and pose_pred is not None and len(self.map.points) >= 20:
+            cand = self.map.candidates("points", pose_pred)
+            if len(cand) >= 20:
+                R, t = rt(pose_pred)
+                depth = self.map.points.X[cand] @ R[2] + t[2]
+                z0, z1 = np.percentile(depth, [5, 95])
+                pad = 0.5 * (z1 - z0) + o.depth_margin_m / 8
+                lo, hi = max(lo, z0 - pad), min(hi, z1 + pad)
+                if lo < hi:
+                    return disparity_range(self.rig, lo, hi)
+                lo, hi = o.depth_range_m
         if o.depth_margin_m is not None and z is not None and np.isfinite(z) and z > 0:
             lo, hi = max(lo, z - o.depth_margin_m), min(hi, z + o.depth_margin_m)
             if not lo < hi:
@@ -212,9 +248,9 @@ class StereoTracker:
         return self._line_scale
 
     # ------------------------------------------------------------------ main entry
-    def _stereo(self, left, right, feats, timings):
+    def _stereo(self, left, right, feats, timings, pose_pred=None):
         return stereo_correspondences(
-            left, right, feats, self.rig, self._disparities(), self.options, timings
+            left, right, feats, self.rig, self._disparities(pose_pred), self.options, timings
         )
 
     def _first_frame(self, left, right, feats, timings) -> FrameResult:
@@ -252,19 +288,20 @@ class StereoTracker:
         timings = dict.fromkeys(STAGES, 0.0)
         t0 = time.perf_counter()
         roi = target_roi(left) if roi is None else roi
-        feats = extract(left, options=self.feature_options(), roi=roi, lines=o.use_lines)
+        area = target_area(left)
+        feats = extract(left, options=self.feature_options(area), roi=roi, lines=o.use_lines)
         timings["features"] = time.perf_counter() - t0
         k = self.index
         self.index += 1
         if not self._started:
             return self._first_frame(left, right, feats, timings)
 
+        pose_pred = compose(self._delta, self._pose_prev)
         stereo = None
         if o.stereo_residuals or o.keyframe_every <= 1:
-            stereo = self._stereo(left, right, feats, timings)
+            stereo = self._stereo(left, right, feats, timings, pose_pred)
         t1 = time.perf_counter()
-        pose_pred = self._delta @ self._pose_prev
-        radius = o.search_radius_px * (2.0 if self._misses else 1.0)
+        radius = self._radius * (2.0 if self._misses else 1.0)
         (i_m, i_cur, cand), (l_m, l_cur, lcand) = match_by_projection(
             self.map,
             feats,
@@ -302,7 +339,7 @@ class StereoTracker:
             )
             pose = fit.pose
             finite = _finite(pose)
-            jump_deg = float(np.degrees(rotation_angle(pose.R, pose_pred.R))) if finite else np.inf
+            jump_deg = float(angle_deg(pose.R, pose_pred.R)) if finite else np.inf
             jump_m = float(np.linalg.norm(np.asarray(pose.t) - np.asarray(pose_pred.t)))
             good = (
                 fit.solver_ok
@@ -314,8 +351,9 @@ class StereoTracker:
             )
             result.inliers, result.rms_px = fit.inliers, fit.rms_px
             if good:
+                self._update_radius(self.map.points.X[i_m[fit.in_points]], pose_pred, pose)
                 steps = self._misses + 1
-                self._delta = _fractional_step(pose @ self._pose_prev.inverse(), steps)
+                self._delta = _fractional_step(relative(pose, self._pose_prev), steps)
                 self._pose_prev = pose
                 self._misses = 0
                 if o.measured_line_sigma and n_l:
@@ -328,7 +366,12 @@ class StereoTracker:
                 if o.frame_rays:
                     kept = fit.kept_points  # left in the last pass: residual below reject_px
                     observe_point_rays(
-                        self.map, self.rig, i_m[kept], feats.points[i_cur[kept]], pose, right=False
+                        self.map,
+                        self.rig,
+                        i_m[kept],
+                        feats.points[i_cur[kept]],
+                        pose,
+                        right=False,
                     )
                 self.map.record("lines", lcand, l_m[in_l], k)
                 self._since_kf += 1
@@ -346,7 +389,7 @@ class StereoTracker:
             self._since_kf >= o.keyframe_every or result.inliers < o.keyframe_min
         ):
             if stereo is None:
-                stereo = self._stereo(left, right, feats, timings)
+                stereo = self._stereo(left, right, feats, timings, pose_pred)
             update_map(
                 self.map,
                 self.rig,

@@ -73,8 +73,8 @@ class ExhaustiveResult(eqx.Module):
         pdop: its PDOP (metres per pixel), ``inf`` when the status is not OK.
         adop_idx: ``(m,)`` indices (ascending) of the minimum-ADOP subset.
         adop: its ADOP (radians per pixel), ``inf`` when the status is not OK.
-        status: ``int32`` :class:`~jaxpose.core.status.Status`: ``OK``; ``NONFINITE_INPUT`` for NaN/inf
-            in a valid block; ``TOO_FEW_POINTS`` when fewer than ``m`` points are valid;
+        status: ``int32`` :class:`~jaxpose.core.status.Status`: ``OK``; ``NONFINITE_INPUT``
+            for NaN/inf in a valid block; ``TOO_FEW_POINTS`` when fewer than ``m`` points are valid;
             ``SINGULAR`` when every subset is singular.
     """
 
@@ -382,7 +382,8 @@ def exhaustive(
 
     Args:
         blocks: ``(n, 6, 6)`` per-point information blocks
-            (:func:`jaxpose.core.dilution.information_blocks`).
+            (:func:`jaxpose.core.dilution.information_blocks`), line blocks
+            (:func:`jaxpose.core.line_dop.line_information_blocks`) or a stack of both.
         m: subset size (static), ``4 <= m <= n``.
         mask: ``(n,)`` bool, valid points of a padded set (subsets with an invalid point are
             skipped).

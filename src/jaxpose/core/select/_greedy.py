@@ -3,8 +3,8 @@
 Start from all points; at each of the ``n - m`` steps remove the point whose removal raises the
 criterion (PDOP or ADOP) least. Each step scores the ``n`` candidate removals at once: their
 information sums are one ``(n, n) x (n, 21)`` product of 0/1 membership rows against the packed
-blocks, and the traces come from the LAPACK-free kernel of :mod:`jaxpose.core.select._kernel`. It is a
-heuristic: it never beats :func:`jaxpose.core.select.exhaustive` and usually comes close.
+blocks, and the traces come from the LAPACK-free kernel of :mod:`jaxpose.core.select._kernel`. It is
+a heuristic: it never beats :func:`jaxpose.core.select.exhaustive` and usually comes close.
 """
 
 from __future__ import annotations
@@ -48,7 +48,8 @@ def greedy(
 
     Args:
         blocks: ``(n, 6, 6)`` per-point information blocks
-            (:func:`jaxpose.core.dilution.information_blocks`).
+            (:func:`jaxpose.core.dilution.information_blocks`), line blocks
+            (:func:`jaxpose.core.line_dop.line_information_blocks`) or a stack of both.
         m: number of points to keep (static), ``4 <= m <= n``.
         criterion: ``"pdop"`` or ``"adop"``.
         mask: ``(n,)`` bool, valid points (masked ones are removed first, never kept unless
