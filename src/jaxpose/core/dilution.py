@@ -159,6 +159,7 @@ def information_blocks(
     H = point_jacobians(
         points_body, pose, camera, sequence=sequence, parameterization=parameterization
     )
+    sigma = _check_sigma(sigma, H.shape[0], H.dtype)
     w = _weights(points_body.shape[0], H.dtype, sigma, mask)
     return jnp.einsum("nki,nkj,n->nij", H, H, w)
 
