@@ -259,7 +259,7 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
     """Keeps the description's line breaks and ends each option's help with its default (none
     for flags, ``--help``, options whose default is ``None`` and helps that state it already)."""
 
-    def _format_args(self, action: argparse.Action, default_metavar: str) -> str:
+    def _format_args(self, action: argparse.Action, default_metavar: str | None) -> str:
         if isinstance(action, _ImageSize):  # two numbers (or one WxH), shown as the two
             return "W H"
         return super()._format_args(action, default_metavar)
