@@ -37,6 +37,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from jaxpose.core._checks import check_mask, check_pose, check_rows, is_rotation
+from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import (
     DEFAULT_EULER_SEQUENCE,
@@ -273,8 +274,7 @@ def dop(
     return res
 
 
-@eqx.filter_jit
-def _dop(points_body, pose, camera, sigma, valid, sequence, parameterization) -> DOPResult:
+def _dop_body(points_body, pose, camera, sigma, valid, sequence, parameterization) -> DOPResult:
     """The compiled body of :func:`dop` (one compilation per shape, dtype and option set)."""
     dtype = points_body.dtype
     finite_in = (
@@ -324,3 +324,6 @@ def _dop(points_body, pose, camera, sigma, valid, sequence, parameterization) ->
         status=status,
     )
     return res
+
+
+_dop = eager_jit(_dop_body, static_argnums=(5, 6))
