@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from jaxpose.core._checks import check_mask, check_pose, check_rows, is_rotation
+from jaxpose.core._checks import check_mask, check_pose, check_positive, check_rows, is_rotation
 from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import (
@@ -157,6 +157,7 @@ def information_blocks(
     ``sigma`` is the pixel noise per axis, one per point or shared; ``None`` means unit weights
     (the plain DOP). ``mask`` (``(n,)`` bool) marks valid points of a padded set.
     """
+    check_positive(sigma, "sigma (pixel noise)")
     H = point_jacobians(
         points_body, pose, camera, sequence=sequence, parameterization=parameterization
     )
