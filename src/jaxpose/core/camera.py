@@ -327,8 +327,8 @@ class StereoCamera(eqx.Module):
         ``cv2.triangulatePoints`` does) in normalised coordinates, solved by SVD.
         ``method="midpoint"``: the midpoint of the common perpendicular of the two rays.
         Both are exact for noise-free correspondences. Points at infinity (parallel rays) come
-        out with a huge or non-finite depth; mask them with :meth:`PinholeCamera.in_front` and a
-        depth limit.
+        out with a huge or infinite depth; mask them with :meth:`PinholeCamera.in_front` and a
+        depth limit. A pair with a NaN or inf pixel gives ``inf`` (no point), never NaN.
         """
         pixels_left, pixels_right = as_float(pixels_left), as_float(pixels_right)
         if pixels_left.shape[-1:] != (2,) or pixels_left.shape != pixels_right.shape:
@@ -377,11 +377,19 @@ def _maybe_distorted(camera: PinholeCamera) -> bool:
 
 @eqx.filter_jit
 def _triangulate(rig: StereoCamera, pixels_left, pixels_right, method: str, undistort: bool):
+    # A pair with a NaN or inf pixel has no point: inf, never NaN (double-where: the solve sees a
+    # finite stand-in, so gradients stay finite too). Parallel rays give inf as well.
+    finite = jnp.all(jnp.isfinite(pixels_left), -1) & jnp.all(jnp.isfinite(pixels_right), -1)
+    pixels_left = jnp.where(finite[:, None], pixels_left, 0.0)
+    pixels_right = jnp.where(finite[:, None], pixels_right, 0.0)
     xl = rig.left.normalize(pixels_left, undistort=undistort)
     xr = rig.right.normalize(pixels_right, undistort=undistort)
     if method == "linear":
-        return _triangulate_dlt(xl, xr, rig.R_rl, rig.t_rl)
-    return _triangulate_midpoint(xl, xr, rig.R_rl, rig.t_rl)
+        points = _triangulate_dlt(xl, xr, rig.R_rl, rig.t_rl)
+    else:
+        points = _triangulate_midpoint(xl, xr, rig.R_rl, rig.t_rl)
+    inf = jnp.asarray(jnp.inf, points.dtype)
+    return jnp.where(finite[:, None] & ~jnp.isnan(points), points, inf)
 
 
 def _triangulate_dlt(xl, xr, R, t):

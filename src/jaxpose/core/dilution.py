@@ -159,6 +159,7 @@ def information_blocks(
     H = point_jacobians(
         points_body, pose, camera, sequence=sequence, parameterization=parameterization
     )
+    sigma = _check_sigma(sigma, H.shape[0], H.dtype)
     w = _weights(points_body.shape[0], H.dtype, sigma, mask)
     return jnp.einsum("nki,nkj,n->nij", H, H, w)
 
@@ -274,6 +275,28 @@ def dop(
 
 
 @eqx.filter_jit
+def _gimbal_lock(res: DOPResult, points, pose, camera, sigma, use, sequence) -> DOPResult:
+    """At gimbal lock of the Euler state the Euler information is singular but the geometry is
+    not: the PDOP (the position block of ``Q``, a Schur complement that does not depend on how the
+    attitude is parameterised) is the tangent one, the ADOP in Euler angles is infinite, and the
+    status says :attr:`Status.GIMBAL_LOCK` instead of blaming the points."""
+    tangent = dop_from_information(
+        jnp.sum(
+            information_blocks(points, pose, camera, sigma=sigma, mask=use,
+                               parameterization="tangent"),
+            axis=0,
+        )
+    )  # fmt: skip
+    locked = (res.status == Status.SINGULAR) & (tangent.status == Status.OK)
+    inf = jnp.asarray(jnp.inf, res.pdop.dtype)
+    return DOPResult(
+        pdop=jnp.where(locked, tangent.pdop, res.pdop),
+        adop=jnp.where(locked, inf, res.adop),
+        Q=jnp.where(locked, inf, res.Q),
+        status=jnp.where(locked, Status.GIMBAL_LOCK, res.status).astype(jnp.int32),
+    )
+
+
 def _dop(points_body, pose, camera, sigma, valid, sequence, parameterization) -> DOPResult:
     """The compiled body of :func:`dop` (one compilation per shape, dtype and option set)."""
     dtype = points_body.dtype
@@ -304,6 +327,8 @@ def _dop(points_body, pose, camera, sigma, valid, sequence, parameterization) ->
         axis=0,
     )
     res = dop_from_information(A)
+    if parameterization == "euler":
+        res = _gimbal_lock(res, points_safe, pose_safe, camera, sigma, use, sequence)
     count = jnp.sum(valid)
     status = jnp.select(
         [~finite_in, ~is_rotation(pose_safe.R), count < MIN_POINTS, behind],
@@ -318,7 +343,7 @@ def _dop(points_body, pose, camera, sigma, valid, sequence, parameterization) ->
     bad = status != Status.OK
     inf = jnp.asarray(jnp.inf, dtype=res.pdop.dtype)
     res = DOPResult(
-        pdop=jnp.where(bad, inf, res.pdop),
+        pdop=jnp.where(bad & (status != Status.GIMBAL_LOCK), inf, res.pdop),
         adop=jnp.where(bad, inf, res.adop),
         Q=jnp.where(bad, inf, res.Q),
         status=status,

@@ -198,6 +198,11 @@ def se3_exp(xi: Float[Array, "... 6"]) -> tuple[Float[Array, "... 3 3"], Float[A
 def quat_normalize(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     """Unit quaternion with the same direction (scalar-first)."""
     q = check_last(q, 4, "q")
+    # A tiny quaternion is a direction too: rescale it first so that its squares do not underflow
+    # to a zero norm (a quaternion of ordinary size is left bit for bit as it is).
+    size = jnp.max(jnp.abs(q), axis=-1, keepdims=True)
+    small = float(np.sqrt(jnp.finfo(q.dtype).tiny)) * 2.0**20
+    q = q / jnp.where((size < small) & (size > 0), size, 1.0)
     norm = jnp.linalg.norm(q, axis=-1, keepdims=True)
     if not isinstance(norm, jax.core.Tracer) and np.any(np.asarray(norm) == 0):
         raise ValueError("q must be a non-zero quaternion (w, x, y, z); got a zero quaternion")

@@ -42,6 +42,11 @@ class Status(enum.IntEnum):
     NO_SOLUTION = 7, "no solution was found"
     LOST = 8, "tracking lost: too few features survived"
     NOT_A_ROTATION = 9, "the pose's R is not a rotation matrix (R^T R != I or det R <= 0)"
+    GIMBAL_LOCK = (
+        10,
+        "the Euler sequence of the attitude state is at gimbal lock: the attitude DOP in Euler "
+        "angles is infinite (the PDOP is not; use parameterization='tangent' or another sequence)",
+    )
 
     @property
     def message(self) -> str:

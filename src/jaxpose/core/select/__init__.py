@@ -3,7 +3,7 @@
 * :func:`quasi_optimal`, :func:`one_step`: the paper's geometric rules (redundancy of the
   line-of-sight directions);
 * :func:`exhaustive`, :func:`exhaustive_batch`: the minimum-PDOP and minimum-ADOP subsets over all
-  ``C(n, m)`` subsets;
+  ``C(n, m)`` subsets (refused above :data:`MAX_SUBSETS`: use :func:`branch_and_bound` there);
 * :func:`greedy`: backward elimination on the DOP itself;
 * :func:`branch_and_bound`: the exact optimum without full enumeration
   (:mod:`jaxpose.core.select.bnb`);
@@ -17,6 +17,7 @@ Every function except :func:`select_features` takes one problem and works under 
 (:func:`jaxpose.core.line_dop.line_information_blocks`) or a mix of both.
 """
 
+from jaxpose.core.select._exhaustive import MAX_SUBSETS as MAX_SUBSETS
 from jaxpose.core.select._exhaustive import ExhaustiveResult as ExhaustiveResult
 from jaxpose.core.select._exhaustive import exhaustive as exhaustive
 from jaxpose.core.select._exhaustive import exhaustive_batch as exhaustive_batch

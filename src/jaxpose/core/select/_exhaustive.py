@@ -57,9 +57,17 @@ __all__ = [
     "ExhaustiveResult",
     "exhaustive",
     "exhaustive_batch",
+    "MAX_SUBSETS",
     "subsets_count",
     "unrank_combinations",
 ]
+
+MAX_SUBSETS = 1_000_000_000
+"""Most subsets per case that :func:`exhaustive` and :func:`exhaustive_batch` score unless told
+otherwise (``max_subsets=``): the kernel scores 1-2 x 10^7 subsets per CPU-second, so a case at
+the limit takes about a minute; ``C(40, 20) = 1.4e11`` would take hours. Above it they raise
+``ValueError`` and point to :func:`~jaxpose.core.select.branch_and_bound`, which finds the same
+optimum without enumerating every subset."""
 
 _TARGET_ELEMENTS = 1 << 15
 """Default work per scan step: ``chunk x C`` subset evaluations (tuned in bench/selection.py)."""
@@ -88,6 +96,18 @@ class ExhaustiveResult(eqx.Module):
 def subsets_count(n: int, m: int) -> int:
     """``C(n, m)``: how many subsets the exhaustive search scores."""
     return math.comb(n, m)
+
+
+def check_subsets(n: int, m: int, max_subsets: int | None, what: str = "exhaustive") -> None:
+    """Refuse a search over more than ``max_subsets`` subsets (``None``: no limit)."""
+    count = math.comb(n, m)
+    if max_subsets is not None and count > max_subsets:
+        raise ValueError(
+            f"{what}: n = {n}, m = {m} gives C({n}, {m}) = {count:.3g} subsets, above the "
+            f"limit max_subsets = {max_subsets:.3g} (hours of work); use branch_and_bound "
+            f"(the same optimum without enumerating every subset), a smaller n or an m nearer "
+            f"to 4 or n, or raise max_subsets"
+        )
 
 
 def _rank_dtype():
@@ -261,6 +281,7 @@ def exhaustive_batch(
     mask: Bool[Array, "C n"] | None = None,
     chunk_size: int | None = None,
     kernel_dtype=None,
+    max_subsets: int | None = MAX_SUBSETS,
     throw: bool = True,
 ) -> ExhaustiveResult:
     """:func:`exhaustive` for a batch of ``C`` cases at once (the fast path for studies).
@@ -276,12 +297,15 @@ def exhaustive_batch(
         chunk_size: subsets per scan step (default: about ``2^15 / C``, at least 16).
         kernel_dtype: dtype of the scoring kernel; default the blocks' dtype. ``jnp.float32`` with
             float64 blocks scores in single precision and re-checks in float64 (module docstring).
+        max_subsets: refuse (``ValueError``) more than this many subsets per case
+            (:data:`MAX_SUBSETS`; ``None`` for no limit).
         throw: raise for a bad status (``ValueError`` when eager, an Equinox runtime error under
             jit); pass ``False`` to get ``inf`` and a status per case instead.
     """
     blocks = check_blocks(blocks, "exhaustive_batch", batched=True)
     C, n = blocks.shape[:2]
     m = check_m(m, n, "exhaustive")
+    check_subsets(n, m, max_subsets, "exhaustive_batch")
     use_mask = mask is not None
     if use_mask:
         mask = jnp.asarray(mask)
@@ -376,6 +400,7 @@ def exhaustive(
     mask: Bool[Array, " n"] | None = None,
     chunk_size: int | None = None,
     kernel_dtype=None,
+    max_subsets: int | None = MAX_SUBSETS,
     throw: bool = True,
 ) -> ExhaustiveResult:
     """Minimum-PDOP and minimum-ADOP ``m``-subsets by scoring all ``C(n, m)`` of them.
@@ -389,6 +414,8 @@ def exhaustive(
             skipped).
         chunk_size: subsets per scan step (memory is ``O(chunk_size)``; default automatic).
         kernel_dtype: scoring dtype (default the blocks' dtype; see the module docstring).
+        max_subsets: refuse (``ValueError``) a search over more than this many subsets
+            (:data:`MAX_SUBSETS`, about a minute of work; ``None`` for no limit).
         throw: raise for a bad status (``ValueError`` when eager, an Equinox runtime error under
             jit); pass ``throw=False`` under ``vmap`` to get ``inf`` and a status per case.
 
@@ -401,6 +428,7 @@ def exhaustive(
     blocks = check_blocks(blocks, "exhaustive")
     n = blocks.shape[0]
     m = check_m(m, n, "exhaustive")
+    check_subsets(n, m, max_subsets)
     mask_arr = check_mask(mask, (n,), "exhaustive")
     if mask_arr is None:
         mask_arr = jnp.ones((n,), bool)

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from jaxpose.core._checks import is_rotation
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.dilution import information_blocks
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
@@ -70,6 +71,8 @@ def select_features(
     valid = _valid(mask, n, "select_features")
     if not (jnp.all(jnp.isfinite(pose.R)) and jnp.all(jnp.isfinite(pose.t))):
         raise ValueError("select_features: the pose holds NaN or inf")
+    if not bool(is_rotation(pose.R)):
+        raise ValueError(f"select_features: {Status.NOT_A_ROTATION.message}")
     points_cam = pose.apply(points_body)
     raise_for_status(_status(points_cam, valid, m), "select_features")
     if method == "quasi":
