@@ -28,12 +28,15 @@ CAM = PinholeCamera(1000.0, 1000.0, 320.0, 240.0)
 POSE = Pose.from_euler(jnp.array([0.1, 0.2, 0.3]), jnp.array([0.1, -0.1, 5.0]))
 BASE = np.random.default_rng(0).uniform(-1.0, 1.0, (N, 3))
 PIX = np.asarray(CAM.project(POSE.apply(jnp.asarray(BASE))))
+RIG = StereoCamera.from_baseline(CAM, 0.3)
+PL, PR = (np.asarray(x) for x in RIG.project(POSE.apply(jnp.asarray(BASE))))
 
 SPECIAL = [np.nan, np.inf, -np.inf, 1e300, -1e300, 1e-300, 0.0, 5e-324]
 PROPS = settings(
     max_examples=12,
-    deadline=30_000,  # ms: the first example of a shape compiles
+    deadline=10_000,  # ms per example, after the warm-up compiled each function once
     derandomize=True,
+    database=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
 )
 
@@ -108,6 +111,22 @@ def _contract(call, names, *, ok_fields=()):
 POINT_NAMES = ("points_body", "pixels", "mask", "sigma", "pose", "camera")
 
 
+@pytest.fixture(scope="module", autouse=True)
+def warm_up():
+    """Compile each entry point once on good data, so that the deadline times answers only."""
+    P, U = jnp.asarray(BASE), jnp.asarray(PIX)
+    jp.dop(P, POSE, CAM, throw=False)
+    for sigma in (None, 1.0):
+        jp.information_blocks(P, POSE, CAM, sigma=sigma)
+    for method in ("quasi", "greedy"):
+        jp.select_features(P, POSE, CAM, 5, method=method)
+    jp.solve_pnp(P, U, CAM, throw=False)
+    jp.refine_pose(P, U, POSE, CAM, throw=False)
+    jp.sensitivity(P, U, POSE, CAM, throw=False)
+    for method in ("linear", "midpoint"):
+        RIG.triangulate(jnp.asarray(PL), jnp.asarray(PR), method=method)
+
+
 @PROPS
 @given(points=shaped(BASE))
 def test_dop(points):
@@ -133,8 +152,8 @@ def test_information_blocks(points, sigma):
 
 
 @PROPS
-@given(points=shaped(BASE), m=st.sampled_from([4, 5, 6, 3, 9, 4.5]),
-       method=st.sampled_from(["quasi", "greedy", "bnb"]))  # fmt: skip
+@given(points=shaped(BASE), m=st.sampled_from([5, 5, 3, 9, 4.5]),
+       method=st.sampled_from(["quasi", "greedy"]))  # fmt: skip
 def test_select_features(points, m, method):
     try:
         idx = jp.select_features(points, POSE, CAM, m, method=method)
@@ -214,10 +233,6 @@ def test_project(points):
     assert not np.isnan(pixels[rows]).any(), (points[rows], pixels[rows])
 
 
-RIG = StereoCamera.from_baseline(CAM, 0.3)
-PL, PR = (np.asarray(x) for x in RIG.project(POSE.apply(jnp.asarray(BASE))))
-
-
 @PROPS
 @given(left=corrupted(PL, degenerate=False), right=corrupted(PR, degenerate=False),
        method=st.sampled_from(["linear", "midpoint"]))  # fmt: skip
@@ -227,7 +242,7 @@ def test_triangulate(left, right, method):
     assert not np.isnan(points).any(), points
 
 
-@pytest.mark.parametrize("shape", [(N, 2), (N, 3, 1), (2, N)])
+@pytest.mark.parametrize("shape", [(N, 3), (N, 2, 1), (2, N), (N + 1, 2)])
 def test_triangulate_shapes(shape):
     with pytest.raises(ValueError, match="pixels_left"):
         RIG.triangulate(jnp.ones(shape), jnp.ones((N, 2)))

@@ -73,6 +73,12 @@ def select_features(
         raise ValueError("select_features: the pose holds NaN or inf")
     if not bool(is_rotation(pose.R)):
         raise ValueError(f"select_features: {Status.NOT_A_ROTATION.message}")
+    rows = np.flatnonzero(np.asarray(valid) & ~np.all(np.isfinite(np.asarray(points_body)), -1))
+    if rows.size:
+        raise ValueError(
+            f"select_features: points_body holds NaN or inf (rows {rows[:5].tolist()}); mask "
+            f"them out with mask="
+        )
     points_cam = pose.apply(points_body)
     raise_for_status(_status(points_cam, valid, m), "select_features")
     if method == "quasi":
