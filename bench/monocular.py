@@ -227,9 +227,10 @@ def main() -> None:
         help="weight of the gradient-orientation (LINE-2D) term in the ranking (0: off)",
     )
     ap.add_argument(
-        "--no-grid-on-roi",
+        "--grid-on-roi",
         action="store_true",
-        help="no attitude grid without a silhouette (the grid placed on the ROI is off)",
+        help="place the attitude grid on the ROI when the image has no silhouette "
+        "(InitOptions.grid_without_silhouette; off by default)",
     )
     ap.add_argument(
         "--attitude-grid",
@@ -280,7 +281,7 @@ def main() -> None:
         silhouette_weight=args.silhouette_weight,
         attitude_grid=args.attitude_grid,
         orientation_weight=args.orientation_weight,
-        grid_without_silhouette=not args.no_grid_on_roi,
+        grid_without_silhouette=args.grid_on_roi,
         confidence=dict(
             CONFIDENCE, **({} if args.low_score is None else {"low_score": args.low_score})
         ),

@@ -226,8 +226,8 @@ def figure(results: list[dict], path: Path) -> None:
         axes[1, col].set_ylabel("RMS attitude (deg)")
     handles = (
         [
-            plt.Line2D([], [], color=colours[a], marker="s", ls="none", label=f"axis {a}")
-            for a in "xyz"
+            plt.Line2D([], [], color=colours[a], marker="s", ls="none", label=f"{a} / {ang}")
+            for a, ang in zip("xyz", ("roll", "pitch", "yaw"), strict=True)
         ]
         + [
             plt.Line2D([], [], color="gray", marker=markers[k], ls="none", label=f"{k} scenes")
@@ -235,9 +235,9 @@ def figure(results: list[dict], path: Path) -> None:
         ]
         + [plt.Line2D([], [], color="red", ls="--", lw=0.8, label="target")]
     )
-    fig.legend(handles=handles, loc="upper center", ncol=6, fontsize=8)
-    fig.suptitle("Stereo tracking, points+lines: per-axis RMS over the scene suite", y=0.995)
-    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    fig.suptitle("Stereo tracking, points+lines: per-axis RMS over the scene suite", y=0.99)
+    fig.legend(handles=handles, loc="upper center", ncol=6, fontsize=8, bbox_to_anchor=(0.5, 0.955))
+    fig.tight_layout(rect=(0, 0, 1, 0.91))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -273,8 +273,20 @@ def main(argv=None) -> int:
     p.add_argument("--points-lines-only", action="store_true", help="skip the points-only mode")
     p.add_argument("--timing-only", action="store_true", help="points+lines only, one scene")
     p.add_argument("--out", type=Path, default=Path("runs/bench-stereo"))
+    p.add_argument(
+        "--from-results",
+        nargs="+",
+        type=Path,
+        default=None,
+        help="report on saved results.json files (e.g. the dev and check splits run apart)",
+    )
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.from_results:
+        results = [r for f in args.from_results for r in json.loads(f.read_text())]
+        modes = tuple(m for m in MODES if m in results[0])
+        report(results, modes, args.out, results[0]["scene"]["frames"], None)
+        return 0
     names = args.scenes or [n for n, (s, _) in SCENES.items() if args.split in ("all", s)]
     modes = ("points+lines",) if args.timing_only or args.points_lines_only else MODES
     if args.timing_only:
@@ -292,18 +304,24 @@ def main(argv=None) -> int:
             file=sys.stderr,
             flush=True,
         )
+    report(results, modes, args.out, args.frames, load0, timing=args.timing_only)
+    return 0
+
+
+def report(results, modes, out: Path, frames, load0, *, timing: bool = False) -> None:
+    """Markdown table, figure and the last JSON line of a run (or of saved results)."""
     print("\n".join(table(results, modes)))
-    if args.timing_only or len(results) == 1:
+    if timing or len(results) == 1:
         m = results[0]["points+lines"]
         print(
             "\n| stage | ms a frame |\n|---|---|\n"
             + "\n".join(f"| {k} | {1000 * v:.1f} |" for k, v in m["mean_stage_s"].items())
         )
-    figure(results, args.out / "rms_vs_range_rate.png")
+    figure(results, out / "rms_vs_range_rate.png")
     fps = [r["points+lines"]["fps"] for r in results if r["points+lines"]["fps"]]
     summary = {
         "scenes": len(results),
-        "frames_per_scene": args.frames,
+        "frames_per_scene": frames,
         "meets_targets": {
             split: f"{sum(r['points+lines']['meets_targets'] for r in results if r['scene']['split'] == split)}"  # noqa: E501
             f"/{sum(r['scene']['split'] == split for r in results)}"
@@ -315,10 +333,14 @@ def main(argv=None) -> int:
             if r.get("lines_help") and (r["scene"].get("blur") or r["scene"].get("glints"))
         ],
         "median_fps": float(np.median(fps)) if fps else None,
-        "load_average": [round(x, 2) for x in (*load0, *os.getloadavg())],
+        "median_cpu_s_per_frame": float(
+            np.median([r["points+lines"]["mean_frame_cpu_s"] for r in results])
+        ),
+        "load_average": None
+        if load0 is None
+        else [round(x, 2) for x in (*load0, *os.getloadavg())],
     }
     print(json.dumps(summary))
-    return 0
 
 
 if __name__ == "__main__":

@@ -18,8 +18,17 @@ def test_mkdocs_build_strict(tmp_path):
     pytest.importorskip("material", reason="the docs extra is not installed")
     site = tmp_path / "site"
     proc = subprocess.run(
-        [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "mkdocs.yml"),
-         "-d", str(site)],
+        [
+            sys.executable,
+            "-m",
+            "mkdocs",
+            "build",
+            "--strict",
+            "-f",
+            str(ROOT / "mkdocs.yml"),
+            "-d",
+            str(site),
+        ],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -28,8 +37,12 @@ def test_mkdocs_build_strict(tmp_path):
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     # every page of the nav was written, and the API reference holds the entry points
-    for page in ("index.html", "conventions/index.html", "formats/index.html",
-                 "api/toplevel/index.html"):
+    for page in (
+        "index.html",
+        "conventions/index.html",
+        "formats/index.html",
+        "api/toplevel/index.html",
+    ):
         assert (site / page).is_file(), page
     api = (site / "api" / "toplevel" / "index.html").read_text()
     for name in ("jaxpose.dop", "jaxpose.solve_pnp", "jaxpose.refine_pose", "jaxpose.Pose"):
@@ -113,8 +126,11 @@ def test_code_blocks_name_only_what_exists():
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("jaxpose"):
                 module = importlib.import_module(node.module)
-                missing += [f"{where}: {node.module}.{a.name}" for a in node.names
-                            if not hasattr(module, a.name)]
+                missing += [
+                    f"{where}: {node.module}.{a.name}"
+                    for a in node.names
+                    if not hasattr(module, a.name)
+                ]
             elif isinstance(node, ast.Import):
                 for a in node.names:
                     if a.name.startswith("jaxpose"):
@@ -133,3 +149,47 @@ def test_code_blocks_name_only_what_exists():
                             break
                         obj = getattr(obj, attr)
     assert not missing, "\n".join(sorted(set(missing)))
+
+
+def test_conventions_page_table_holds():
+    """The conventions page's table of jaxpose, SciPy and OpenCV equivalents, checked (float64:
+    conftest turns it on)."""
+    import cv2
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    import jaxpose as jp
+
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        angles = rng.uniform(-1.2, 1.2, 3)
+        t = rng.normal(size=3)
+        pose = jp.Pose.from_euler(angles, t, "XYZ")
+        R = np.asarray(pose.R)
+        np.testing.assert_allclose(R, Rotation.from_euler("XYZ", angles).as_matrix(), atol=1e-12)
+        # the default sequence is "XYZ"
+        np.testing.assert_allclose(np.asarray(jp.Pose.from_euler(angles, t).R), R, atol=1e-12)
+        ext = np.asarray(pose.euler("xyz"))
+        np.testing.assert_allclose(ext, Rotation.from_matrix(R).as_euler("xyz"), atol=1e-9)
+        np.testing.assert_allclose(np.rad2deg(ext), cv2.RQDecomp3x3(R)[0], atol=1e-7)
+        rvec = np.asarray(pose.rotvec)
+        np.testing.assert_allclose(rvec, Rotation.from_matrix(R).as_rotvec(), atol=1e-9)
+        np.testing.assert_allclose(rvec, cv2.Rodrigues(R)[0].ravel(), atol=1e-9)
+        q = np.asarray(pose.quat)
+        x, y, z, w = Rotation.from_matrix(R).as_quat()
+        np.testing.assert_allclose(q, np.sign(w) * np.array([w, x, y, z]), atol=1e-9)
+        assert q[0] >= 0
+        # OpenCV's rvec/tvec meaning: cv2.projectPoints agrees with the one projection
+        camera = jp.PinholeCamera.from_K([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+        pts = rng.normal(size=(6, 3)) * 0.3
+        pose = jp.Pose(R, np.array([0.1, -0.2, 5.0]))
+        ours = np.asarray(camera.project(pose.apply(pts)))
+        cv, _ = cv2.projectPoints(pts, rvec, np.asarray(pose.t), np.asarray(camera.K), None)
+        np.testing.assert_allclose(ours, cv.reshape(-1, 2), atol=1e-8)
+        # the tangent convention: R <- exp([omega]x) R, t <- t + rho
+        xi = rng.normal(size=6) * 0.1
+        moved = pose.retract(xi)
+        np.testing.assert_allclose(np.asarray(moved.t), np.asarray(pose.t) + xi[:3], atol=1e-12)
+        np.testing.assert_allclose(
+            np.asarray(moved.R), Rotation.from_rotvec(xi[3:]).as_matrix() @ R, atol=1e-12
+        )

@@ -319,6 +319,8 @@ def test_bad_input_raises_value_error_naming_the_argument():
         line_information_blocks(segments, pose, CAMERA, sigma=np.ones(len(segments) + 1))
     with pytest.raises(ValueError, match="sigma"):
         line_information_blocks(segments, pose, CAMERA, sigma=-1.0)
+    with pytest.raises(ValueError, match="sequence"):
+        line_information_blocks(segments, pose, CAMERA, sequence="xYz")
     with pytest.raises(ValueError, match="sigma"):
         line_information_blocks(segments, pose, CAMERA, sigma=np.r_[np.nan, np.ones(5)])
     with pytest.raises(ValueError, match="pose"):

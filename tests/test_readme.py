@@ -88,8 +88,15 @@ def test_readme_is_short_and_self_contained():
     assert not re.search(r"\bseed 00[012]\b", text, re.I)
     assert not re.search(r"\b[Ss]ession \d", text)
     # every system is in the tour and in the results
-    for needle in ("jp.dop(", "solve_pnp(", "initialise_pose(", "StereoTracker(", "calibration.json",
-                   "cameraMatrix", "## Current results"):
+    for needle in (
+        "jp.dop(",
+        "solve_pnp(",
+        "initialise_pose(",
+        "StereoTracker(",
+        "calibration.json",
+        "cameraMatrix",
+        "## Current results",
+    ):
         assert needle in text, needle
 
 
@@ -100,6 +107,7 @@ def test_stereo_block_tracks_a_folder_in_the_layout_shown(tmp_path):
     import json
 
     import cv2
+
     from jaxpose.core.camera import PinholeCamera, StereoCamera
     from jaxpose.vision.stereo_render import StereoScene, render_sequence
 
@@ -110,8 +118,9 @@ def test_stereo_block_tracks_a_folder_in_the_layout_shown(tmp_path):
     for side in ("left", "right"):
         (folder / side).mkdir(parents=True)
     (folder / "calibration.json").write_text(calibration)
-    left = PinholeCamera.from_K(data["left"]["cameraMatrix"], width=data["left"]["Nu"],
-                                height=data["left"]["Nv"])
+    left = PinholeCamera.from_K(
+        data["left"]["cameraMatrix"], width=data["left"]["Nu"], height=data["left"]["Nv"]
+    )
     rig = StereoCamera.from_baseline(left, -float(data["t_rl"][0]))
     for frame in render_sequence(StereoScene(frames=3), rig):
         cv2.imwrite(str(folder / "left" / f"{frame.index:06d}.png"), frame.left)

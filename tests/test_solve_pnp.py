@@ -185,7 +185,7 @@ def test_two_devices_give_the_same_poses(tmp_path):
         "import jax, numpy as np; jax.config.update('jax_enable_x64', True);"
         "import jaxpose; assert jax.local_device_count() == 2;"
         f"d = np.load({str(tmp_path / 'in.npz')!r});"
-        "r = jaxpose.solve_pnp(d['P'], d['pix'], d['K'], chunk=32);"
+        "r = jaxpose.solve_pnp(d['P'], d['pix'], d['K'], options=jaxpose.PnPOptions(chunk=32));"
         f"np.savez({str(tmp_path / 'out.npz')!r}, R=r.R, t=r.t, status=r.status)"
     )
     env = dict(

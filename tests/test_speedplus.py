@@ -253,3 +253,56 @@ def test_image_depths_give_the_8bit_pixels(tmp_path):
     cv2.imwrite(str(tmp_path / "a8.png"), gray8)
     assert load_image(tmp_path / "a16.png").dtype == np.uint8
     assert np.array_equal(load_image(tmp_path / "a16.png"), load_image(tmp_path / "a8.png"))
+
+
+def test_eval_speedplus_on_a_dataset_root(tmp_path, capsys, monkeypatch):
+    """The command on a fabricated SPEED+ root: --domain picks domains, each per-image record
+    names its domain, the summary has the fields of issue 15 and a summary per domain (black
+    images: no target, so nothing is compiled); a bad camera.json exits 2 with one line naming
+    the file and the field."""
+    from jaxpose.cli import main
+
+    monkeypatch.setenv("JAXPOSE_CACHE_DIR", str(tmp_path / "xla"))
+    (tmp_path / "root").mkdir()
+    root = _root(tmp_path / "root")
+    assert (
+        main(
+            [
+                "eval-speedplus",
+                str(root),
+                "--domain",
+                "sunlamp",
+                "--domain",
+                "lightbox",
+                "--json",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    for key in (
+        "images",
+        "success_rate",
+        "high_confidence",
+        "high_precision",
+        "esa_score_mean",
+        "coarse_range_within_20pct",
+        "median_runtime_s",
+        "per_image",
+        "per_domain",
+    ):
+        assert key in out
+    assert out["images"] == 3 and sorted(out["per_domain"]) == ["lightbox", "sunlamp"]
+    assert out["per_domain"]["sunlamp"]["images"] == 2
+    for row in out["per_image"]:
+        assert row["domain"] in ("lightbox", "sunlamp") and row["confidence"] == "none"
+        for key in ("image", "success", "runtime_s"):
+            assert key in row
+    assert main(["eval-speedplus", str(root), "--domain", "sunlmp"]) == 2
+    assert "domain sunlmp not in" in capsys.readouterr().err
+    (root / "camera.json").write_text(json.dumps(CAMERA | {"distCoeffs": [float("nan")] * 5}))
+    assert main(["eval-speedplus", str(root), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("jaxpose eval-speedplus: error: ")
+    assert "camera.json: distCoeffs is not finite" in err[0]

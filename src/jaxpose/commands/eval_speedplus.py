@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import json
 
+from jaxpose.commands._common import add_progress_argument
+
 
 def add_arguments(parser) -> None:
     parser.add_argument(
@@ -44,6 +46,7 @@ def add_arguments(parser) -> None:
         default="hough",
         help="line detector (default: hough)",
     )
+    add_progress_argument(parser)
 
 
 def evaluate(
@@ -82,6 +85,7 @@ def run(args) -> int:
         model=args.model,
         method=args.method,
         detector=args.detector,
+        progress=not args.no_progress,
     )
     row = "{:28s} {:9s} {:13s} {:>7s} {:>8s} {:>6s} {:>6s} {:>6s} {:>6s} {}"
     print(

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 
+from jaxpose.commands._common import add_progress_argument
+
 
 def add_arguments(parser) -> None:
     parser.add_argument("image", help="image file (any format OpenCV reads)")
@@ -26,12 +28,14 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--detector", choices=("hough", "lsd"), default="hough", help="line detector"
     )
+    add_progress_argument(parser)
 
 
 def run(args) -> int:
     import cv2
 
     from jaxpose.commands import enable_compilation_cache
+    from jaxpose.commands._common import stage
     from jaxpose.io import load_camera
     from jaxpose.pipelines.monocular import InitOptions, draw_overlay, initialise_pose, load_image
     from jaxpose.vision.features import DetectionOptions
@@ -42,7 +46,9 @@ def run(args) -> int:
     model = load_model(args.model)
     image = load_image(args.image)
     opts = InitOptions(method=args.method, detection=DetectionOptions(detector=args.detector))
-    result = initialise_pose(image, camera, model, opts)
+    # the first run compiles for about a minute: a ticker on stderr shows it is alive
+    with stage("jaxpose init: pose search", enabled=not args.no_progress):
+        result = initialise_pose(image, camera, model, opts)
     if args.overlay:
         if not cv2.imwrite(args.overlay, draw_overlay(image, result, model)):
             raise ValueError(f"cannot write overlay {args.overlay}")

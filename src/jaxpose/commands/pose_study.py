@@ -19,6 +19,7 @@ from jaxpose.commands._common import (
     positive_float,
     positive_int,
 )
+from jaxpose.commands._distributed import add_distributed_arguments, start_distributed
 
 __all__ = ["add_arguments", "run"]
 
@@ -73,6 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_out_argument(parser, "pose-study", "results and figures")
     add_progress_argument(parser)
     add_figures_argument(parser)
+    add_distributed_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.trials < 2:
         raise CommandError(f"--trials must be at least 2; got {args.trials}")
+    writer = start_distributed(args)  # before any JAX computation
     results, raw = run_study(
         args.geometries,
         args.noise,
@@ -92,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
         tolerance=args.tolerance,
         progress=not args.no_progress,
     )
+    if not writer:  # every process holds the results; process 0 writes and reports them
+        return 0
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(results, indent=2, allow_nan=False))

@@ -22,6 +22,7 @@ from jaxpose.commands._common import (
     positive_float,
     positive_int,
 )
+from jaxpose.commands._distributed import add_distributed_arguments, start_distributed
 
 __all__ = ["add_arguments", "add_scenario_arguments", "run", "scenario_from_args"]
 
@@ -142,6 +143,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_progress_argument(parser)
     add_figures_argument(parser)
     add_scenario_arguments(parser)
+    add_distributed_arguments(parser)
 
 
 def run(args) -> int:
@@ -149,6 +151,7 @@ def run(args) -> int:
 
     scenario = scenario_from_args(args)
     groups = default_groups(args.n, args.m)
+    writer = start_distributed(args)  # before any JAX computation
     t0 = time.perf_counter()
     result = run_study(
         scenario,
@@ -159,6 +162,8 @@ def run(args) -> int:
         out_dir=args.out,
         progress=not args.no_progress,
     )
+    if not writer:  # every process holds the results; process 0 writes and reports them
+        return 0
     paths = write_outputs(result, args.out, dump_cases=args.dump_cases, figures=not args.no_figures)
     print(format_report(result.results))
     print(f"\nwrote {', '.join(str(p) for p in paths)} in {time.perf_counter() - t0:.1f} s")

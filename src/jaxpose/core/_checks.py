@@ -3,7 +3,9 @@ argument). Values (NaN, inf, degenerate geometry) are never checked here: they b
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 ONE_PROBLEM = "one problem; use jax.vmap for batches"
@@ -89,3 +91,13 @@ def is_rotation(R) -> Array:
     gram = jnp.swapaxes(R, -1, -2) @ R
     ortho = jnp.all(jnp.abs(gram - eye) <= tol, axis=(-2, -1))
     return ortho & (jnp.linalg.det(R) > 0)
+
+
+def check_positive(x, name: str) -> None:
+    """``ValueError`` when ``x`` is known (not traced) and holds a value that is not positive and
+    finite; ``None`` and traced values pass (a traced bad value becomes a status downstream)."""
+    if x is None or isinstance(x, jax.core.Tracer):
+        return
+    values = np.asarray(x, dtype=float)
+    if not np.all(np.isfinite(values) & (values > 0)):
+        raise ValueError(f"{name} must be positive and finite; got {values.tolist()}")

@@ -39,8 +39,8 @@ from jaxtyping import Array, Float
 
 from jaxpose.core._checks import check_mask, check_pose, check_rows
 from jaxpose.core.camera import PinholeCamera, as_camera
-from jaxpose.core.dilution import _state_to_pixels
-from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
+from jaxpose.core.dilution import PARAMETERIZATIONS, _check_sigma, _state_to_pixels
+from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose, parse_euler_sequence
 from jaxpose.core.residuals import line_from_segment
 
 __all__ = ["line_information_blocks", "line_jacobians"]
@@ -87,13 +87,16 @@ def line_jacobians(
     """
     check_pose(pose)
     segments_body = check_rows(segments_body, (2, 3), "segments_body")
-    _check_parameterization(parameterization)
+    _check_options(sequence, parameterization)
     return _jacobians(segments_body, pose, as_camera(camera), sequence, parameterization)
 
 
-def _check_parameterization(parameterization: str) -> None:
-    if parameterization not in ("euler", "tangent"):
-        raise ValueError(f"parameterization must be 'euler' or 'tangent'; got {parameterization!r}")
+def _check_options(sequence: str, parameterization: str) -> None:
+    if parameterization not in PARAMETERIZATIONS:
+        raise ValueError(
+            f"parameterization must be one of {PARAMETERIZATIONS}; got {parameterization!r}"
+        )
+    parse_euler_sequence(sequence)
 
 
 @eqx.filter_jit
@@ -136,17 +139,10 @@ def line_information_blocks(
     """
     check_pose(pose)
     segments_body = check_rows(segments_body, (2, 3), "segments_body")
-    _check_parameterization(parameterization)
+    _check_options(sequence, parameterization)
     n = segments_body.shape[0]
     valid = None if mask is None else check_mask(mask, n)
-    if sigma is not None:
-        sigma = jnp.asarray(sigma, dtype=segments_body.dtype)
-        if sigma.shape not in ((), (n,)):
-            raise ValueError(f"sigma must be a scalar or have shape ({n},); got {sigma.shape}")
-        if not isinstance(sigma, jax.core.Tracer) and not bool(
-            jnp.all((sigma > 0) & jnp.isfinite(sigma))
-        ):
-            raise ValueError(f"sigma (pixel noise) must be positive and finite; got {sigma}")
+    sigma = _check_sigma(sigma, n, segments_body.dtype)  # (n,) or None
     return _blocks(segments_body, pose, as_camera(camera), sigma, valid, sequence, parameterization)
 
 
@@ -163,7 +159,7 @@ def _blocks(segments_body, pose, camera, sigma, valid, sequence, parameterizatio
     L = _jacobians(segments_body, pose, camera, sequence, parameterization)
     w = jnp.ones(n, dtype=L.dtype)
     if sigma is not None:
-        w = w / jnp.broadcast_to(sigma.astype(L.dtype), (n,)) ** 2
+        w = w / sigma.astype(L.dtype) ** 2
     blocks = jnp.einsum("nki,nkj,n->nij", L, L, w)
     if valid is not None:
         blocks = jnp.where(valid[:, None, None], blocks, 0.0)

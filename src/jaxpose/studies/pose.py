@@ -38,6 +38,7 @@ from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.geometry import Pose, euler_to_dcm, so3_exp, so3_log
 from jaxpose.core.refine import pose_covariance, refine_pose
 from jaxpose.core.status import Status
+from jaxpose.studies import _distributed as _dist
 
 __all__ = ["GEOMETRIES", "Geometry", "make_geometry", "run_group", "run_study", "write_figures"]
 
@@ -164,16 +165,20 @@ def run_group(
     if init == "epnp":
         from jaxpose.core.pnp import epnp
 
-        init_res = jax.jit(jax.vmap(lambda u: epnp(P, u, camera, throw=False)))(pixels)
-        pose0 = init_res.pose
+        init_res = _dist.map_cases(
+            jax.jit(jax.vmap(lambda u: epnp(P, u, camera, throw=False))), (pixels,)
+        )
+        pose0 = jax.tree.map(jnp.asarray, init_res.pose)
     elif init == "perturbed":
         pose0 = _initial_poses(pose, trials, perturbation, k_init)
     else:
         raise ValueError(f"init must be 'perturbed' or 'epnp'; got {init!r}")
 
     t0 = time.perf_counter()
-    res = _solve_batch(pose0, pixels, P, _solver_camera(camera), jnp.asarray(sigma, P.dtype))
-    res.pose.t.block_until_ready()
+    # The trials are sharded over every device (of every process in a multi-process run).
+    res = _dist.map_cases(
+        _solve_batch, (pose0, pixels), (P, _solver_camera(camera), jnp.asarray(sigma, P.dtype))
+    )
     elapsed = time.perf_counter() - t0
     ok = np.asarray(res.status) == Status.OK
     err = np.asarray(_tangent_errors(res.pose.R, res.pose.t, pose))[ok]
@@ -245,7 +250,9 @@ def run_study(
     levels = sorted(set(noise) | {check_noise})
     groups, raw = [], {}
     jobs = [(g, s) for g in geometries for s in levels]
-    for name, sigma in progress_bar(jobs, desc="pose-study", unit="group", enabled=progress):
+    for name, sigma in progress_bar(
+        jobs, desc="pose-study", unit="group", enabled=progress and _dist.is_writer()
+    ):
         r = run_group(
             GEOMETRIES[name], sigma, trials, seed=seed, init=init, perturbation=perturbation
         )

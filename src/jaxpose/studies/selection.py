@@ -13,8 +13,10 @@ How a run is organised:
 * Cases are processed in *chunks*; each finished chunk is saved under ``OUT/chunks/`` with the
   scenario's fingerprint, and a rerun with the same options loads it instead of recomputing it
   (an interrupted run resumes where it stopped).
-* Every chunk is spread over all local JAX devices with ``jax.sharding`` (a 1-D ``cases`` mesh),
-  the road to multi-GPU and multi-host runs; a case is computed the same way on any device count.
+* Every chunk is spread over all JAX devices with ``jax.sharding`` (a 1-D ``cases`` mesh); in a
+  multi-process run (:mod:`jaxpose.studies._distributed`, ``docs/distributed.md``) that is every
+  process's devices, each process draws only its own cases, and process 0 alone reads and writes
+  the chunk files. A case is computed the same way on any device or process count.
 
 Outputs: ``results.json`` (schema in ``docs/methods.md``, plus the derived Tables 5-6), PNG
 figures, and with ``--dump-cases`` ``cases.npz`` holding every case for independent re-checks.
@@ -35,11 +37,11 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.dilution import dop_from_information, information_blocks
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
+from jaxpose.studies import _distributed as _dist
 from jaxpose.studies import _selection_figures as _figures
 from jaxpose.studies._selection_figures import format_report
 
@@ -215,7 +217,9 @@ def _exhaustive_kernel(blocks, m: int):
     from jaxpose.core import select as sel
 
     # A bad case gets a status (counted in results.json as failed_cases), not an exception.
-    return sel.exhaustive_batch(blocks, m, throw=False)
+    # The float32 kernel with its float64 certification returns the float64 optimum (identical
+    # indices and DOPs on every case of Table 4, seed 0) in about 3/4 of the time.
+    return sel.exhaustive_batch(blocks, m, throw=False, kernel_dtype=jnp.float32)
 
 
 @jax.jit
@@ -225,8 +229,9 @@ def _subset_kernel(blocks, idx):
     return jax.vmap(sel.subset_dop)(blocks, idx)
 
 
-def _shard(x, sharding):
-    return jax.device_put(x, sharding) if sharding is not None else x
+def _shard(x, sharding, length: int):
+    # x holds this process's rows of the chunk (all of them in a one-process run).
+    return _dist.global_array(x, sharding, length)
 
 
 def _behind_camera(z_min: float) -> ValueError:
@@ -255,9 +260,12 @@ def _check_in_front(scenario: Scenario) -> None:
         raise _behind_camera(z_min)
 
 
-def _run_chunk(scenario: Scenario, m: int, points, angles, sharding, compiled: dict):
-    """One chunk: returns per-case arrays and the run times of the two selection methods."""
-    points, angles = _shard(points, sharding), _shard(angles, sharding)
+def _run_chunk(scenario: Scenario, m: int, points, angles, sharding, compiled: dict, length: int):
+    """One chunk: returns per-case arrays and the run times of the two selection methods.
+
+    ``points`` and ``angles`` are this process's rows of a chunk of ``length`` cases; the returned
+    arrays hold every case of the chunk (gathered from all processes)."""
+    points, angles = _shard(points, sharding, length), _shard(angles, sharding, length)
     blocks, points_cam, pdop_all, adop_all = _prepare_kernel(scenario)(points, angles)
     jax.block_until_ready(blocks)
     z_min = float(jnp.min(points_cam[..., 2]))
@@ -295,7 +303,7 @@ def _run_chunk(scenario: Scenario, m: int, points, angles, sharding, compiled: d
         "status": opt.status,
         "angles": angles,
     }
-    out = {k: np.asarray(v) for k, v in out.items()}
+    out = _dist.to_host(out)  # NumPy, every case of the chunk on every process
     return out, t_quasi, t_opt
 
 
@@ -366,11 +374,8 @@ def _load_chunk(path: Path, fingerprint: str) -> tuple[dict, float, float] | Non
 
 
 def _device_sharding():
-    devices = jax.devices()
-    if len(devices) == 1:
-        return None, 1
-    mesh = Mesh(np.asarray(devices), ("cases",))
-    return NamedSharding(mesh, PartitionSpec("cases")), len(devices)
+    # Every global device: all processes' in a multi-process run (jaxpose.studies._distributed).
+    return _dist.case_sharding()
 
 
 def run_study(
@@ -414,12 +419,15 @@ def run_study(
     chunk_size = max(ndev, int(math.ceil(min(chunk_size, cases) / ndev)) * ndev)
     fp = scenario.fingerprint(seed)
     chunk_dir = Path(out_dir) / "chunks" if out_dir is not None else None
-    if chunk_dir is not None:
+    if chunk_dir is not None and _dist.is_writer():
         chunk_dir.mkdir(parents=True, exist_ok=True)
 
     starts = list(range(0, cases, chunk_size))
     bar = progress_bar(
-        total=len(groups) * len(starts), desc=progress_desc, unit="chunk", enabled=progress
+        total=len(groups) * len(starts),
+        desc=progress_desc,
+        unit="chunk",
+        enabled=progress and _dist.is_writer(),
     )
     per_group: dict[tuple[int, int], dict[str, np.ndarray]] = {}
     timings: dict[tuple[int, int], list[float]] = {}
@@ -431,7 +439,10 @@ def run_study(
             for start in starts:
                 stop = min(start + chunk_size, cases)
                 path = chunk_dir / f"n{n}_m{m}_c{start:06d}_{stop:06d}.npz" if chunk_dir else None
-                saved = _load_chunk(path, fp) if path is not None else None
+                # Process 0 reads the chunk file and sends it to the others.
+                saved = _dist.broadcast_from_writer(
+                    lambda path=path: _load_chunk(path, fp) if path is not None else None
+                )
                 if saved is not None:
                     parts.append(saved[0])
                     t_quasi += saved[1]
@@ -440,12 +451,15 @@ def run_study(
                     continue
                 idx = list(range(start, stop))
                 padded = idx + [idx[-1]] * (chunk_size - len(idx))  # equal chunk shape: one compile
-                points, angles = make_cases(scenario, n, padded, seed)
-                out, tq, te = _run_chunk(scenario, m, points, angles, sharding, compiled)
+                rows = _dist.local_rows(chunk_size, sharding)  # this process's cases only
+                points, angles = make_cases(scenario, n, padded[rows], seed)
+                out, tq, te = _run_chunk(
+                    scenario, m, points, angles, sharding, compiled, chunk_size
+                )
                 out = {k: v[: len(idx)] for k, v in out.items()}
                 frac = len(idx) / chunk_size
                 tq, te = tq * frac, te * frac
-                if path is not None:
+                if path is not None and _dist.is_writer():
                     tmp = path.with_suffix(".tmp.npz")
                     np.savez(tmp, fingerprint=fp, times=np.array([tq, te]), **out)
                     tmp.replace(path)

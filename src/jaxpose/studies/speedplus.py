@@ -9,6 +9,7 @@ labels (``e_t < 2.173e-3``, ``e_q < 0.169 deg``); score ``e_q + e_t``, averaged 
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -147,12 +148,17 @@ def evaluate_speedplus(
     opts = InitOptions() if options is None else options
     readable = next((lab for lab in labels if lab.image.is_file()), None)
     if readable is not None:
-        try:
-            initialise_pose(load_image(readable.image), camera, mdl, opts)  # compile (not timed)
-        except ValueError:
-            pass
+        from jaxpose.commands._common import stage
+
+        with stage("eval-speedplus: compiling on the first image", enabled=progress):
+            try:  # compile (not timed)
+                initialise_pose(load_image(readable.image), camera, mdl, opts)
+            except ValueError:
+                pass
     rows = []
-    for lab in tqdm(labels, desc="eval-speedplus", disable=not progress, unit="img"):
+    for lab in tqdm(
+        labels, desc="eval-speedplus", disable=not progress, unit="img", file=sys.stderr
+    ):
         row = {"image": lab.image.name, "domain": lab.domain}
         try:
             image = load_image(lab.image)

@@ -19,14 +19,15 @@ LEGEND = (
 
 
 def draw_overlay(image: np.ndarray, result, model=None) -> np.ndarray:
-    """Colour overlay ``(H, W, 3)`` uint8 on the undistorted image of ``result`` (an
+    """Colour overlay ``(H + h, W, 3)`` uint8 on the undistorted image of ``result`` (an
     :class:`~jaxpose.pipelines.monocular.InitResult`): ROI, the silhouette's outline when there is
     one, detected segments and antenna candidates, the segments of the winning group, and the
-    visible model edges projected at the returned pose (colours in :data:`LEGEND`). A legend in the
-    top-left corner names each colour and states the confidence and ``E2D``: the mean distance in
-    pixels from the projected model's edge endpoints to their nearest detected endpoints (Sharma,
-    Ventura, D'Amico 2018, eq. 22; endpoints farther than ``0.06 l_ROI`` do not count). ``model``
-    is accepted for compatibility and not used (the result holds the projected edges)."""
+    visible model edges projected at the returned pose (colours in :data:`LEGEND`). A legend strip
+    of height ``h`` under the image names each colour and states the confidence and ``E2D``: the
+    mean distance in pixels from the projected model's edge endpoints to their nearest detected
+    endpoints (Sharma, Ventura, D'Amico 2018, eq. 22; endpoints farther than ``0.06 l_ROI`` do not
+    count). ``model`` is accepted for compatibility and not used (the result holds the projected
+    edges)."""
     colours = {k: c for k, c, _ in LEGEND}
     det = result.detection
     base = det.image if det.image is not None else np.asarray(image)
@@ -56,33 +57,28 @@ def draw_overlay(image: np.ndarray, result, model=None) -> np.ndarray:
     if result.projected is not None:
         for seg in result.projected:
             line(seg, colours["model"], thick)
-    _legend(img, result, thick)
-    return img
+    return np.vstack([img, _legend(result, img.shape[1], thick)])
 
 
-def _legend(img: np.ndarray, result, thick: int) -> None:
-    """Draw the legend box (colour swatches, names, confidence and E2D) in the top-left corner."""
+def _legend(result, width: int, thick: int) -> np.ndarray:
+    """The legend strip ``(h, width, 3)``: colour swatches and names, confidence and E2D."""
     e2d = result.reprojection_error_px
     e2d_txt = f"{e2d:.1f} px" if e2d is not None and np.isfinite(e2d) else "n/a"
     lines = [(None, f"confidence: {result.confidence}")]
-    lines.append((None, f"E2D = {e2d_txt}: mean distance of projected model"))
-    lines.append((None, "endpoints to nearest detected endpoints (eq. 22)"))
+    lines.append((None, f"E2D = {e2d_txt}: mean distance of the projected model's endpoints"))
+    lines.append((None, "to the nearest detected endpoints (Sharma et al. 2018, eq. 22)"))
     lines += [(c, text) for _, c, text in LEGEND]
     scale = 0.45 * thick
     font = cv2.FONT_HERSHEY_SIMPLEX
     h = int(20 * thick)
-    widths = [cv2.getTextSize(t, font, scale, thick)[0][0] for _, t in lines]
-    box_w = min(img.shape[1], int(max(widths) + 40 * thick))
-    box_h = min(img.shape[0], h * len(lines) + 10 * thick)
-    roi = img[:box_h, :box_w]
-    roi[:] = (0.35 * roi).astype(img.dtype)  # darken under the legend for legibility
+    strip = np.full((h * len(lines) + 10 * thick, width, 3), 32, np.uint8)
     for k, (colour, text) in enumerate(lines):
-        y = 8 * thick + h * k + h // 2
+        y = 5 * thick + h * k + h // 2
         x = 8 * thick
         if colour is not None:
-            cv2.line(img, (x, y), (x + 20 * thick, y), colour, 2 * thick, cv2.LINE_AA)
+            cv2.line(strip, (x, y), (x + 20 * thick, y), colour, 2 * thick, cv2.LINE_AA)
         cv2.putText(
-            img,
+            strip,
             text,
             (x + 28 * thick, y + 5 * thick),
             font,
@@ -91,3 +87,4 @@ def _legend(img: np.ndarray, result, thick: int) -> None:
             thick,
             cv2.LINE_AA,
         )
+    return strip

@@ -8,26 +8,27 @@ Problem: minimise the joint robust cost of Yang et al. 2024 eq. 10 over the pose
 with the point residuals ``e_p = proj(R p + t) - pixels`` and the line residuals (signed pixel
 distances of projected segment endpoints to observed lines) of :mod:`jaxpose.core.residuals`.
 
-Methods (``method=``):
+Methods (``RefineOptions.method``):
 
 * ``"newton-raphson"``: Sharma et al. 2018 eqs. 23-29: state ``x = [t, Euler angles]``
-  (``sequence``, default ``"xyz"``), ``x_{k+1} = x_k - (J^T J)^-1 J^T E_s(x_k)`` (eq. 25, an
-  undamped Gauss-Newton step; the Jacobian of eqs. 26-29 by autodiff).
+  (``RefineOptions.sequence``, default ``"XYZ"``), ``x_{k+1} = x_k - (J^T J)^-1 J^T E_s(x_k)``
+  (eq. 25, an undamped Gauss-Newton step; the Jacobian of eqs. 26-29 by autodiff).
 * ``"gauss-newton"``: the same undamped step in the tangent coordinates below (no gimbal lock).
 * ``"lm"`` (default): Levenberg-Marquardt on the tangent, Marquardt's diagonal damping, the
   damping divided by 10 on an accepted step and multiplied by 10 on a rejected one.
 
 **Tangent coordinates** (used by ``"lm"``, ``"gauss-newton"``, :func:`pose_covariance` and
-:func:`sensitivity`): ``xi = (dt, dw)``, ``t <- t + dt`` (metres, camera frame) and
-``R <- exp([dw]_x) R`` (radians, a rotation about camera-frame axes applied on the left). This is
-exactly ``parameterization="tangent"`` of :mod:`jaxpose.core.dilution`, and the solver's point
-Jacobians are :func:`jaxpose.core.dilution.point_jacobians` (line Jacobians follow by the chain rule
-through the projected endpoints): one Jacobian for refinement, covariance and DOP.
+:func:`sensitivity`): the library's one convention, :meth:`jaxpose.Pose.retract`: ``xi = (dt,
+dw)``, ``t <- t + dt`` (metres, camera frame) and ``R <- exp([dw]_x) R`` (radians, a rotation
+about camera-frame axes applied on the left). This is exactly ``parameterization="tangent"`` of
+:mod:`jaxpose.core.dilution`, and the solver's point Jacobians are
+:func:`jaxpose.core.dilution.point_jacobians` (line Jacobians follow by the chain rule through
+the projected endpoints): one Jacobian for refinement, covariance and DOP.
 
 Robust kernels enter as IRLS weights ``rho'(s)`` recomputed at every iterate; the LM
 acceptance test uses the robust cost itself.
 
-Two back-ends (``backend=``) solve the same problem:
+Two back-ends (``RefineOptions.backend``) solve the same problem:
 
 * ``"native"`` (default): a ``lax.while_loop`` over closed-form ``6 x 6`` normal equations
   (a Jacobi-scaled Cholesky written out element by element, so that ``vmap`` turns it into plain

@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from jaxpose.core._checks import is_rotation
+from jaxpose.core._checks import check_positive, is_rotation
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.geometry import (
     Pose,
@@ -129,6 +129,8 @@ def refine_pose(
     """
     if not isinstance(options, RefineOptions):
         raise ValueError(f"options must be a RefineOptions; got {type(options).__name__}")
+    check_positive(sigma, "sigma (pixel noise)")
+    check_positive(line_sigma, "line_sigma (pixel noise of the lines)")
     pose0, prob, valid, lvalid, finite_input = _prepare(
         pose0,
         points_body,

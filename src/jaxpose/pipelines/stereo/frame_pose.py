@@ -5,9 +5,10 @@ image."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
-import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -28,7 +29,7 @@ from jaxpose.pipelines.stereo.options import TrackerOptions
 __all__ = ["PoseFit", "fit_pose"]
 
 
-@eqx.filter_jit
+@functools.partial(jax.jit, static_argnames=("robust", "sigma"))
 def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
     """One LM solve (eq. 10) and the post-fit errors of every point (pixels) and line (largest
     endpoint distance, pixels). Points-only mode passes an all-False ``lmask``: one compiled
