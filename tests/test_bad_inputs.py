@@ -1067,8 +1067,18 @@ row("missing-camera-file", "init", lambda ctx: ["init", _image_file(ctx), "--cam
 row("missing-input-file", "eval-folder", lambda ctx: ["eval-speedplus", ctx.tmp / "absent"], Cli("absent"))
 row("missing-input-file", "stereo-folder", lambda ctx: ["stereo-track", "--images", ctx.tmp / "absent", "--out", ctx.tmp / "o"], Cli("absent"))  # fmt: skip
 row("missing-camera-file", "load", lambda ctx: jp.load_camera(ctx.tmp / "gone.json"), Raises("gone.json"))  # fmt: skip
-row("missing-input-file", "labels-image", lambda ctx: (_labels(ctx, "other.png,rendered,1,0,0,0,0.1,0.2,5"), ["eval-speedplus", ctx.tmp])[1],
-    Cli("other.png"))  # fmt: skip
+
+
+def _image_error_row(out, err, ctx):
+    # One unreadable image of a data set does not stop the evaluation: its row says why.
+    rows = {r["image"]: r for r in _json_line(out)["per_image"]}
+    assert rows["other.png"]["confidence"] == "error" and not rows["other.png"]["success"], rows
+    assert _named("other.png", rows["other.png"]["message"]), rows["other.png"]
+
+
+row("missing-input-file", "labels-image",
+    lambda ctx: (_labels(ctx, "other.png,rendered,1,0,0,0,0.1,0.2,5"), ["eval-speedplus", ctx.tmp, "--json"])[1],
+    CliOk(_image_error_row))  # fmt: skip
 
 for name, text in [("not-json", "{cameraMatrix: ["), ("empty", ""), ("list", "[1, 2, 3]")]:
     row("malformed-json", f"camera-{name}", lambda ctx, t=text: (ctx.tmp / "camera.json").write_text(t) * 0 or jp.load_camera(ctx.tmp / "camera.json"),
