@@ -20,7 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import jaxpose as jp
-from jaxpose import PinholeCamera, Pose, StereoCamera, Status
+from jaxpose import PinholeCamera, Pose, Status, StereoCamera
 from jaxpose.core._checks import is_rotation
 
 N = 8
@@ -58,8 +58,13 @@ def _no_nan(tree) -> list[str]:
 def corrupted(draw, base: np.ndarray, max_bad: int = 3, degenerate: bool = True):
     """``base`` with a few entries replaced by special values, or collapsed to a degenerate set."""
     a = np.array(base, dtype=float)
-    kind = draw(st.sampled_from(["entries", "collinear", "coincident", "scaled"]
-                                if degenerate else ["entries", "scaled"]))  # fmt: skip
+    kind = draw(
+        st.sampled_from(
+            ["entries", "collinear", "coincident", "scaled"]
+            if degenerate
+            else ["entries", "scaled"]
+        )
+    )
     if kind == "collinear":
         s = np.linspace(-1, 1, a.shape[0])[:, None]
         a = s * a[:1] + (1 - s) * a[1:2]
@@ -130,11 +135,15 @@ def warm_up():
 @PROPS
 @given(points=shaped(BASE))
 def test_dop(points):
-    _contract(lambda: jp.dop(points, POSE, CAM, throw=False), POINT_NAMES, ok_fields=("pdop", "adop", "Q"))
+    _contract(
+        lambda: jp.dop(points, POSE, CAM, throw=False), POINT_NAMES, ok_fields=("pdop", "adop", "Q")
+    )
 
 
 @PROPS
-@given(points=shaped(BASE), sigma=st.sampled_from([None, 1.0, 2.5, -1.0, 0.0, np.nan, np.inf, 1e-300]))
+@given(
+    points=shaped(BASE), sigma=st.sampled_from([None, 1.0, 2.5, -1.0, 0.0, np.nan, np.inf, 1e-300])
+)
 def test_information_blocks(points, sigma):
     try:
         blocks = jp.information_blocks(points, POSE, CAM, sigma=sigma)
@@ -147,13 +156,18 @@ def test_information_blocks(points, sigma):
         if np.all(z > 0):
             assert np.all(np.isfinite(np.asarray(blocks))), blocks
     # the DOP of the blocks never says OK with a non-finite figure
-    res = jp.dop_from_information(jnp.sum(jnp.nan_to_num(blocks, nan=0.0, posinf=0.0, neginf=0.0), 0))
+    res = jp.dop_from_information(
+        jnp.sum(jnp.nan_to_num(blocks, nan=0.0, posinf=0.0, neginf=0.0), 0)
+    )
     assert not _no_nan(res)
 
 
 @PROPS
-@given(points=shaped(BASE), m=st.sampled_from([5, 5, 3, 9, 4.5]),
-       method=st.sampled_from(["quasi", "greedy"]))  # fmt: skip
+@given(
+    points=shaped(BASE),
+    m=st.sampled_from([5, 5, 3, 9, 4.5]),
+    method=st.sampled_from(["quasi", "greedy"]),
+)
 def test_select_features(points, m, method):
     try:
         idx = jp.select_features(points, POSE, CAM, m, method=method)
@@ -219,7 +233,9 @@ def test_pose_from_quat(q, t):
 @given(v=st.lists(FLOATS, min_size=3, max_size=3), kind=st.sampled_from(["euler", "rotvec"]))
 def test_pose_from_angles(v, kind):
     v = jnp.asarray(v)
-    pose = Pose.from_euler(v, jnp.zeros(3)) if kind == "euler" else Pose.from_rotvec(v, jnp.zeros(3))
+    pose = (
+        Pose.from_euler(v, jnp.zeros(3)) if kind == "euler" else Pose.from_rotvec(v, jnp.zeros(3))
+    )
     if np.all(np.isfinite(np.asarray(v))) and np.all(np.abs(np.asarray(v)) < 1e15):
         assert bool(is_rotation(pose.R)), (v, pose.R)
 
@@ -229,13 +245,20 @@ def test_pose_from_angles(v, kind):
 def test_project(points):
     pixels = np.asarray(CAM.project(jnp.asarray(points)))
     assert pixels.shape == (N, 2)
-    rows = np.all(np.isfinite(points), axis=1) & (points[:, 2] > 1e-6) & np.all(np.abs(points) < 1e100, 1)
+    rows = (
+        np.all(np.isfinite(points), axis=1)
+        & (points[:, 2] > 1e-6)
+        & np.all(np.abs(points) < 1e100, 1)
+    )
     assert not np.isnan(pixels[rows]).any(), (points[rows], pixels[rows])
 
 
 @PROPS
-@given(left=corrupted(PL, degenerate=False), right=corrupted(PR, degenerate=False),
-       method=st.sampled_from(["linear", "midpoint"]))  # fmt: skip
+@given(
+    left=corrupted(PL, degenerate=False),
+    right=corrupted(PR, degenerate=False),
+    method=st.sampled_from(["linear", "midpoint"]),
+)
 def test_triangulate(left, right, method):
     points = np.asarray(RIG.triangulate(jnp.asarray(left), jnp.asarray(right), method=method))
     assert points.shape == (N, 3)
