@@ -171,6 +171,10 @@ def test_dop_bad_values_name_the_argument(rng):
         jp.dop(points, pose, CAM, sigma=-1.0)
     with pytest.raises(ValueError, match="sigma"):
         jp.dop(points, pose, CAM, sigma=np.ones(3))
+    with pytest.raises(ValueError, match="sigma"):
+        jp.information_blocks(points, pose, CAM, sigma=np.r_[np.ones(9), -1.0])
+    with pytest.raises(ValueError, match="sigma"):
+        jp.refine_pose(points, np.zeros((10, 2)), pose, CAM, sigma=0.0)
     with pytest.raises(ValueError, match=r"mask must have shape \(10,\)"):
         jp.dop(points, pose, CAM, mask=np.ones(7, bool))
     with pytest.raises(ValueError, match="parameterization"):

@@ -167,12 +167,22 @@ def test_options_object_checks_its_values():
     assert not dist.DistributedOptions().explicit
 
 
-def test_environment_flag(monkeypatch):
+def test_environment_flag(monkeypatch, tmp_path, capsys):
     # Without options or flag: a one-process run, nothing started.
     assert dist.initialize(dist.DistributedOptions(), environ={}) is False
     assert dist.initialize(environ={dist.ENV_FLAG: "0"}) is False
     with pytest.raises(ValueError, match=dist.ENV_FLAG):
         dist.initialize(environ={dist.ENV_FLAG: "maybe"})
+    # The flag outside a cluster: JAX detects nothing, and the command says what to give.
+    for name in list(os.environ):
+        if name.startswith(("SLURM_", "OMPI_", "JAX_COORDINATOR", "KUBERNETES_")):
+            monkeypatch.delenv(name)
+    monkeypatch.setenv(dist.ENV_FLAG, "1")
+    args = ["--n", "8", "--m", "5", "--cases", "2", "--no-figures", "--no-progress"]
+    assert main(["select-study", *args, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--coordinator-address" in err, err
+    assert not (tmp_path / "results.json").exists()
 
 
 def test_one_process_helpers_are_the_identity():

@@ -196,7 +196,6 @@ def add_image_size_argument(
         nargs="+",
         action=_ImageSize,
         default=tuple(default),
-        metavar=("W", "H"),
         help=help,
     )
 
@@ -259,6 +258,11 @@ def nonnegative_int(text: str) -> int:
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
     """Keeps the description's line breaks and ends each option's help with its default (none
     for flags, ``--help``, options whose default is ``None`` and helps that state it already)."""
+
+    def _format_args(self, action: argparse.Action, default_metavar: str | None) -> str:
+        if isinstance(action, _ImageSize):  # two numbers (or one WxH), shown as the two
+            return "W H"
+        return super()._format_args(action, default_metavar)
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""

@@ -127,7 +127,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="selected points (default: the paper's groups; with --n only: 8)",
     )
     parser.add_argument(
-        "--cases", type=positive_int, default=1000, help="cases per group (the paper's 1000)"
+        "--cases", type=positive_int, default=1000, help="cases per group (as in the paper)"
     )
     parser.add_argument("--seed", type=nonnegative_int, default=0, help="master seed")
     parser.add_argument(

@@ -36,7 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from jaxpose.core._checks import check_mask, check_pose, check_rows, is_rotation
+from jaxpose.core._checks import check_mask, check_pose, check_positive, check_rows, is_rotation
+from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import (
     DEFAULT_EULER_SEQUENCE,
@@ -156,6 +157,7 @@ def information_blocks(
     ``sigma`` is the pixel noise per axis, one per point or shared; ``None`` means unit weights
     (the plain DOP). ``mask`` (``(n,)`` bool) marks valid points of a padded set.
     """
+    check_positive(sigma, "sigma (pixel noise)")
     H = point_jacobians(
         points_body, pose, camera, sequence=sequence, parameterization=parameterization
     )
@@ -297,7 +299,7 @@ def _gimbal_lock(res: DOPResult, points, pose, camera, sigma, use, sequence) -> 
     )
 
 
-def _dop(points_body, pose, camera, sigma, valid, sequence, parameterization) -> DOPResult:
+def _dop_body(points_body, pose, camera, sigma, valid, sequence, parameterization) -> DOPResult:
     """The compiled body of :func:`dop` (one compilation per shape, dtype and option set)."""
     dtype = points_body.dtype
     finite_in = (
@@ -349,3 +351,6 @@ def _dop(points_body, pose, camera, sigma, valid, sequence, parameterization) ->
         status=status,
     )
     return res
+
+
+_dop = eager_jit(_dop_body, static_argnums=(5, 6))

@@ -6,10 +6,10 @@ The ``3 x 4`` projection matrix from ``>= 6`` non-coplanar points (Hartley norma
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.pnp._linalg import _rms_px
 from jaxpose.core.pnp._problem import (
@@ -75,16 +75,18 @@ def dlt(
     points ``TOO_FEW_POINTS``. ``throw=True`` (the default) raises for a status other than
     ``OK``; pass ``throw=False`` under ``vmap`` and read ``status``.
     """
-    res = _dlt_compiled(points_body, pixels, as_camera(camera), mask, float(planar_tol))
+    res = _dlt_eager(points_body, pixels, as_camera(camera), mask, float(planar_tol))
     if throw:
         res = throw_for_status(res, "dlt", "reprojection_error", min_points=DLT_MIN_POINTS)
     return res
 
 
-@eqx.filter_jit
-def _dlt_compiled(points_body, pixels, camera, mask, planar_tol) -> PnPResult:
+def _dlt_body(points_body, pixels, camera, mask, planar_tol) -> PnPResult:
     """The compiled body of :func:`dlt` (shape checks at trace time)."""
     prob = _problem(points_body, pixels, camera, mask, "dlt")
     weights = prob.valid.astype(prob.points_body.dtype)
     out = _dlt_core(prob.points_body, prob.xy, weights, prob.fxy, planar_tol)
     return _conclude(prob, out, DLT_MIN_POINTS)
+
+
+_dlt_eager = eager_jit(_dlt_body, static_argnums=(4,))

@@ -29,12 +29,12 @@ EPnP (Lepetit, Moreno-Noguer, Fua 2009; Sharma et al. 2018, eqs. 17-22)
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Bool, Float
 
+from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.pnp._linalg import (
@@ -248,7 +248,7 @@ def epnp(
     a pose come from :func:`jaxpose.core.refine.refine_pose` / :func:`jaxpose.solve_pnp` with
     refinement, by implicit differentiation at the optimum.
     """
-    res = _epnp_compiled(points_body, pixels, as_camera(camera), mask, float(planar_tol))
+    res = _epnp_eager(points_body, pixels, as_camera(camera), mask, float(planar_tol))
     if throw:
         res = throw_for_status(res, "epnp", "reprojection_error", min_points=MIN_POINTS)
     return res
@@ -271,10 +271,12 @@ def planar_flip(pose: Pose, centroid: Float[Array, 3], normal: Float[Array, 3]) 
     return Pose(R, c - R @ centroid)
 
 
-@eqx.filter_jit
-def _epnp_compiled(points_body, pixels, camera, mask, planar_tol) -> PnPResult:
+def _epnp_body(points_body, pixels, camera, mask, planar_tol) -> PnPResult:
     """The compiled body of :func:`epnp` (shape checks at trace time)."""
     prob = _problem(points_body, pixels, camera, mask, "epnp")
     weights = prob.valid.astype(prob.points_body.dtype)
     out = _epnp_core(prob.points_body, prob.xy, weights, prob.fxy, planar_tol)
     return _conclude(prob, out, MIN_POINTS)
+
+
+_epnp_eager = eager_jit(_epnp_body, static_argnums=(4,))

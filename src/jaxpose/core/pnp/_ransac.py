@@ -14,6 +14,7 @@ import jax.numpy as jnp
 from jax import lax
 from jaxtyping import Array, Bool, Float
 
+from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.pnp._epnp import _epnp_core
 from jaxpose.core.pnp._linalg import _mm, _rms_px
@@ -99,7 +100,7 @@ def ransac_pnp(
     """
     if not isinstance(options, RansacOptions):
         raise ValueError(f"options must be a RansacOptions; got {type(options).__name__}")
-    res = _ransac_compiled(points_body, pixels, as_camera(camera), key, mask, options, planar_tol)
+    res = _ransac_eager(points_body, pixels, as_camera(camera), key, mask, options, planar_tol)
     if throw:
         res = throw_for_status(
             res, "ransac_pnp", "reprojection_error", min_points=options.sample_size
@@ -107,9 +108,11 @@ def ransac_pnp(
     return res
 
 
-@eqx.filter_jit
-def _ransac_compiled(points_body, pixels, camera, key, mask, options, planar_tol) -> PnPResult:
+def _ransac_body(points_body, pixels, camera, key, mask, options, planar_tol) -> PnPResult:
     """The compiled body of :func:`ransac_pnp` (shape checks at trace time)."""
     prob = _problem(points_body, pixels, camera, mask, "ransac_pnp")
     out, inliers = _ransac_core(prob, key, planar_tol=float(planar_tol), **options._core())
     return _conclude(prob, out, options.sample_size, inliers)
+
+
+_ransac_eager = eager_jit(_ransac_body, static_argnums=(5, 6))

@@ -125,6 +125,13 @@ def fit_pose(
         ql_r, seg_r = q[:keep], project(rig.left, None, stereo.segments[j[:keep]] + t_rl)
     n_lr = len(ql_r)
     mask = np.arange(o.max_points) < n_p + n_r
+    young = np.zeros(n_p, bool)
+    if o.mature_obs > 1:
+        # landmarks seen in fewer than mature_obs stereo frames are matched but left out of the
+        # solve: their residuals at the fitted pose still decide whether they are refined
+        young = landmarks.points.n_obs[i_m] < o.mature_obs
+        mask[:n_p] &= ~young
+        mask[n_p : n_p + n_r] &= ~young[q_r]
     lmask = np.arange(o.max_lines) < n_l + n_lr
     L = (
         lines_from_segments(np.concatenate([feats.segments[l_cur], seg_r]))
@@ -175,7 +182,7 @@ def fit_pose(
         e_lines=e_l,
         in_points=in_p,
         in_lines=in_l,
-        kept_points=mask[:n_p],
+        kept_points=mask[:n_p] | (young & (e_p < o.reject_px)),
         kept_errors=kept_errors,
         inliers=int(in_p.sum() + in_l.sum()),
         rms_px=rms,

@@ -79,6 +79,10 @@ class TrackerOptions:
             scaled by the ratio of the line to the point residual scales (medians of the
             residuals kept by the last pass), averaged over frames with weight
             ``line_scale_memory`` on the past.
+        mature_obs: landmarks triangulated in fewer stereo frames than this (the first frame's
+            excepted) are matched and refined but left out of the pose solve, so that a new
+            landmark's position averages several frames' poses before a pose leans on it
+            (0 or 1: every landmark is used at once).
         stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
             StereoMatchOptions`).
     """
@@ -118,6 +122,7 @@ class TrackerOptions:
     line_stereo_residuals: bool = True
     measured_line_sigma: bool = True
     line_scale_memory: float = 0.9
+    mature_obs: int = 3
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
 
     def __post_init__(self):

@@ -262,6 +262,8 @@ class StereoTracker:
         if len(stereo.point_idx) + len(stereo.line_idx) < o.min_features:
             return FrameResult(k, lost_pose(), int(Status.TOO_FEW_POINTS), timings=timings)
         update_map(self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k)
+        if o.mature_obs > 1:  # the first frame's landmarks sit at the given pose: mature
+            self.map.points.n_obs[:] = np.maximum(self.map.points.n_obs, o.mature_obs)
         self._started = True
         self._since_kf = 0
         return FrameResult(

@@ -1,0 +1,37 @@
+"""How the eager entry points compile themselves (the fast front door)."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+
+EAGER_COMPILER_OPTIONS_CPU = {
+    "xla_backend_optimization_level": 0,
+    "xla_cpu_use_fusion_emitters": False,
+}
+"""XLA options of an eager entry point's own compilation on a CPU. An eager call of one small
+problem is dominated by dispatch (about 0.3 ms), not by the compiled code, so the first call's
+compilation is what a user waits for: these options compile ``jp.dop`` several times faster
+(``bench/front_door.py``) at no visible cost per call. Under the caller's ``jax.jit`` the entry
+point is traced into the caller's program and compiled with the caller's options."""
+
+
+def eager_jit(fn, static_argnums: tuple[int, ...]):
+    """``jax.jit(fn)`` with :data:`EAGER_COMPILER_OPTIONS_CPU` on a CPU, built on first use for
+    the backend then in use (importing jaxpose picks no backend). Called with traced arguments
+    (inside the caller's ``jit``, ``vmap`` or ``grad``), ``fn`` is traced into the caller's
+    program instead."""
+
+    @functools.cache
+    def compiled(backend: str):
+        options = EAGER_COMPILER_OPTIONS_CPU if backend == "cpu" else None
+        return jax.jit(fn, static_argnums=static_argnums, compiler_options=options)
+
+    @functools.wraps(fn)
+    def call(*args):
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(args)):
+            return fn(*args)  # inside the caller's jit, vmap or grad: traced into it
+        return compiled(jax.default_backend())(*args)
+
+    return call
