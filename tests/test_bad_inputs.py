@@ -33,8 +33,8 @@ import numpy as np
 import pytest
 
 import jaxpose as jp
-from jaxpose import PinholeCamera, Pose, StereoCamera, Status
-from jaxpose.core.geometry import euler_to_dcm, so3_exp
+from jaxpose import PinholeCamera, Pose, Status, StereoCamera
+from jaxpose.core.geometry import euler_to_dcm
 
 # --------------------------------------------------------------------------- the scene
 
@@ -162,7 +162,7 @@ def _alarm(signum, frame):
     raise _Timeout
 
 
-LIMIT_S = 120  # no single row may run longer (the hangs of the audit ran until killed)
+LIMIT_S = 300  # no single row may run longer (the hangs of the audit ran until killed)
 
 
 def _run_cli(argv, capsys):
@@ -350,6 +350,7 @@ GOOD_ROW = "img.png,rendered,1,0,0,0,0.1,0.2,5"
 
 def _labels(ctx, row):
     _image_file(ctx)
+    _camera_json(ctx)
     (ctx.tmp / "labels.csv").write_text(f"{LABEL_HEADER}\n{GOOD_ROW}\n{row}\n")
     return ctx.tmp
 
@@ -399,8 +400,17 @@ def _stereo_folder(ctx, *, n=3, calibration=None, raw_calibration=None, size=Non
 def _stereo_argv(ctx, *extra, **folder):
     path = _stereo_folder(ctx, **folder)
     ctx.data["folder"] = path
-    return ["stereo-track", "--images", path, "--out", ctx.tmp / "out", "--no-figures",
-            "--no-progress", "--json", *extra]  # fmt: skip
+    return [
+        "stereo-track",
+        "--images",
+        path,
+        "--out",
+        ctx.tmp / "out",
+        "--no-figures",
+        "--no-progress",
+        "--json",
+        *extra,
+    ]
 
 
 def _json_line(out):
@@ -564,11 +574,21 @@ def pnp(points, pixels, camera=CAM, **kw):
 # ---- the 18 silent wrong answers or NaN ----------------------------------------------------
 
 # A negative or zero focal length is not a camera (it mirrored the translation).
-row("negative-focal", "both", pnp(P, U, lambda: PinholeCamera(-1000.0, -1000.0, 320, 240)), Raises("fx"))
+row(
+    "negative-focal",
+    "both",
+    pnp(P, U, lambda: PinholeCamera(-1000.0, -1000.0, 320, 240)),
+    Raises("fx"),
+)
 row("negative-focal", "fy", lambda ctx: PinholeCamera(800.0, -1.0, 320, 240), Raises("fy"))
 row("negative-focal", "tiny-negative", lambda ctx: PinholeCamera(-1e-9, 800.0, 0, 0), Raises("fx"))
 row("negative-focal", "K", lambda ctx: PinholeCamera.from_K(_with(K, (0, 0), -500.0)), Raises("K"))
-row("negative-focal", "K-solve", lambda ctx: jp.solve_pnp(P, U, _with(K, (1, 1), -1000.0)), Raises("K"))  # fmt: skip
+row(
+    "negative-focal",
+    "K-solve",
+    lambda ctx: jp.solve_pnp(P, U, _with(K, (1, 1), -1000.0)),
+    Raises("K"),
+)
 row("negative-focal", "K-dop", lambda ctx: jp.dop(P, POSE, _with(K, (0, 0), -1.0)), Raises("K"))
 
 # A pose whose R is not a rotation.
@@ -580,78 +600,190 @@ for name, R in [
     ("zero", jnp.zeros((3, 3))),
 ]:
     bad = Pose(R, POSE.t)
-    row("not-a-rotation", f"dop-{name}", lambda ctx, b=bad: jp.dop(P, b, CAM), Raises("R", "rotation"))  # fmt: skip
-    row("not-a-rotation", f"dop-lanes-{name}", lambda ctx, b=bad: jp.dop(P, b, CAM, throw=False),
-        Returns(Status.NOT_A_ROTATION))  # fmt: skip
-    row("not-a-rotation", f"refine-{name}", lambda ctx, b=bad: jp.refine_pose(P, U, b, CAM),
-        Raises("R", "rotation"))  # fmt: skip
-row("not-a-rotation", "refine-lanes", lambda ctx: jp.refine_pose(P, U, Pose(2 * POSE.R, POSE.t), CAM, throw=False),
-    Returns(Status.NOT_A_ROTATION))  # fmt: skip
-row("not-a-rotation", "select", lambda ctx: jp.select_features(P, Pose(2 * POSE.R, POSE.t), CAM, 5),
-    Raises("R", "rotation"))  # fmt: skip
+    row(
+        "not-a-rotation",
+        f"dop-{name}",
+        lambda ctx, b=bad: jp.dop(P, b, CAM),
+        Raises("R", "rotation"),
+    )
+    row(
+        "not-a-rotation",
+        f"dop-lanes-{name}",
+        lambda ctx, b=bad: jp.dop(P, b, CAM, throw=False),
+        Returns(Status.NOT_A_ROTATION),
+    )
+    row(
+        "not-a-rotation",
+        f"refine-{name}",
+        lambda ctx, b=bad: jp.refine_pose(P, U, b, CAM),
+        Raises("R", "rotation"),
+    )
+row(
+    "not-a-rotation",
+    "refine-lanes",
+    lambda ctx: jp.refine_pose(P, U, Pose(2 * POSE.R, POSE.t), CAM, throw=False),
+    Returns(Status.NOT_A_ROTATION),
+)
+row(
+    "not-a-rotation",
+    "select",
+    lambda ctx: jp.select_features(P, Pose(2 * POSE.R, POSE.t), CAM, 5),
+    Raises("R", "rotation"),
+)
 
 # A quaternion of zero norm has no direction.
 for name, q in [("zeros", [0.0, 0, 0, 0]), ("zeros-batch", [[1.0, 0, 0, 0], [0, 0, 0, 0]])]:
-    row("zero-quaternion", name, lambda ctx, q=q: Pose.from_quat(jnp.asarray(q), jnp.zeros(3)).R, Raises("q"))  # fmt: skip
-row("zero-quaternion", "quat_to_dcm", lambda ctx: jp.geometry.quat_to_dcm(jnp.zeros(4)), Raises("q"))
-row("zero-quaternion", "tiny-is-a-direction",
-    lambda ctx: Pose.from_quat(jnp.array([1e-200, 0.0, 0.0, 0.0]), jnp.zeros(3)), Answer(_is_identity))  # fmt: skip
-row("zero-quaternion", "tiny-float32",
-    lambda ctx: Pose.from_quat(jnp.array([0.0, 3e-30, 0.0, 0.0], jnp.float32), jnp.zeros(3, jnp.float32)),
-    Answer(lambda p: np.testing.assert_allclose(np.asarray(p.R), np.diag([1.0, -1.0, -1.0]), atol=1e-6)))  # fmt: skip
+    row(
+        "zero-quaternion",
+        name,
+        lambda ctx, q=q: Pose.from_quat(jnp.asarray(q), jnp.zeros(3)).R,
+        Raises("q"),
+    )
+row(
+    "zero-quaternion", "quat_to_dcm", lambda ctx: jp.geometry.quat_to_dcm(jnp.zeros(4)), Raises("q")
+)
+row(
+    "zero-quaternion",
+    "tiny-is-a-direction",
+    lambda ctx: Pose.from_quat(jnp.array([1e-200, 0.0, 0.0, 0.0]), jnp.zeros(3)),
+    Answer(_is_identity),
+)
+row(
+    "zero-quaternion",
+    "tiny-float32",
+    lambda ctx: Pose.from_quat(
+        jnp.array([0.0, 3e-30, 0.0, 0.0], jnp.float32), jnp.zeros(3, jnp.float32)
+    ),
+    Answer(
+        lambda p: np.testing.assert_allclose(np.asarray(p.R), np.diag([1.0, -1.0, -1.0]), atol=1e-6)
+    ),
+)
 
 # A negative, zero or non-finite sigma (pixel noise).
-for name, s in [("negative", -1.0), ("zero", 0.0), ("nan", np.nan), ("inf", np.inf),
-                ("one-negative", _with(np.ones(10), 3, -2.0))]:  # fmt: skip
+for name, s in [
+    ("negative", -1.0),
+    ("zero", 0.0),
+    ("nan", np.nan),
+    ("inf", np.inf),
+    ("one-negative", _with(np.ones(10), 3, -2.0)),
+]:
     row("bad-sigma", f"dop-{name}", lambda ctx, s=s: jp.dop(P, POSE, CAM, sigma=s), Raises("sigma"))
-    row("bad-sigma", f"blocks-{name}", lambda ctx, s=s: jp.information_blocks(P, POSE, CAM, sigma=s), Raises("sigma"))  # fmt: skip
-row("bad-sigma", "refine-negative", lambda ctx: jp.refine_pose(P, U, POSE, CAM, sigma=-1.0), Raises("sigma"))  # fmt: skip
-row("bad-sigma", "select-negative", lambda ctx: jp.select_features(P, POSE, CAM, 5, method="greedy", sigma=-1.0),
-    Raises("sigma"))  # fmt: skip
+    row(
+        "bad-sigma",
+        f"blocks-{name}",
+        lambda ctx, s=s: jp.information_blocks(P, POSE, CAM, sigma=s),
+        Raises("sigma"),
+    )
+row(
+    "bad-sigma",
+    "refine-negative",
+    lambda ctx: jp.refine_pose(P, U, POSE, CAM, sigma=-1.0),
+    Raises("sigma"),
+)
+row(
+    "bad-sigma",
+    "select-negative",
+    lambda ctx: jp.select_features(P, POSE, CAM, 5, method="greedy", sigma=-1.0),
+    Raises("sigma"),
+)
 
 # A non-integer (or out of range) subset size m.
 for name, m in [("4.7", 4.7), ("5.0", 5.0), ("str", "5"), ("bool", True), ("3", 3), ("11", 11)]:
-    row("bad-m", f"bnb-{name}", lambda ctx, m=m: jp.select.branch_and_bound(_blocks(), m), Raises("m"))
-    row("bad-m", f"exhaustive-{name}", lambda ctx, m=m: jp.select.exhaustive(_blocks(), m), Raises("m"))
+    row(
+        "bad-m",
+        f"bnb-{name}",
+        lambda ctx, m=m: jp.select.branch_and_bound(_blocks(), m),
+        Raises("m"),
+    )
+    row(
+        "bad-m",
+        f"exhaustive-{name}",
+        lambda ctx, m=m: jp.select.exhaustive(_blocks(), m),
+        Raises("m"),
+    )
 row("bad-m", "greedy-4.5", lambda ctx: jp.select.greedy(_blocks(), 4.5), Raises("m"))
 row("bad-m", "select-6.2", lambda ctx: jp.select_features(P, POSE, CAM, 6.2), Raises("m"))
-row("bad-m", "quasi-np-float", lambda ctx: jp.select.quasi_optimal(POSE.apply(P), np.float64(5.5)), Raises("m"))  # fmt: skip
+row(
+    "bad-m",
+    "quasi-np-float",
+    lambda ctx: jp.select.quasi_optimal(POSE.apply(P), np.float64(5.5)),
+    Raises("m"),
+)
 
 # DOP-based selection on points with no non-singular subset.
 for method in ("greedy", "exhaustive", "bnb"):
-    for name, pts in [("collinear", PCOL), ("collinear-z", _collinear((0, 0, 1.0))),
-                      ("coincident", _coincident())]:  # fmt: skip
-        row("select-singular", f"{method}-{name}",
+    for name, pts in [
+        ("collinear", PCOL),
+        ("collinear-z", _collinear((0, 0, 1.0))),
+        ("coincident", _coincident()),
+    ]:
+        row(
+            "select-singular",
+            f"{method}-{name}",
             lambda ctx, m=method, p=pts: jp.select_features(p, POSE, CAM, 5, method=m),
-            Raises("singular"))  # fmt: skip
+            Raises("singular"),
+        )
 
 # subset_dop with an index outside [0, n).
 for name, idx in [("99", [0, 1, 2, 99]), ("n", [0, 1, 2, 10]), ("negative", [-1, 0, 1, 2])]:
-    row("subset-index", name, lambda ctx, i=idx: jp.select.subset_dop(_blocks(), jnp.array(i)), Raises("idx"))  # fmt: skip
-    row("subset-index", f"jit-{name}",
+    row(
+        "subset-index",
+        name,
+        lambda ctx, i=idx: jp.select.subset_dop(_blocks(), jnp.array(i)),
+        Raises("idx"),
+    )
+    row(
+        "subset-index",
+        f"jit-{name}",
         lambda ctx, i=idx: jax.jit(jp.select.subset_dop)(_blocks(), jnp.array(i))[0],
-        Answer(lambda v: np.testing.assert_equal(float(v), np.inf)))  # fmt: skip
-row("subset-index", "float-idx", lambda ctx: jp.select.subset_dop(_blocks(), jnp.array([0.0, 1, 2, 3])), Raises("idx"))  # fmt: skip
+        Answer(lambda v: np.testing.assert_equal(float(v), np.inf)),
+    )
+row(
+    "subset-index",
+    "float-idx",
+    lambda ctx: jp.select.subset_dop(_blocks(), jnp.array([0.0, 1, 2, 3])),
+    Raises("idx"),
+)
 
 # sensitivity at a singular Hessian (collinear or coincident points).
-for name, pts in [("collinear", PCOL), ("collinear-y", _collinear((0, 1.0, 0))), ("coincident", _coincident())]:  # fmt: skip
+for name, pts in [
+    ("collinear", PCOL),
+    ("collinear-y", _collinear((0, 1.0, 0))),
+    ("coincident", _coincident()),
+]:
     pix = _pix(pts)
-    row("sensitivity-singular", name, lambda ctx, p=pts, u=pix: jp.sensitivity(p, u, POSE, CAM, throw=False),
-        Returns(Status.SINGULAR))  # fmt: skip
-    row("sensitivity-singular", f"throw-{name}", lambda ctx, p=pts, u=pix: jp.sensitivity(p, u, POSE, CAM),
-        Raises("singular"))  # fmt: skip
+    row(
+        "sensitivity-singular",
+        name,
+        lambda ctx, p=pts, u=pix: jp.sensitivity(p, u, POSE, CAM, throw=False),
+        Returns(Status.SINGULAR),
+    )
+    row(
+        "sensitivity-singular",
+        f"throw-{name}",
+        lambda ctx, p=pts, u=pix: jp.sensitivity(p, u, POSE, CAM),
+        Raises("singular"),
+    )
 
 # sensitivity with NaN or inf input.
-for name, kw in [("nan-pixel", dict(pixels=_with(U, (2, 0), np.nan))),
-                 ("inf-pixel", dict(pixels=_with(U, (0, 1), np.inf))),
-                 ("nan-point", dict(points_body=_with(P, (4, 2), np.nan)))]:  # fmt: skip
+for name, kw in [
+    ("nan-pixel", dict(pixels=_with(U, (2, 0), np.nan))),
+    ("inf-pixel", dict(pixels=_with(U, (0, 1), np.inf))),
+    ("nan-point", dict(points_body=_with(P, (4, 2), np.nan))),
+]:
     args = dict(points_body=P, pixels=U) | kw
-    row("sensitivity-nonfinite", name,
+    row(
+        "sensitivity-nonfinite",
+        name,
         lambda ctx, a=args: jp.sensitivity(a["points_body"], a["pixels"], POSE, CAM, throw=False),
-        Returns(Status.NONFINITE_INPUT))  # fmt: skip
-row("sensitivity-nonfinite", "nan-pose",
+        Returns(Status.NONFINITE_INPUT),
+    )
+row(
+    "sensitivity-nonfinite",
+    "nan-pose",
     lambda ctx: jp.sensitivity(P, U, Pose(POSE.R, _with(POSE.t, 0, np.nan)), CAM, throw=False),
-    Returns(Status.NONFINITE_INPUT))  # fmt: skip
+    Returns(Status.NONFINITE_INPUT),
+)
 
 # Triangulating a NaN or inf pixel: never a NaN point (inf: no point), the others unchanged.
 RIG = StereoCamera.from_baseline(CAM, 0.3)
@@ -677,9 +809,12 @@ for name, (left, right) in {
 }.items():
     idx = {"nan-left": 3, "nan-right": 5, "inf-left": 7}[name]
     for method in ("linear", "midpoint"):
-        row("triangulate-nonfinite", f"{name}-{method}",
+        row(
+            "triangulate-nonfinite",
+            f"{name}-{method}",
             lambda ctx, a=left, b=right, m=method: RIG.triangulate(a, b, method=m),
-            Answer(_triangulated(idx)))  # fmt: skip
+            Answer(_triangulated(idx)),
+        )
 
 # Gradients at singular points: gimbal lock of the Euler state, collinear points.
 for name, (angles, seq) in {
@@ -688,50 +823,113 @@ for name, (angles, seq) in {
     "ZYX+90": ([0.2, np.pi / 2, -0.5], "ZYX"),
 }.items():
     Rl = euler_to_dcm(jnp.array(angles), seq)
-    row("gimbal-lock-grad", name,
-        lambda ctx, R=Rl, s=seq: jax.jit(jax.grad(
-            lambda R: jp.dop(P, Pose(R, POSE.t), CAM, sequence=s, throw=False).pdop))(R),
-        Answer(_gimbal_grad_check(Rl, seq)))  # fmt: skip
-    row("gimbal-lock-grad", f"value-{name}",
+    row(
+        "gimbal-lock-grad",
+        name,
+        lambda ctx, R=Rl, s=seq: jax.jit(
+            jax.grad(lambda R: jp.dop(P, Pose(R, POSE.t), CAM, sequence=s, throw=False).pdop)
+        )(R),
+        Answer(_gimbal_grad_check(Rl, seq)),
+    )
+    row(
+        "gimbal-lock-grad",
+        f"value-{name}",
         lambda ctx, R=Rl, s=seq: jp.dop(P, Pose(R, POSE.t), CAM, sequence=s, throw=False),
-        Answer(_gimbal_value_check(Rl)))  # fmt: skip
+        Answer(_gimbal_value_check(Rl)),
+    )
 
-for name, pts in [("collinear", PCOL), ("coincident", _coincident()), ("collinear-x", _collinear((1.0, 0, 0)))]:  # fmt: skip
+for name, pts in [
+    ("collinear", PCOL),
+    ("coincident", _coincident()),
+    ("collinear-x", _collinear((1.0, 0, 0))),
+]:
     pix = _pix(pts)
-    row("pnp-grad-degenerate", name,
-        lambda ctx, p=pts, u=pix: jax.grad(lambda x: jp.solve_pnp(p, x, CAM, throw=False).pose.t.sum())(u),
-        Answer(_finite))  # fmt: skip
-row("pnp-grad-degenerate", "nan-pixel",
-    lambda ctx: jax.grad(lambda x: jp.solve_pnp(P, x, CAM, throw=False).pose.t.sum())(_with(U, (0, 0), np.nan)),
-    Answer(lambda g: np.testing.assert_equal(np.isnan(np.asarray(g)).any(), False)))  # fmt: skip
+    row(
+        "pnp-grad-degenerate",
+        name,
+        lambda ctx, p=pts, u=pix: jax.grad(
+            lambda x: jp.solve_pnp(p, x, CAM, throw=False).pose.t.sum()
+        )(u),
+        Answer(_finite),
+    )
+row(
+    "pnp-grad-degenerate",
+    "nan-pixel",
+    lambda ctx: jax.grad(lambda x: jp.solve_pnp(P, x, CAM, throw=False).pose.t.sum())(
+        _with(U, (0, 0), np.nan)
+    ),
+    Answer(lambda g: np.testing.assert_equal(np.isnan(np.asarray(g)).any(), False)),
+)
 
 # A 16-bit or floating-point image gives the pose of its 8-bit version.
-row("image-depth", "uint16", lambda ctx: _init(_rendered().astype(np.uint16) * 257), Answer(_same_pose_as_8_bit))  # fmt: skip
-row("image-depth", "float32-unit", lambda ctx: _init(_rendered().astype(np.float32) / 255), Answer(_same_pose_as_8_bit))  # fmt: skip
-row("image-depth", "uint16-colour", lambda ctx: _init(_colour(_rendered(), np.uint16, 257)), Answer(_same_pose_as_8_bit))  # fmt: skip
+row(
+    "image-depth",
+    "uint16",
+    lambda ctx: _init(_rendered().astype(np.uint16) * 257),
+    Answer(_same_pose_as_8_bit),
+)
+row(
+    "image-depth",
+    "float32-unit",
+    lambda ctx: _init(_rendered().astype(np.float32) / 255),
+    Answer(_same_pose_as_8_bit),
+)
+row(
+    "image-depth",
+    "uint16-colour",
+    lambda ctx: _init(_colour(_rendered(), np.uint16, 257)),
+    Answer(_same_pose_as_8_bit),
+)
 
 # camera.json with non-finite or miscounted distortion coefficients.
-for name, dist in [("nan", [float("nan"), 0, 0, 0, 0]), ("inf", [0, float("inf"), 0, 0, 0]), ("three", [0.1, 0.2, 0.3])]:  # fmt: skip
-    row("camera-distortion", f"init-{name}", lambda ctx, d=dist: _init_argv(ctx, distCoeffs=d),
-        Cli("distCoeffs", "camera.json"))  # fmt: skip
-    row("camera-distortion", f"load-{name}", lambda ctx, d=dist: _load_camera(ctx, distCoeffs=d),
-        Raises("distCoeffs"))  # fmt: skip
+for name, dist in [
+    ("nan", [float("nan"), 0, 0, 0, 0]),
+    ("inf", [0, float("inf"), 0, 0, 0]),
+    ("three", [0.1, 0.2, 0.3]),
+]:
+    row(
+        "camera-distortion",
+        f"init-{name}",
+        lambda ctx, d=dist: _init_argv(ctx, distCoeffs=d),
+        Cli("distCoeffs", "camera.json"),
+    )
+    row(
+        "camera-distortion",
+        f"load-{name}",
+        lambda ctx, d=dist: _load_camera(ctx, distCoeffs=d),
+        Raises("distCoeffs"),
+    )
 
 # The stereo tracker on an all-NaN (or all-inf) first frame: no pose, a status that says so.
 for name, value in [("nan", np.nan), ("inf", np.inf), ("neg-inf", -np.inf)]:
     img = np.full((SH, SW), value, np.float64)
-    row("tracker-nonfinite-first-frame", name,
-        lambda ctx, i=img: _tracker_first_frame(i, i), Answer(_tracker_says_no_pose))  # fmt: skip
+    row(
+        "tracker-nonfinite-first-frame",
+        name,
+        lambda ctx, i=img: _tracker_first_frame(i, i),
+        Answer(_tracker_says_no_pose),
+    )
 
 # labels.csv with a pose that is not one.
-for name, r in [("zero-quaternion", "img.png,rendered,0,0,0,0,0.1,0.2,5"),
-                ("nan-translation", "img.png,rendered,1,0,0,0,nan,0.2,5"),
-                ("nan-quaternion", "img.png,rendered,nan,0,0,1,0.1,0.2,5"),
-                ("non-unit-quaternion", "img.png,rendered,2,0,0,0,0.1,0.2,5"),
-                ("zero-translation", "img.png,rendered,1,0,0,0,0,0,0")]:  # fmt: skip
-    row("labels-bad-pose", f"load-{name}", lambda ctx, r=r: _load_labels(ctx, r), Raises("labels.csv"))
-    row("labels-bad-pose", f"cli-{name}", lambda ctx, r=r: ["eval-speedplus", _labels(ctx, r)],
-        Cli("labels.csv"))  # fmt: skip
+for name, r in [
+    ("zero-quaternion", "img.png,rendered,0,0,0,0,0.1,0.2,5"),
+    ("nan-translation", "img.png,rendered,1,0,0,0,nan,0.2,5"),
+    ("nan-quaternion", "img.png,rendered,nan,0,0,1,0.1,0.2,5"),
+    ("non-unit-quaternion", "img.png,rendered,2,0,0,0,0.1,0.2,5"),
+    ("zero-translation", "img.png,rendered,1,0,0,0,0,0,0"),
+]:
+    row(
+        "labels-bad-pose",
+        f"load-{name}",
+        lambda ctx, r=r: _load_labels(ctx, r),
+        Raises("labels.csv"),
+    )
+    row(
+        "labels-bad-pose",
+        f"cli-{name}",
+        lambda ctx, r=r: ["eval-speedplus", _labels(ctx, r)],
+        Cli("labels.csv"),
+    )
 
 # stereo-track options and folders that gave a silent wrong answer.
 for name, argv, opt in [
@@ -739,15 +937,42 @@ for name, argv, opt in [
     ("frame-rate-neg-inf", ["--frame-rate-hz", "-inf"], "--frame-rate-hz"),
     ("frame-rate-inf", ["--frame-rate-hz", "inf"], "--frame-rate-hz"),
 ]:
-    row("stereo-bad-rate", name, lambda ctx, a=argv: ["stereo-track", "--out", ctx.tmp, *a], Cli(opt))
-row("stereo-unreadable-image", "left", lambda ctx: _stereo_argv(ctx, spoil=_unreadable("000001.png")),
-    Cli("000001.png"))  # fmt: skip
-row("stereo-unreadable-image", "right",
+    row(
+        "stereo-bad-rate",
+        name,
+        lambda ctx, a=argv: ["stereo-track", "--out", ctx.tmp, *a],
+        Cli(opt),
+    )
+row(
+    "stereo-unreadable-image",
+    "left",
+    lambda ctx: _stereo_argv(ctx, spoil=_unreadable("000001.png")),
+    Cli("000001.png"),
+)
+row(
+    "stereo-unreadable-image",
+    "right",
     lambda ctx: _stereo_argv(ctx, spoil=lambda p: (p / "right" / "000002.png").write_bytes(b"")),
-    Cli("000002.png"))  # fmt: skip
-row("stereo-image-size", "half", lambda ctx: _stereo_argv(ctx, size=(SW // 2, SH // 2)), Cli("calibration.json"))  # fmt: skip
-row("stereo-image-size", "wider", lambda ctx: _stereo_argv(ctx, size=(SW + 8, SH)), Cli("calibration.json"))  # fmt: skip
-row("stereo-frames-with-images", "2", lambda ctx: _stereo_argv(ctx, "--frames", "2"), CliOk(_frames_honoured(2)))  # fmt: skip
+    Cli("000002.png"),
+)
+row(
+    "stereo-image-size",
+    "half",
+    lambda ctx: _stereo_argv(ctx, size=(SW // 2, SH // 2)),
+    Cli("calibration.json"),
+)
+row(
+    "stereo-image-size",
+    "wider",
+    lambda ctx: _stereo_argv(ctx, size=(SW + 8, SH)),
+    Cli("calibration.json"),
+)
+row(
+    "stereo-frames-with-images",
+    "2",
+    lambda ctx: _stereo_argv(ctx, "--frames", "2"),
+    CliOk(_frames_honoured(2)),
+)
 row("stereo-one-pair", "no-nan", lambda ctx: _stereo_argv(ctx, n=1), CliOk(_no_nan_json))
 row("stereo-one-pair", "frames-1", lambda ctx: _stereo_argv(ctx, "--frames", "1"), Cli("--frames"))
 
@@ -761,7 +986,12 @@ for name, argv, opt in [
     ("plane-inf", ["--plane-size-m", "inf"], "--plane-size-m"),
     ("focal-0", ["--focal-length-mm", "0"], "--focal-length-mm"),
 ]:
-    row("select-study-geometry", name, _study("select-study", "--n", "6", "--m", "4", "--cases", "2", *argv), Cli(opt))  # fmt: skip
+    row(
+        "select-study-geometry",
+        name,
+        _study("select-study", "--n", "6", "--m", "4", "--cases", "2", *argv),
+        Cli(opt),
+    )
 for name, argv, opt in [
     ("check-noise-0", ["--check-noise", "0"], "--check-noise"),
     ("check-noise-nan", ["--check-noise", "nan"], "--check-noise"),
@@ -774,11 +1004,35 @@ for name, argv, opt in [
 
 # ---- the 10 unclear errors ------------------------------------------------------------------
 
-for name, mask in [("short", jnp.ones(7, bool)), ("long", jnp.ones(11, bool)), ("2d", jnp.ones((10, 1), bool))]:  # fmt: skip
-    row("mask-shape", f"dop-{name}", lambda ctx, m=mask: jp.dop(P, POSE, CAM, mask=m), Raises("mask"))
-    row("mask-shape", f"blocks-{name}", lambda ctx, m=mask: jp.information_blocks(P, POSE, CAM, mask=m), Raises("mask"))  # fmt: skip
-    row("mask-shape", f"refine-{name}", lambda ctx, m=mask: jp.refine_pose(P, U, POSE, CAM, mask=m), Raises("mask"))  # fmt: skip
-row("mask-shape", "solve-pnp", lambda ctx: jp.solve_pnp(P, U, CAM, mask=jnp.ones(6, bool)), Raises("mask"))  # fmt: skip
+for name, mask in [
+    ("short", jnp.ones(7, bool)),
+    ("long", jnp.ones(11, bool)),
+    ("2d", jnp.ones((10, 1), bool)),
+]:
+    row(
+        "mask-shape",
+        f"dop-{name}",
+        lambda ctx, m=mask: jp.dop(P, POSE, CAM, mask=m),
+        Raises("mask"),
+    )
+    row(
+        "mask-shape",
+        f"blocks-{name}",
+        lambda ctx, m=mask: jp.information_blocks(P, POSE, CAM, mask=m),
+        Raises("mask"),
+    )
+    row(
+        "mask-shape",
+        f"refine-{name}",
+        lambda ctx, m=mask: jp.refine_pose(P, U, POSE, CAM, mask=m),
+        Raises("mask"),
+    )
+row(
+    "mask-shape",
+    "solve-pnp",
+    lambda ctx: jp.solve_pnp(P, U, CAM, mask=jnp.ones(6, bool)),
+    Raises("mask"),
+)
 
 for name, cam_fn, arg in [
     ("fx", lambda: PinholeCamera(0.0, 1000.0, 320, 240), "fx"),
@@ -810,18 +1064,36 @@ def _not_blamed_on_points(value):
 
 
 value_R = [RG]
-for name, (angles, seq) in {"XYZ+90": ([0.3, np.pi / 2, 0.2], "XYZ"),
-                            "ZYX-90": ([0.1, -np.pi / 2, 0.7], "ZYX")}.items():  # fmt: skip
+for name, (angles, seq) in {
+    "XYZ+90": ([0.3, np.pi / 2, 0.2], "XYZ"),
+    "ZYX-90": ([0.1, -np.pi / 2, 0.7], "ZYX"),
+}.items():
     Rl = euler_to_dcm(jnp.array(angles), seq)
-    row("gimbal-lock-message", name, _gimbal_message(Rl, seq),
-        Answer(lambda v, R=Rl: (value_R.__setitem__(0, R), _not_blamed_on_points(v))))  # fmt: skip
+    row(
+        "gimbal-lock-message",
+        name,
+        _gimbal_message(Rl, seq),
+        Answer(lambda v, R=Rl: (value_R.__setitem__(0, R), _not_blamed_on_points(v))),
+    )
 
-row("float-colour-image", "float64-unit", lambda ctx: _init(_colour(_rendered(), np.float64, 1 / 255)),
-    Answer(_same_pose_as_8_bit))  # fmt: skip
-row("float-colour-image", "float32-255", lambda ctx: _init(_colour(_rendered(), np.float32, 1.0)),
-    Answer(_same_pose_as_8_bit))  # fmt: skip
-row("float-colour-image", "bgra", lambda ctx: _init(cv2.cvtColor(_rendered(), cv2.COLOR_GRAY2BGRA)),
-    Answer(_same_pose_as_8_bit))  # fmt: skip
+row(
+    "float-colour-image",
+    "float64-unit",
+    lambda ctx: _init(_colour(_rendered(), np.float64, 1 / 255)),
+    Answer(_same_pose_as_8_bit),
+)
+row(
+    "float-colour-image",
+    "float32-255",
+    lambda ctx: _init(_colour(_rendered(), np.float32, 1.0)),
+    Answer(_same_pose_as_8_bit),
+)
+row(
+    "float-colour-image",
+    "bgra",
+    lambda ctx: _init(cv2.cvtColor(_rendered(), cv2.COLOR_GRAY2BGRA)),
+    Answer(_same_pose_as_8_bit),
+)
 
 for name, kw, field_name in [
     ("matrix-string", dict(cameraMatrix="abc"), "cameraMatrix"),
@@ -832,15 +1104,44 @@ for name, kw, field_name in [
     ("Nv-string", dict(Nv="wide"), "Nv"),
     ("Nu-negative", dict(Nu=-4), "Nu"),
 ]:
-    row("camera-json-field", f"load-{name}", lambda ctx, k=kw: _load_camera(ctx, **k), Raises(field_name, "camera.json"))  # fmt: skip
-    row("camera-json-field", f"init-{name}", lambda ctx, k=kw: _init_argv(ctx, **k), Cli(field_name, "camera.json"))  # fmt: skip
-row("camera-json-field", "not-an-object", lambda ctx: (ctx.tmp / "camera.json").write_text('{"a": 1}') and jp.load_camera(ctx.tmp / "camera.json"),
-    Raises("cameraMatrix", "camera.json"))  # fmt: skip
+    row(
+        "camera-json-field",
+        f"load-{name}",
+        lambda ctx, k=kw: _load_camera(ctx, **k),
+        Raises(field_name, "camera.json"),
+    )
+    row(
+        "camera-json-field",
+        f"init-{name}",
+        lambda ctx, k=kw: _init_argv(ctx, **k),
+        Cli(field_name, "camera.json"),
+    )
+row(
+    "camera-json-field",
+    "not-an-object",
+    lambda ctx: (
+        (ctx.tmp / "camera.json").write_text('{"a": 1}') and jp.load_camera(ctx.tmp / "camera.json")
+    ),
+    Raises("cameraMatrix", "camera.json"),
+)
 
-for name, r in [("short", "img.png,rendered,1,0,0"), ("text", "img.png,rendered,1,0,0,0,x,0.2,5"),
-                ("empty-field", "img.png,rendered,1,0,0,0,,0.2,5")]:  # fmt: skip
-    row("labels-short-row", f"load-{name}", lambda ctx, r=r: _load_labels(ctx, r), Raises("labels.csv", "3"))  # fmt: skip
-    row("labels-short-row", f"cli-{name}", lambda ctx, r=r: ["eval-speedplus", _labels(ctx, r)], Cli("labels.csv"))  # fmt: skip
+for name, r in [
+    ("short", "img.png,rendered,1,0,0"),
+    ("text", "img.png,rendered,1,0,0,0,x,0.2,5"),
+    ("empty-field", "img.png,rendered,1,0,0,0,,0.2,5"),
+]:
+    row(
+        "labels-short-row",
+        f"load-{name}",
+        lambda ctx, r=r: _load_labels(ctx, r),
+        Raises("labels.csv", "3"),
+    )
+    row(
+        "labels-short-row",
+        f"cli-{name}",
+        lambda ctx, r=r: ["eval-speedplus", _labels(ctx, r)],
+        Cli("labels.csv"),
+    )
 
 for name, argv, opt in [
     ("rate-nan", ["--rate-deg-s", "nan"], "--rate-deg-s"),
@@ -851,7 +1152,12 @@ for name, argv, opt in [
     ("frame-rate-0", ["--frame-rate-hz", "0"], "--frame-rate-hz"),
     ("frame-rate-nan", ["--frame-rate-hz", "nan"], "--frame-rate-hz"),
 ]:
-    row("stereo-option-message", name, lambda ctx, a=argv: ["stereo-track", "--out", ctx.tmp, *a], Cli(opt))
+    row(
+        "stereo-option-message",
+        name,
+        lambda ctx, a=argv: ["stereo-track", "--out", ctx.tmp, *a],
+        Cli(opt),
+    )
 
 
 def _calibration_cli(field_name):
@@ -867,7 +1173,12 @@ for name, kw, field_name in [
     ("malformed-json", dict(raw_calibration="{not json"), None),
     ("a-list", dict(raw_calibration="[1, 2]"), None),
 ]:
-    row("stereo-calibration", name, lambda ctx, k=kw: _stereo_argv(ctx, **k), _calibration_cli(field_name))  # fmt: skip
+    row(
+        "stereo-calibration",
+        name,
+        lambda ctx, k=kw: _stereo_argv(ctx, **k),
+        _calibration_cli(field_name),
+    )
 
 
 def _calibration_leaves_nothing(ctx):
@@ -880,15 +1191,22 @@ def _calibration_leaves_nothing(ctx):
     return code, before, after
 
 
-row("stereo-calibration", "no-temp-file", _calibration_leaves_nothing,
-    Answer(lambda v: (v[0] == 2 and set(v[2]) <= set(v[1])) or pytest.fail(str(v))))  # fmt: skip
+row(
+    "stereo-calibration",
+    "no-temp-file",
+    _calibration_leaves_nothing,
+    Answer(lambda v: (v[0] == 2 and set(v[2]) <= set(v[1])) or pytest.fail(str(v))),
+)
 
 row("study-corrupt-chunk", "truncated", _resume(_truncate), CliOk(_same_results))
 row("study-corrupt-chunk", "garbage", _resume(_garbage), CliOk(_same_results))
 row("study-corrupt-chunk", "empty", _resume(_empty), CliOk(_same_results))
 
-for name, argv in [("-1", ["--check-noise", "-1"]), ("-1e30", ["--check-noise", "-1e30"]),
-                   ("seed-negative", ["--seed", "-3"])]:  # fmt: skip
+for name, argv in [
+    ("-1", ["--check-noise", "-1"]),
+    ("-1e30", ["--check-noise", "-1e30"]),
+    ("seed-negative", ["--seed", "-3"]),
+]:
     opt = argv[0]
     row("pose-study-negative", name, _study("pose-study", "--trials", "4", *argv), Cli(opt))
 
@@ -913,8 +1231,9 @@ def _child(code, limit_s):
 
     env = dict(os.environ, PYTHONPATH=str(Path(jp.__file__).parents[1]))
     try:
-        return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                              timeout=limit_s, env=env)  # fmt: skip
+        return subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, timeout=limit_s, env=env
+        )
     except subprocess.TimeoutExpired:
         pytest.fail(f"no answer within {limit_s} s")
 
@@ -938,13 +1257,39 @@ sys.exit(main({argv!r}))
 """
 
 for name, (n, m) in {"40-20": (40, 20), "60-30": (60, 30), "35-17": (35, 17)}.items():
-    row("exhaustive-limit", name, None, Within(CALL.format(
-        n=n, call=f"jp.select.exhaustive(jp.information_blocks(P, pose, cam), {m})"), ("m",)))  # fmt: skip
-row("exhaustive-limit", "select-features", None, Within(CALL.format(
-    n=40, call="jp.select_features(P, pose, cam, 20, method='exhaustive')"), ("m",)))  # fmt: skip
+    row(
+        "exhaustive-limit",
+        name,
+        None,
+        Within(
+            CALL.format(
+                n=n, call=f"jp.select.exhaustive(jp.information_blocks(P, pose, cam), {m})"
+            ),
+            ("m",),
+        ),
+    )
+row(
+    "exhaustive-limit",
+    "select-features",
+    None,
+    Within(
+        CALL.format(n=40, call="jp.select_features(P, pose, cam, 20, method='exhaustive')"), ("m",)
+    ),
+)
 for name, (n, m) in {"40-20": ("40", "20"), "50-25": ("50", "25")}.items():
-    argv = ["select-study", "--n", n, "--m", m, "--cases", "1", "--no-figures", "--no-progress",
-            "--out", "{tmp}"]  # fmt: skip
+    argv = [
+        "select-study",
+        "--n",
+        n,
+        "--m",
+        m,
+        "--cases",
+        "1",
+        "--no-figures",
+        "--no-progress",
+        "--out",
+        "{tmp}",
+    ]
     row("select-study-limit", name, None, Within(CLI.format(argv=argv), ("--m",)))
 for name, rate in [("1e-6", "1e-6"), ("1e-4", "1e-4"), ("zero", "0")]:
     argv = ["stereo-track", "--out", "{tmp}", "--rate-deg-s", rate, "--no-figures", "--no-progress"]
@@ -954,36 +1299,101 @@ for name, rate in [("1e-6", "1e-6"), ("1e-4", "1e-4"), ("zero", "0")]:
 
 row("shape-points", "dop-2-columns", lambda ctx: jp.dop(P[:, :2], POSE, CAM), Raises("points_body"))
 row("shape-points", "dop-batched", lambda ctx: jp.dop(P[None], POSE, CAM), Raises("points_body"))
-row("shape-points", "refine-4-columns", lambda ctx: jp.refine_pose(jnp.ones((10, 4)), U, POSE, CAM), Raises("points_body"))  # fmt: skip
+row(
+    "shape-points",
+    "refine-4-columns",
+    lambda ctx: jp.refine_pose(jnp.ones((10, 4)), U, POSE, CAM),
+    Raises("points_body"),
+)
 row("shape-pixels", "solve-length", lambda ctx: jp.solve_pnp(P, U[:8], CAM), Raises("pixels"))
-row("shape-pixels", "refine-3-columns", lambda ctx: jp.refine_pose(P, jnp.ones((10, 3)), POSE, CAM), Raises("pixels"))  # fmt: skip
-row("shape-pixels", "sensitivity-length", lambda ctx: jp.sensitivity(P, U[:5], POSE, CAM), Raises("pixels"))  # fmt: skip
+row(
+    "shape-pixels",
+    "refine-3-columns",
+    lambda ctx: jp.refine_pose(P, jnp.ones((10, 3)), POSE, CAM),
+    Raises("pixels"),
+)
+row(
+    "shape-pixels",
+    "sensitivity-length",
+    lambda ctx: jp.sensitivity(P, U[:5], POSE, CAM),
+    Raises("pixels"),
+)
 row("shape-pose", "pose-R-2x2", lambda ctx: Pose(jnp.eye(2), jnp.zeros(3)), Raises("R"))
 row("shape-pose", "pose-t-4", lambda ctx: Pose(jnp.eye(3), jnp.zeros(4)), Raises("t"))
-row("shape-pose", "dop-batched-pose", lambda ctx: jp.dop(P, Pose(jnp.stack([POSE.R] * 2), jnp.stack([POSE.t] * 2)), CAM),
-    Raises("pose"))  # fmt: skip
+row(
+    "shape-pose",
+    "dop-batched-pose",
+    lambda ctx: jp.dop(P, Pose(jnp.stack([POSE.R] * 2), jnp.stack([POSE.t] * 2)), CAM),
+    Raises("pose"),
+)
 row("shape-camera", "K-2x3", lambda ctx: jp.solve_pnp(P, U, jnp.ones((2, 3))), Raises("K"))
 row("shape-camera", "not-a-camera", lambda ctx: jp.dop(P, POSE, "camera"), Raises("camera"))
-row("shape-quaternion", "3-numbers", lambda ctx: Pose.from_quat(jnp.ones(3), jnp.zeros(3)), Raises("q"))  # fmt: skip
+row(
+    "shape-quaternion",
+    "3-numbers",
+    lambda ctx: Pose.from_quat(jnp.ones(3), jnp.zeros(3)),
+    Raises("q"),
+)
 
-for name, pts, pix in [("nan-point", _with(P, (1, 1), np.nan), U), ("inf-pixel", P, _with(U, (2, 0), np.inf)),
-                       ("nan-pixel", P, _with(U, (9, 1), np.nan))]:  # fmt: skip
-    row("nan-in-points", f"solve-{name}", lambda ctx, a=pts, b=pix: jp.solve_pnp(a, b, CAM, throw=False),
-        Returns(Status.NONFINITE_INPUT))  # fmt: skip
-    row("nan-in-points", f"solve-throw-{name}", lambda ctx, a=pts, b=pix: jp.solve_pnp(a, b, CAM), Raises("NaN"))  # fmt: skip
-    row("nan-in-points", f"refine-{name}", lambda ctx, a=pts, b=pix: jp.refine_pose(a, b, POSE, CAM, throw=False),
-        Returns(Status.NONFINITE_INPUT))  # fmt: skip
-row("nan-in-points", "dop", lambda ctx: jp.dop(_with(P, (0, 0), np.nan), POSE, CAM, throw=False), Returns(Status.NONFINITE_INPUT))  # fmt: skip
-row("nan-in-points", "dop-pose", lambda ctx: jp.dop(P, Pose(POSE.R, _with(POSE.t, 2, np.inf)), CAM, throw=False),
-    Returns(Status.NONFINITE_INPUT))  # fmt: skip
+for name, pts, pix in [
+    ("nan-point", _with(P, (1, 1), np.nan), U),
+    ("inf-pixel", P, _with(U, (2, 0), np.inf)),
+    ("nan-pixel", P, _with(U, (9, 1), np.nan)),
+]:
+    row(
+        "nan-in-points",
+        f"solve-{name}",
+        lambda ctx, a=pts, b=pix: jp.solve_pnp(a, b, CAM, throw=False),
+        Returns(Status.NONFINITE_INPUT),
+    )
+    row(
+        "nan-in-points",
+        f"solve-throw-{name}",
+        lambda ctx, a=pts, b=pix: jp.solve_pnp(a, b, CAM),
+        Raises("NaN"),
+    )
+    row(
+        "nan-in-points",
+        f"refine-{name}",
+        lambda ctx, a=pts, b=pix: jp.refine_pose(a, b, POSE, CAM, throw=False),
+        Returns(Status.NONFINITE_INPUT),
+    )
+row(
+    "nan-in-points",
+    "dop",
+    lambda ctx: jp.dop(_with(P, (0, 0), np.nan), POSE, CAM, throw=False),
+    Returns(Status.NONFINITE_INPUT),
+)
+row(
+    "nan-in-points",
+    "dop-pose",
+    lambda ctx: jp.dop(P, Pose(POSE.R, _with(POSE.t, 2, np.inf)), CAM, throw=False),
+    Returns(Status.NONFINITE_INPUT),
+)
 
-for name, cam in [("nan-cx", PinholeCamera(1000.0, 1000.0, np.nan, 240.0)),
-                  ("inf-cy", PinholeCamera(1000.0, 1000.0, 320.0, np.inf)),
-                  ("nan-dist", PinholeCamera(1000.0, 1000.0, 320.0, 240.0, [np.nan, 0, 0, 0, 0]))]:  # fmt: skip
-    row("nan-in-camera", f"solve-{name}", lambda ctx, c=cam: jp.solve_pnp(P, U, c, throw=False), Returns(Status.NONFINITE_INPUT))  # fmt: skip
-    row("nan-in-camera", f"dop-{name}", lambda ctx, c=cam: jp.dop(P, POSE, c, throw=False), Returns(Status.NONFINITE_INPUT))  # fmt: skip
-row("nan-in-camera", "nan-focal", lambda ctx: jp.solve_pnp(P, U, PinholeCamera(np.nan, 1000.0, 320, 240), throw=False),
-    Returns(Status.NONFINITE_INPUT))  # fmt: skip
+for name, cam in [
+    ("nan-cx", PinholeCamera(1000.0, 1000.0, np.nan, 240.0)),
+    ("inf-cy", PinholeCamera(1000.0, 1000.0, 320.0, np.inf)),
+    ("nan-dist", PinholeCamera(1000.0, 1000.0, 320.0, 240.0, [np.nan, 0, 0, 0, 0])),
+]:
+    row(
+        "nan-in-camera",
+        f"solve-{name}",
+        lambda ctx, c=cam: jp.solve_pnp(P, U, c, throw=False),
+        Returns(Status.NONFINITE_INPUT),
+    )
+    row(
+        "nan-in-camera",
+        f"dop-{name}",
+        lambda ctx, c=cam: jp.dop(P, POSE, c, throw=False),
+        Returns(Status.NONFINITE_INPUT),
+    )
+row(
+    "nan-in-camera",
+    "nan-focal",
+    lambda ctx: jp.solve_pnp(P, U, PinholeCamera(np.nan, 1000.0, 320, 240), throw=False),
+    Returns(Status.NONFINITE_INPUT),
+)
 
 
 def _masked(nvalid, n=10):
@@ -991,26 +1401,72 @@ def _masked(nvalid, n=10):
 
 
 for solver, method, few in [("epnp", "epnp", 3), ("dlt", "dlt", 5), ("ransac", "ransac", 3)]:
-    row(f"too-few-{solver}", "eager", lambda ctx, m=method, k=few: jp.solve_pnp(P[:k], U[:k], CAM, options=jp.PnPOptions(method=m)),
-        Raises("points_body"))  # fmt: skip
-    row(f"too-few-{solver}", "mask", lambda ctx, m=method, k=few: jp.solve_pnp(P, U, CAM, mask=_masked(k), options=jp.PnPOptions(method=m), throw=False),
-        Returns(Status.TOO_FEW_POINTS))  # fmt: skip
-row("too-few-refine-dop", "refine", lambda ctx: jp.refine_pose(P, U, POSE, CAM, mask=_masked(2), throw=False), Returns(Status.TOO_FEW_POINTS))  # fmt: skip
-row("too-few-refine-dop", "dop", lambda ctx: jp.dop(P, POSE, CAM, mask=_masked(3), throw=False), Returns(Status.TOO_FEW_POINTS))  # fmt: skip
-row("too-few-refine-dop", "sensitivity", lambda ctx: jp.sensitivity(P, U, POSE, CAM, mask=_masked(2), throw=False), Returns(Status.TOO_FEW_POINTS))  # fmt: skip
+    row(
+        f"too-few-{solver}",
+        "eager",
+        lambda ctx, m=method, k=few: jp.solve_pnp(
+            P[:k], U[:k], CAM, options=jp.PnPOptions(method=m)
+        ),
+        Raises("points_body"),
+    )
+    row(
+        f"too-few-{solver}",
+        "mask",
+        lambda ctx, m=method, k=few: jp.solve_pnp(
+            P, U, CAM, mask=_masked(k), options=jp.PnPOptions(method=m), throw=False
+        ),
+        Returns(Status.TOO_FEW_POINTS),
+    )
+row(
+    "too-few-refine-dop",
+    "refine",
+    lambda ctx: jp.refine_pose(P, U, POSE, CAM, mask=_masked(2), throw=False),
+    Returns(Status.TOO_FEW_POINTS),
+)
+row(
+    "too-few-refine-dop",
+    "dop",
+    lambda ctx: jp.dop(P, POSE, CAM, mask=_masked(3), throw=False),
+    Returns(Status.TOO_FEW_POINTS),
+)
+row(
+    "too-few-refine-dop",
+    "sensitivity",
+    lambda ctx: jp.sensitivity(P, U, POSE, CAM, mask=_masked(2), throw=False),
+    Returns(Status.TOO_FEW_POINTS),
+)
 
 DEGENERATE = (Status.SINGULAR, Status.DEGENERATE, Status.NO_SOLUTION)
 for method in ("epnp", "dlt", "ransac"):
     for name, pts in [("collinear", PCOL), ("coincident", _coincident())]:
-        row(f"degenerate-{method}", name,
-            lambda ctx, m=method, p=pts: jp.solve_pnp(p, _pix(p), CAM, options=jp.PnPOptions(method=m), throw=False),
-            Returns(*DEGENERATE))  # fmt: skip
-row("degenerate-dop-refine", "dop-collinear", lambda ctx: jp.dop(PCOL, POSE, CAM, throw=False), Returns(Status.SINGULAR))  # fmt: skip
-row("degenerate-dop-refine", "refine-coincident", lambda ctx: jp.refine_pose(_coincident(), _pix(_coincident()), POSE, CAM, throw=False),
-    Returns(Status.SINGULAR, Status.NOT_CONVERGED))  # fmt: skip
+        row(
+            f"degenerate-{method}",
+            name,
+            lambda ctx, m=method, p=pts: jp.solve_pnp(
+                p, _pix(p), CAM, options=jp.PnPOptions(method=m), throw=False
+            ),
+            Returns(*DEGENERATE),
+        )
+row(
+    "degenerate-dop-refine",
+    "dop-collinear",
+    lambda ctx: jp.dop(PCOL, POSE, CAM, throw=False),
+    Returns(Status.SINGULAR),
+)
+row(
+    "degenerate-dop-refine",
+    "refine-coincident",
+    lambda ctx: jp.refine_pose(_coincident(), _pix(_coincident()), POSE, CAM, throw=False),
+    Returns(Status.SINGULAR, Status.NOT_CONVERGED),
+)
 
 BEHIND = Pose(POSE.R, jnp.array([0.0, 0.0, -5.0]))
-row("behind-camera", "dop", lambda ctx: jp.dop(P, BEHIND, CAM, throw=False), Returns(Status.BEHIND_CAMERA))  # fmt: skip
+row(
+    "behind-camera",
+    "dop",
+    lambda ctx: jp.dop(P, BEHIND, CAM, throw=False),
+    Returns(Status.BEHIND_CAMERA),
+)
 row("behind-camera", "dop-throw", lambda ctx: jp.dop(P, BEHIND, CAM), Raises("behind"))
 row("behind-camera", "select", lambda ctx: jp.select_features(P, BEHIND, CAM, 5), Raises("behind"))
 
@@ -1025,69 +1481,210 @@ UB = jnp.stack([U, U, UCOL, _with(U, (1, 1), np.inf)])
 
 def _lane_check(expected):
     def check(res):
-        np.testing.assert_array_equal(np.asarray(res.status), np.asarray(expected, np.int32))
+        status = np.asarray(res.status)
+        for lane, want in enumerate(expected):
+            assert status[lane] in np.atleast_1d(want), (lane, status[lane], want)
         assert not _nan_free(res), _nan_free(res)
         ok = np.asarray(res.status) == 0
-        np.testing.assert_allclose(np.asarray(res.pose.t)[ok], np.broadcast_to(np.asarray(POSE.t), (ok.sum(), 3)), atol=1e-6)
+        np.testing.assert_allclose(
+            np.asarray(res.pose.t)[ok],
+            np.broadcast_to(np.asarray(POSE.t), (ok.sum(), 3)),
+            atol=1e-6,
+        )
 
     return check
 
 
-row("vmap-solvers", "solve_pnp", lambda ctx: jp.solve_pnp(PB, UB, CAM, throw=False),
-    Answer(_lane_check([0, Status.NONFINITE_INPUT, Status.SINGULAR, Status.NONFINITE_INPUT])),
-    )  # fmt: skip
-row("vmap-solvers", "refine", _lanes(lambda p, u: jp.refine_pose(p, u, POSE, CAM, throw=False), (PB, UB)),
-    Returns(Status.OK, Status.NONFINITE_INPUT, Status.SINGULAR, Status.NOT_CONVERGED))  # fmt: skip
-row("vmap-selection", "dop", _lanes(lambda p: jp.dop(p, POSE, CAM, throw=False), (PB,)),
-    Answer(lambda r: (np.testing.assert_array_equal(np.asarray(r.status), [0, Status.NONFINITE_INPUT, Status.SINGULAR, 0]),
-                      _nan_free(r) == [] or pytest.fail(str(_nan_free(r))))))  # fmt: skip
-BLOCKS_B = jnp.stack([_blocks(), _blocks().at[2].set(jnp.nan), jp.information_blocks(PCOL, POSE, CAM)])
-row("vmap-selection", "exhaustive", _lanes(lambda b: jp.select.exhaustive(b, 5, throw=False), (BLOCKS_B,)),
-    Answer(lambda r: (np.testing.assert_equal(np.asarray(r.status)[0], 0), np.testing.assert_equal((np.asarray(r.status)[1:] != 0).all(), True),
-                      _nan_free(r) == [] or pytest.fail(str(_nan_free(r))))))  # fmt: skip
-row("vmap-selection", "bnb", _lanes(lambda b: jp.select.branch_and_bound(b, 5, throw=False), (BLOCKS_B,)),
-    Answer(lambda r: (np.testing.assert_equal(np.asarray(r.status)[0], 0), np.testing.assert_equal((np.asarray(r.status)[1:] != 0).all(), True),
-                      _nan_free(r) == [] or pytest.fail(str(_nan_free(r))))))  # fmt: skip
+row(
+    "vmap-solvers",
+    "solve_pnp",
+    lambda ctx: jp.solve_pnp(PB, UB, CAM, throw=False),
+    Answer(
+        _lane_check(
+            [
+                0,
+                Status.NONFINITE_INPUT,
+                (Status.SINGULAR, Status.DEGENERATE),
+                Status.NONFINITE_INPUT,
+            ]
+        )
+    ),
+)
+row(
+    "vmap-solvers",
+    "refine",
+    _lanes(lambda p, u: jp.refine_pose(p, u, POSE, CAM, throw=False), (PB, UB)),
+    Returns(Status.OK, Status.NONFINITE_INPUT, Status.SINGULAR, Status.NOT_CONVERGED),
+)
+row(
+    "vmap-selection",
+    "dop",
+    _lanes(lambda p: jp.dop(p, POSE, CAM, throw=False), (PB,)),
+    Answer(
+        lambda r: (
+            np.testing.assert_array_equal(
+                np.asarray(r.status), [0, Status.NONFINITE_INPUT, Status.SINGULAR, 0]
+            ),
+            _nan_free(r) == [] or pytest.fail(str(_nan_free(r))),
+        )
+    ),
+)
+BLOCKS_B = jnp.stack(
+    [_blocks(), _blocks().at[2].set(jnp.nan), jp.information_blocks(PCOL, POSE, CAM)]
+)
+row(
+    "vmap-selection",
+    "exhaustive",
+    _lanes(lambda b: jp.select.exhaustive(b, 5, throw=False), (BLOCKS_B,)),
+    Answer(
+        lambda r: (
+            np.testing.assert_equal(np.asarray(r.status)[0], 0),
+            np.testing.assert_equal((np.asarray(r.status)[1:] != 0).all(), True),
+            _nan_free(r) == [] or pytest.fail(str(_nan_free(r))),
+        )
+    ),
+)
+row(
+    "vmap-selection",
+    "bnb",
+    _lanes(lambda b: jp.select.branch_and_bound(b, 5, throw=False), (BLOCKS_B,)),
+    Answer(
+        lambda r: (
+            np.testing.assert_equal(np.asarray(r.status)[0], 0),
+            np.testing.assert_equal((np.asarray(r.status)[1:] != 0).all(), True),
+            _nan_free(r) == [] or pytest.fail(str(_nan_free(r))),
+        )
+    ),
+)
 
 row("dark-image", "black", lambda ctx: _init(np.zeros((300, 480), np.uint8)), Answer(_no_target))
-row("saturated-image", "mono", lambda ctx: _init(np.full((300, 480), 255, np.uint8)), Answer(_no_target))  # fmt: skip
-row("dark-image", "noise", lambda ctx: _init(np.random.default_rng(3).integers(0, 40, (300, 480)).astype(np.uint8)),
-    Answer(_no_target))  # fmt: skip
-row("dark-image", "tracker-black", lambda ctx: _tracker_first_frame(np.zeros((SH, SW), np.uint8), np.zeros((SH, SW), np.uint8)),
-    Answer(_tracker_says_no_pose))  # fmt: skip
+row(
+    "saturated-image",
+    "mono",
+    lambda ctx: _init(np.full((300, 480), 255, np.uint8)),
+    Answer(_no_target),
+)
+row(
+    "dark-image",
+    "noise",
+    lambda ctx: _init(np.random.default_rng(3).integers(0, 40, (300, 480)).astype(np.uint8)),
+    Answer(_no_target),
+)
+row(
+    "dark-image",
+    "tracker-black",
+    lambda ctx: _tracker_first_frame(np.zeros((SH, SW), np.uint8), np.zeros((SH, SW), np.uint8)),
+    Answer(_tracker_says_no_pose),
+)
 
-row("saturated-image", "tracker",
-    lambda ctx: _tracker_first_frame(np.full((SH, SW), 255, np.uint8), np.full((SH, SW), 255, np.uint8)),
-    Answer(_tracker_says_no_pose))  # fmt: skip
-row("missing-input-file", "init-image", lambda ctx: ["init", ctx.tmp / "nope.png", "--camera", _camera_json(ctx)], Cli("nope.png"))  # fmt: skip
-row("missing-camera-file", "init", lambda ctx: ["init", _image_file(ctx), "--camera", ctx.tmp / "cam.json"], Cli("cam.json"))  # fmt: skip
-row("missing-input-file", "eval-folder", lambda ctx: ["eval-speedplus", ctx.tmp / "absent"], Cli("absent"))
-row("missing-input-file", "stereo-folder", lambda ctx: ["stereo-track", "--images", ctx.tmp / "absent", "--out", ctx.tmp / "o"], Cli("absent"))  # fmt: skip
-row("missing-camera-file", "load", lambda ctx: jp.load_camera(ctx.tmp / "gone.json"), Raises("gone.json"))  # fmt: skip
-row("missing-input-file", "labels-image", lambda ctx: (_labels(ctx, "other.png,rendered,1,0,0,0,0.1,0.2,5"), ["eval-speedplus", ctx.tmp])[1],
-    Cli("other.png"))  # fmt: skip
+row(
+    "saturated-image",
+    "tracker",
+    lambda ctx: _tracker_first_frame(
+        np.full((SH, SW), 255, np.uint8), np.full((SH, SW), 255, np.uint8)
+    ),
+    Answer(_tracker_says_no_pose),
+)
+row(
+    "missing-input-file",
+    "init-image",
+    lambda ctx: ["init", ctx.tmp / "nope.png", "--camera", _camera_json(ctx)],
+    Cli("nope.png"),
+)
+row(
+    "missing-camera-file",
+    "init",
+    lambda ctx: ["init", _image_file(ctx), "--camera", ctx.tmp / "cam.json"],
+    Cli("cam.json"),
+)
+row(
+    "missing-input-file",
+    "eval-folder",
+    lambda ctx: ["eval-speedplus", ctx.tmp / "absent"],
+    Cli("absent"),
+)
+row(
+    "missing-input-file",
+    "stereo-folder",
+    lambda ctx: ["stereo-track", "--images", ctx.tmp / "absent", "--out", ctx.tmp / "o"],
+    Cli("absent"),
+)
+row(
+    "missing-camera-file",
+    "load",
+    lambda ctx: jp.load_camera(ctx.tmp / "gone.json"),
+    Raises("gone.json"),
+)
+
+
+def _image_error_row(out, err, ctx):
+    # One unreadable image of a data set does not stop the evaluation: its row says why.
+    rows = {r["image"]: r for r in _json_line(out)["per_image"]}
+    assert rows["other.png"]["confidence"] == "error" and not rows["other.png"]["success"], rows
+    assert _named("other.png", rows["other.png"]["message"]), rows["other.png"]
+
+
+row(
+    "missing-input-file",
+    "labels-image",
+    lambda ctx: (
+        _labels(ctx, "other.png,rendered,1,0,0,0,0.1,0.2,5"),
+        ["eval-speedplus", ctx.tmp, "--json"],
+    )[1],
+    CliOk(_image_error_row),
+)
 
 for name, text in [("not-json", "{cameraMatrix: ["), ("empty", ""), ("list", "[1, 2, 3]")]:
-    row("malformed-json", f"camera-{name}", lambda ctx, t=text: (ctx.tmp / "camera.json").write_text(t) * 0 or jp.load_camera(ctx.tmp / "camera.json"),
-        Raises("camera.json"))  # fmt: skip
-    row("malformed-json", f"init-{name}", lambda ctx, t=text: ["init", _image_file(ctx), "--camera", (ctx.tmp / "c.json").write_text(t) * 0 or ctx.tmp / "c.json"],
-        Cli("c.json"))  # fmt: skip
+    row(
+        "malformed-json",
+        f"camera-{name}",
+        lambda ctx, t=text: (
+            (ctx.tmp / "camera.json").write_text(t) * 0 or jp.load_camera(ctx.tmp / "camera.json")
+        ),
+        Raises("camera.json"),
+    )
+    row(
+        "malformed-json",
+        f"init-{name}",
+        lambda ctx, t=text: [
+            "init",
+            _image_file(ctx),
+            "--camera",
+            (ctx.tmp / "c.json").write_text(t) * 0 or ctx.tmp / "c.json",
+        ],
+        Cli("c.json"),
+    )
 
 row("study-resume", "killed", _resume(_kill), CliOk(_same_results))
 row("study-same-seed", "twice", _fresh_same_seed, CliOk(_same_results))
 
 for name, call in [
     ("select-method", lambda: jp.select_features(P, POSE, CAM, 5, method="best")),
-    ("select-criterion", lambda: jp.select_features(P, POSE, CAM, 5, method="greedy", criterion="gdop")),
+    (
+        "select-criterion",
+        lambda: jp.select_features(P, POSE, CAM, 5, method="greedy", criterion="gdop"),
+    ),
     ("dop-parameterization", lambda: jp.dop(P, POSE, CAM, parameterization="quaternion")),
     ("triangulate-method", lambda: RIG.triangulate(XL, XR, method="dlt")),
 ]:
     arg = name.split("-")[1]
     row("unknown-option", name, lambda ctx, c=call: c(), Raises(arg))
-row("unknown-option", "sequence", lambda ctx: jp.dop(P, POSE, CAM, sequence="XYQ"), Raises("sequence"))
+row(
+    "unknown-option",
+    "sequence",
+    lambda ctx: jp.dop(P, POSE, CAM, sequence="XYQ"),
+    Raises("sequence"),
+)
 row("unknown-option", "pnp-method", lambda ctx: jp.PnPOptions(method="p3p"), Raises("method"))
-row("unknown-option", "refine-method", lambda ctx: jp.RefineOptions(method="bfgs"), Raises("method"))
-row("unknown-option", "options-type", lambda ctx: jp.solve_pnp(P, U, CAM, options={"method": "epnp"}), Raises("options"))  # fmt: skip
+row(
+    "unknown-option", "refine-method", lambda ctx: jp.RefineOptions(method="bfgs"), Raises("method")
+)
+row(
+    "unknown-option",
+    "options-type",
+    lambda ctx: jp.solve_pnp(P, U, CAM, options={"method": "epnp"}),
+    Raises("options"),
+)
 
 
 @pytest.mark.parametrize("cls, variant, fn, expect", TABLE)

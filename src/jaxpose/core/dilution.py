@@ -306,6 +306,8 @@ def _dop_body(points_body, pose, camera, sigma, valid, sequence, parameterizatio
         jnp.all(jnp.isfinite(points_body) | ~valid[:, None])
         & jnp.all(jnp.isfinite(pose.R))
         & jnp.all(jnp.isfinite(pose.t))
+        & jnp.all(jnp.isfinite(jnp.stack([camera.fx, camera.fy, camera.cx, camera.cy])))
+        & jnp.all(jnp.isfinite(camera.dist))
     )
     points_safe = jnp.where(valid[:, None] & finite_in, points_body, 0.0)
     pose_safe = Pose(

@@ -28,7 +28,9 @@ def _ransac_core(prob: _Problem, key, *, threshold_px, sample_size, num_hypothes
     pw, xy, valid, fxy = prob.points_body, prob.xy, prob.valid, prob.fxy
     n = pw.shape[0]
     if n < sample_size:
-        raise ValueError(f"ransac_pnp needs at least sample_size={sample_size} points; got n={n}")
+        raise ValueError(
+            f"ransac_pnp needs at least sample_size={sample_size} points; points_body has n={n}"
+        )
     dtype = pw.dtype
     u = jax.random.uniform(key, (num_hypotheses, n), dtype=dtype)
     u = jnp.where(valid, u, 2.0)

@@ -91,7 +91,7 @@ def _batch_shape(points_body, pixels, mask) -> tuple[tuple[int, ...], int]:
             + ("" if mask is None else f", mask {np.shape(mask)}")
         ) from None
     if n < MIN_POINTS:
-        raise ValueError(f"PnP needs at least {MIN_POINTS} points; got n = {n}")
+        raise ValueError(f"PnP needs at least {MIN_POINTS} points; points_body has n = {n}")
     return batch, n
 
 
@@ -278,7 +278,8 @@ def solve_pnp(
     batch, n = _batch_shape(points_body, pixels, mask)
     if n < options.min_points:
         raise ValueError(
-            f"solve_pnp(method={method!r}) needs at least {options.min_points} points; got n = {n}"
+            f"solve_pnp(method={method!r}) needs at least {options.min_points} points; "
+            f"points_body has n = {n}"
         )
     intrinsics, undistort = _intrinsics(camera)
     cfg = _Static(

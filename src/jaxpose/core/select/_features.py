@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
@@ -73,6 +74,19 @@ def select_features(
         raise ValueError("select_features: the pose holds NaN or inf")
     if not bool(is_rotation(pose.R)):
         raise ValueError(f"select_features: {Status.NOT_A_ROTATION.message}")
+    if sigma is not None and not isinstance(sigma, jax.core.Tracer):
+        known = np.asarray(sigma, dtype=float)
+        if not np.all((known > 0) & np.isfinite(known)):
+            raise ValueError(
+                f"select_features: sigma (pixel noise) must be positive and finite; got "
+                f"{known.tolist()}"
+            )
+    rows = np.flatnonzero(np.asarray(valid) & ~np.all(np.isfinite(np.asarray(points_body)), -1))
+    if rows.size:
+        raise ValueError(
+            f"select_features: points_body holds NaN or inf (rows {rows[:5].tolist()}); mask "
+            f"them out with mask="
+        )
     points_cam = pose.apply(points_body)
     raise_for_status(_status(points_cam, valid, m), "select_features")
     if method == "quasi":
