@@ -11,7 +11,7 @@ attitude ``eps`` in radians, so that
   DOP matrix and ``sigma^2 Q`` the covariance of the least-squares estimate (eq. 13);
 * ``PDOP = sqrt(trace(Q[:3, :3]))`` (metres per pixel) and ``ADOP = sqrt(trace(Q[3:, 3:]))``
   (radians per pixel): the square-root-of-trace of the GNSS convention (eq. 15, whose exact form
-  is lost; see ``docs/methods.md``).
+  is lost; see ``docs/selection.md``).
 
 The attitude ``eps`` is parameterised by Euler angles in a chosen ``sequence``
 (``parameterization="euler"``, the paper's choice; ADOP depends on it) or by a small rotation

@@ -84,7 +84,9 @@ def raise_for_status(status, what: str = "problem", *, min_points: int | None = 
     for code in np.unique(status[bad]):
         idx = np.argwhere(status == code)
         where = (
-            "" if status.ndim == 0 else f" (at {len(idx)} of {status.size}, first {tuple(idx[0])})"
+            ""
+            if status.ndim == 0
+            else f" (at {len(idx)} of {status.size}, first {tuple(int(i) for i in idx[0])})"
         )
         parts.append(f"{status_message(code, min_points)}{where}")
     raise ValueError(f"{what}: " + "; ".join(parts))

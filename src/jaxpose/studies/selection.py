@@ -18,7 +18,7 @@ How a run is organised:
   process's devices, each process draws only its own cases, and process 0 alone reads and writes
   the chunk files. A case is computed the same way on any device or process count.
 
-Outputs: ``results.json`` (schema in ``docs/methods.md``, plus the derived Tables 5-6), PNG
+Outputs: ``results.json`` (schema in ``docs/formats.md``, plus the derived Tables 5-6), PNG
 figures, and with ``--dump-cases`` ``cases.npz`` holding every case for independent re-checks.
 
 The default scenario (Table 3 of the paper is lost) is documented in :class:`Scenario`.

@@ -4,7 +4,7 @@ The rule needs only the directions of the points from the camera, not the DOP:
 
 * unit vectors ``e_i = rho_i / |rho_i|`` of the camera-frame points ``rho_i``;
 * cost ``c_ij = cos^2(theta_ij) = (e_i . e_j)^2`` (Park and How's cost, the sum of squares of a row
-  of ``E^T E``; the paper says only "a function of the angle", see ``docs/methods.md``);
+  of ``E^T E``; the paper says only "a function of the angle", see ``docs/selection.md``);
 * redundancy ``r_i = sum_j c_ij`` (the ``j = i`` term adds 1 to every ``r_i`` and changes
   nothing);
 * remove the point of largest redundancy ``k``, update ``r_i <- r_i - c_ik``, and repeat until
