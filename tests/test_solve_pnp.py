@@ -198,9 +198,11 @@ def test_two_devices_give_the_same_poses(tmp_path):
     two = np.load(tmp_path / "out.npz")
     np.testing.assert_array_equal(two["status"], np.asarray(one.status))
     # other compiled programs round differently, and the refinement may then stop one step
-    # earlier or later (its tolerance is 1e-6 relative, convergence quadratic)
-    np.testing.assert_allclose(two["R"], np.asarray(one.R), atol=1e-8)
-    np.testing.assert_allclose(two["t"], np.asarray(one.t), atol=1e-8)
+    # earlier or later: the two answers agree to the refinement's own stopping tolerance (the
+    # eager entry points now compile with other XLA options, and 1e-7 differences were seen)
+    tol = PnPOptions().refine.rtol
+    np.testing.assert_allclose(two["R"], np.asarray(one.R), atol=tol)
+    np.testing.assert_allclose(two["t"], np.asarray(one.t), atol=tol * np.abs(one.t).max())
 
 
 # ----------------------------------------------------------------------------- bad inputs
