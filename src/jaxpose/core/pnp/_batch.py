@@ -29,6 +29,26 @@ def _map(fn, args, chunk: int, single: bool):
     return jax.tree.map(lambda a: a[:size], out)
 
 
+def _map_chunks(fn, args, chunk: int, single: bool):
+    """Like :func:`_map`, for a function of a whole chunk: ``fn(*args, batched=...)`` takes
+    arrays with a leading chunk axis (``batched=True``) or one problem (``batched=False``), so
+    that it can decide once for the chunk (a ``lax.cond`` on any of its problems)."""
+    if single:
+        return fn(*args, batched=False)
+    size = jax.tree.leaves(args)[0].shape[0]
+    if size <= chunk:
+        return fn(*args, batched=True)
+    pad = -size % chunk
+    count = (size + pad) // chunk
+
+    def split(a):
+        a = jnp.concatenate([a, jnp.repeat(a[:1], pad, axis=0)]) if pad else a
+        return a.reshape((count, chunk) + a.shape[1:])
+
+    out = jax.lax.map(lambda a: fn(*a, batched=True), jax.tree.map(split, args))
+    return jax.tree.map(lambda a: a.reshape((count * chunk,) + a.shape[2:])[:size], out)
+
+
 def _pad(args, size: int, devices: int):
     """Repeat the first problem so that the batch splits evenly over ``devices``."""
     pad = -size % devices
