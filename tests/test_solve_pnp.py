@@ -97,6 +97,52 @@ def test_planar_long_range_as_often_right_as_opencv_ippe(rng):
     assert np.all(np.asarray(res.planar))
 
 
+def lm_refined(P, pix, K, start):
+    """``refine_pose`` (the LM, converged to solve_pnp's tolerance) from the poses in ``start``."""
+    return jax.vmap(
+        lambda p, x, R, t: jaxpose.refine_pose(
+            p, x, Pose(R, t), K, options=PnPOptions().refine, throw=False
+        )
+    )(P, pix, start.R, start.t)
+
+
+@pytest.mark.parametrize(
+    "depth, noise, n", [(6.0, 0.0, N), (8.0, 0.5, N), (20.0, 2.0, 8)], ids=["exact", "noisy", "hard"]
+)
+def test_fast_refinement_agrees_with_the_lm(rng, depth, noise, n):
+    """solve_pnp refines by a few Gauss-Newton steps and hands the problems that have not
+    converged to the LM: the answer is the LM's (refine_pose from the same EPnP pose) to the
+    stopping tolerance, with the same statuses; OpenCV's solvePnPRefineLM finds no lower error.
+    The "hard" batch (8 points, 2 px, 20 m) leaves most problems to the LM, more than one group
+    (16) of them."""
+    from jaxpose.core.pnp._gauss_newton import gauss_newton_pnp
+
+    P, pix, R, t = scenes(rng, count=40, n=n, depth=depth, noise=noise)
+    res = solve_pnp(P, pix, K, throw=False)
+    start = solve_pnp(P, pix, K, options=PnPOptions(refine=None), throw=False)
+    lm = lm_refined(P, pix, K, start.pose)
+    np.testing.assert_array_equal(np.asarray(res.status), np.asarray(lm.status))
+    assert np.all(np.asarray(res.status) == Status.OK)
+    tol = PnPOptions().refine.rtol
+    np.testing.assert_allclose(np.asarray(res.R), np.asarray(lm.pose.R), atol=10 * tol)
+    np.testing.assert_allclose(np.asarray(res.t), np.asarray(lm.pose.t), atol=10 * tol * depth)
+    np.testing.assert_allclose(
+        np.asarray(res.reprojection_error), np.asarray(lm.rms_px), rtol=1e-6, atol=1e-9
+    )
+    for b in range(0, 40, 8):
+        _, _, cv_rms = cv_refined(P[b], pix[b], K)
+        assert float(res.reprojection_error[b]) <= cv_rms + 1e-9
+    # how many problems the Gauss-Newton alone leaves unconverged (the LM's share)
+    xy = (pix - K[:2, 2]) / K[[0, 1], [0, 1]]
+    _, _, ok = jax.vmap(
+        lambda p, x, R, t: gauss_newton_pnp(
+            p, x, jnp.ones(n), jnp.asarray(K[[0, 1], [0, 1]]), Pose(R, t), rtol=tol, atol=1e-9
+        )
+    )(P, xy, start.R, start.t)
+    left = int(np.sum(~np.asarray(ok)))
+    assert left == 0 if noise == 0 else (left > 16 if n == 8 else True)
+
+
 # ----------------------------------------------------------------------------- methods
 
 
