@@ -19,8 +19,10 @@ batches so that one bad problem does not cost the others.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import functools
+import threading
 
 import equinox as eqx
 import jax
@@ -275,10 +277,28 @@ def _solve_stage2(init, points_body, pixels, mask, intrinsics, *, cfg: _Static, 
     return _refined(init, points_body, pixels, camera, cfg, two)
 
 
-COMPILER_OPTIONS_CPU = {"xla_cpu_use_fusion_emitters": False}
+COMPILER_OPTIONS_CPU = {
+    "xla_cpu_use_fusion_emitters": False,
+    "xla_cpu_experimental_ynn_fusion_type": "",
+}
 """XLA options of the compiled solvers on a CPU. XLA's older element-wise emitters compile this
 code (hundreds of small fused kernels) about 1.6x faster than its MLIR fusion emitters for the
-same run time (EPnP alone: 4.5 s -> 2.8 s of CPU time)."""
+same run time (EPnP alone: 4.5 s -> 2.8 s of CPU time). No YNNPACK fusions: XLA hands the
+reductions over a problem's points (``(256, 20) -> (256,)``) to YNNPACK, whose calls cost more
+than the sums (EPnP 13.6 -> 11.6 us a problem, profiled with ``jax.profiler``); the option is
+dropped where the installed XLA does not know it."""
+
+
+@functools.cache
+def _cpu_options() -> dict:
+    """:data:`COMPILER_OPTIONS_CPU` less the options that the installed XLA does not know."""
+    options = dict(COMPILER_OPTIONS_CPU)
+    for name in ("xla_cpu_experimental_ynn_fusion_type",):
+        try:
+            jax.jit(lambda x: x + 1.0, compiler_options={name: options[name]}).lower(1.0).compile()
+        except Exception:  # an older XLA: "No such compile option"
+            options.pop(name)
+    return options
 
 
 @functools.cache
@@ -305,8 +325,32 @@ def _compiled(name: str, cfg: _Static, two: bool, devices: int):
             out_specs=split,
             check_vma=False,  # the problems are independent; nothing is reduced over devices
         )
-    options = COMPILER_OPTIONS_CPU if jax.default_backend() == "cpu" else None
+    options = _cpu_options() if jax.default_backend() == "cpu" else None
     return jax.jit(fn, compiler_options=options)
+
+
+_WARM_LOCK = threading.Lock()
+_WARMED: set = set()
+_COMPILER: concurrent.futures.ThreadPoolExecutor | None = None
+
+
+def _compile_stage2_aside(cfg: _Static, devices: int, args, intrinsics):
+    """On the first two-stage solve of a shape, compile the refinement stage in another thread
+    while the closed-form stage compiles and runs (XLA compiles without the GIL: the two
+    compilations overlap, about 4 s of the 10 s of a cold start on two cores). Returns the
+    future, or ``None`` when this shape was seen before."""
+    global _COMPILER
+    shapes = tuple(None if a is None else (np.shape(a), str(a.dtype)) for a in args)
+    key = (cfg, devices, shapes)
+    with _WARM_LOCK:
+        if key in _WARMED:
+            return None
+        _WARMED.add(key)
+        if _COMPILER is None:
+            _COMPILER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="jaxpose-xla")
+    init = jax.eval_shape(_compiled("stage1", cfg, False, devices), *args, intrinsics)
+    stage2 = _compiled("stage2", cfg, False, devices)
+    return _COMPILER.submit(lambda: stage2.lower(init, *args[:3], intrinsics).compile())
 
 
 LM_SLOTS = 16
@@ -422,8 +466,11 @@ def _solve_eager(args, intrinsics, cfg: _Static, two: bool, devices: int, size: 
     if cfg.refine is None or size <= FUSED_MAX:
         res = _compiled("fused", cfg, two, devices)(*args, intrinsics)
     else:
+        aside = _compile_stage2_aside(cfg, devices, args, intrinsics)
         init = _compiled("stage1", cfg, False, devices)(*args, intrinsics)
         planar = np.asarray(init.result.planar) & (np.asarray(init.result.status) == 0)
+        if aside is not None:
+            aside.result()
         stage2 = _compiled("stage2", cfg, bool(planar.any()), devices)
         res = stage2(init, *args[:3], intrinsics)
     if res.status.ndim and res.status.shape[0] != size:
