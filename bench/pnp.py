@@ -332,6 +332,52 @@ def bench_planar(count):
     return rows
 
 
+def bench_profile(B=10_000, n=20, repeats=3):
+    """Where the time of the batched solve goes (issue 17.4): its two compiled stages (closed
+    form, refinement) timed apart as the jitted functions ``solve_pnp`` runs, and the op counts
+    of their optimised HLO (``jax.jit(f).lower(...).compile().as_text()``)."""
+    import re
+    from collections import Counter
+
+    from jaxpose.core.pnp import _solve
+
+    points, pixels, _, _ = general_scenes(B, n, seed=n)
+    intrinsics, _ = _solve._intrinsics(GENERAL_K)
+    cfg = _solve._Static("epnp", 1e-3, None, PnPOptions().refine, False, PnPOptions().chunk)
+    args = (points, pixels, np.ones((B, n), bool), None)
+    stage1 = _solve._compiled("stage1", cfg, False, 1)
+    stage2 = _solve._compiled("stage2", cfg, False, 1)
+    init = jax.block_until_ready(stage1(*args, intrinsics))
+    jax.block_until_ready(stage2(init, *args[:3], intrinsics))
+    out = {}
+    for name, f, a in (
+        ("closed form (EPnP)", stage1, args),
+        ("refinement", stage2, (init,) + args[:3]),
+    ):
+        best = math.inf
+        for _ in range(repeats):
+            c0 = time.process_time()
+            jax.block_until_ready(f(*a, intrinsics))
+            best = min(best, time.process_time() - c0)
+        text = f.lower(*a, intrinsics).compile().as_text()
+        ops = Counter(re.findall(r"= \S+ ([a-z][\w-]*)\(", text))
+        calls = Counter(re.findall(r'custom_call_target="([^"]+)"', text))
+        out[name] = {
+            "cpu_us": 1e6 * best / B,
+            "fusions": ops["fusion"],
+            "while_loops": ops["while"],
+            "custom_calls": dict(calls),
+            "hlo_lines": text.count("\n"),
+        }
+    print(f"\nWhere the time goes (B = {B}, n = {n}, one thread, CPU time a problem):")
+    for name, m in out.items():
+        print(
+            f"  {name:20s} {m['cpu_us']:6.1f} us  {m['fusions']:4d} fusions  "
+            f"{m['while_loops']:3d} loops  custom calls {m['custom_calls'] or 'none'}"
+        )
+    return out
+
+
 def all_cores_child(devices, repeats):
     """Run in a child process with ``devices`` forced host devices: EPnP + LM at the target size."""
     assert jax.local_device_count() == devices, jax.devices()
@@ -376,9 +422,7 @@ def bench_all_cores(entry, repeats):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small sizes, for a smoke run")
-    parser.add_argument(
-        "--loop-max", type=int, default=10_000, help="problems per competitor loop"
-    )
+    parser.add_argument("--loop-max", type=int, default=10_000, help="problems per competitor loop")
     parser.add_argument("--planar", type=int, default=1000, help="planar scenes")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--sizes", type=int, nargs="+", help="batch sizes (default 1 100 10000)")
@@ -386,6 +430,9 @@ def main(argv=None):
         "--points", type=int, nargs="+", help="points per problem (default 6 20 100)"
     )
     parser.add_argument("--all-cores-child", type=int, help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--no-profile", action="store_true", help="skip the per-stage profile of the solve"
+    )
     args = parser.parse_args(argv)
     if args.all_cores_child:
         return all_cores_child(args.all_cores_child, args.repeats)
@@ -406,6 +453,7 @@ def main(argv=None):
         f"best {single['min_ms']:.3f} ms"
     )
     planar_rows = bench_planar(planar) if planar > 0 else None
+    profile = None if args.no_profile else bench_profile(repeats=args.repeats)
     big = next((g for g in grid if g["B"] == max(sizes) and g["n"] == 20), None)
     if big is not None and (os.cpu_count() or 1) > 1 and jax.local_device_count() == 1:
         bench_all_cores(big, args.repeats)
@@ -489,6 +537,7 @@ def main(argv=None):
                 "grid": grid,
                 "single": single,
                 "planar": planar_rows,
+                "profile": profile,
                 "targets": targets,
             }
         )

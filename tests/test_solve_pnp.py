@@ -107,7 +107,9 @@ def lm_refined(P, pix, K, start):
 
 
 @pytest.mark.parametrize(
-    "depth, noise, n", [(6.0, 0.0, N), (8.0, 0.5, N), (20.0, 2.0, 8)], ids=["exact", "noisy", "hard"]
+    "depth, noise, n",
+    [(6.0, 0.0, N), (8.0, 0.5, N), (20.0, 2.0, 8)],
+    ids=["exact", "noisy", "hard"],
 )
 def test_fast_refinement_agrees_with_the_lm(rng, depth, noise, n):
     """solve_pnp refines by a few Gauss-Newton steps and hands the problems that have not

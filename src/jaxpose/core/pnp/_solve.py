@@ -193,9 +193,7 @@ def _finished(res: PnPResult, status, pose: Pose, rms) -> PnPResult:
     """The refined result of one problem: identity, zero and inf where the status drops it."""
     keep = _kept(status)
     dtype = pose.R.dtype
-    pose = Pose(
-        jnp.where(keep, pose.R, jnp.eye(3, dtype=dtype)), jnp.where(keep, pose.t, 0.0)
-    )
+    pose = Pose(jnp.where(keep, pose.R, jnp.eye(3, dtype=dtype)), jnp.where(keep, pose.t, 0.0))
     return PnPResult(pose, status, jnp.where(keep, rms, jnp.inf), res.inliers, res.planar)
 
 
@@ -249,9 +247,7 @@ def _refined_gn(init: _Initial, p, x, camera, cfg: _Static, two: bool):
         rms = jnp.where(take, rms_b, rms)
         good = good | take
     # derivatives: the implicit function theorem at the optimum, as refine_pose's
-    _, prob, *_ = _refine_problem(
-        pose, p, x, camera, res.inliers, None, None, None, None, None
-    )
+    _, prob, *_ = _refine_problem(pose, p, x, camera, res.inliers, None, None, None, None, None)
     R, t = _with_implicit_grad(cfg.refine, pose.R, pose.t, prob)
     status = jnp.where(ok, Status.OK, res.status).astype(jnp.int32)
     return _finished(res, status, Pose(R, t), rms), ok & ~good
