@@ -120,7 +120,8 @@ def _greedy_forward(rows, valid, weight, n_keep: int):
     """Forward greedy on ``trace(W Q)``: ``n_keep`` indices of ``rows`` (``(n, 4, 6)``)."""
     dtype = rows.dtype
     blocks = jnp.einsum("nki,nkj->nij", rows, rows)
-    mean = jnp.sum(jnp.where(valid[:, None, None], blocks, 0.0), 0) / jnp.maximum(valid.sum(), 1)
+    count = jnp.maximum(jnp.sum(valid), 1).astype(dtype)
+    mean = jnp.sum(jnp.where(valid[:, None, None], blocks, 0.0), 0) / count
     d = jnp.diagonal(mean)
     s_p = jnp.maximum(jnp.mean(d[:3]), jnp.finfo(dtype).tiny)
     s_a = jnp.maximum(jnp.mean(d[3:]), jnp.finfo(dtype).tiny)
@@ -295,9 +296,10 @@ def fit_pose_budgeted(
     """:func:`~jaxpose.pipelines.stereo.frame_pose.fit_pose` on the features kept by
     :func:`select_budget` (the same call when ``options.feature_budget`` is ``None``).
 
-    The solve runs at padded sizes fitted to the kept features (powers of two), so its cost
-    follows the budget. The returned errors, inlier flags, inlier count and RMS cover every
-    matched feature at the fitted pose, as without a budget; ``kept_errors`` are the solve's.
+    The solve runs at a padded size fitted to the budget (the power of two at or above ``2 N``,
+    room for the left and right residuals of ``N`` features), so its cost follows the budget.
+    The returned errors, inlier flags, inlier count and RMS cover every matched feature at the
+    fitted pose, as without a budget; ``kept_errors`` are the solve's.
     The selection's seconds go to ``timings["budget"]``."""
     o = options
     if o.feature_budget is None:
@@ -310,12 +312,9 @@ def fit_pose_budgeted(
         timings["budget"] = time.perf_counter() - t0
     i_m, i_cur, l_m, l_cur = matches
     sub = (i_m[keep_p], i_cur[keep_p], l_m[keep_l], l_cur[keep_l])
-    n_sp, n_sl = int(keep_p.sum()), int(keep_l.sum())
-    o_sub = replace(
-        o,
-        max_points=min(o.max_points, _bucket(2 * n_sp, 16)),
-        max_lines=min(o.max_lines, _bucket(2 * n_sl, 8)),
-    )
+    # one padded size for a run (left and right residuals of up to N features): one compilation
+    size = _bucket(2 * o.feature_budget, 16)
+    o_sub = replace(o, max_points=min(o.max_points, size), max_lines=min(o.max_lines, size))
     fit = fit_pose(landmarks, feats, stereo, sub, pose_pred, rig, o_sub, line_sigma)
     pose = fit.pose
     cam = rig.left
