@@ -2,6 +2,7 @@
 small synthetic problems against brute force, option checks, and short tracking runs."""
 
 import itertools
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -183,3 +184,33 @@ def test_short_tracking_run_with_a_budget_loses_no_frame(frames, rule):
         assert r.status == Status.OK
         assert np.linalg.norm(r.t - np.asarray(fr.pose.t)) < 0.05
     assert all(r.timings["budget"] > 0 for r in res[1:])
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["--feature-budget", "3"], ["--feature-budget", "0"], ["--budget-rule", "best"]],
+)
+def test_cli_refuses_a_bad_budget_naming_the_option(argv, capsys, tmp_path):
+    from jaxpose.cli import main
+
+    try:
+        code = main(["stereo-track", *argv, "--out", str(tmp_path)])
+    except SystemExit as done:
+        code = done.code
+    err = capsys.readouterr().err
+    assert code == 2 and argv[0] in err and "Traceback" not in err
+
+
+def test_cli_tracks_with_a_budget(capsys, tmp_path):
+    from jaxpose.cli import main
+
+    argv = ["stereo-track", "--frames", "3", "--image-size", "512x384", "--feature-budget", "20"]
+    code = main(
+        [*argv, "--budget-rule", "random", "--json", "--no-figures", "--out", str(tmp_path)]
+    )
+    out = capsys.readouterr().out
+    assert code == 0
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["frames"] == 3 and summary["lost_frames"] == 0
+    stages = json.loads((tmp_path / "summary.json").read_text())["mean_stage_s"]
+    assert stages["budget"] > 0
