@@ -29,9 +29,25 @@ def _problem(n_p=14, n_l=6, seed=0):
     return P, S, w_p, w_l, np.asarray(rows)
 
 
+def _chaser_jacobian(t0, R0, eps=1e-6):
+    """d(chaser position)/d(dt, d) by finite differences (independent of criterion_weight): the
+    chaser c = -R^T t, R = exp(d) R0, t = t0 + dt."""
+    G = np.zeros((3, 6))
+    for k in range(6):
+        dx = np.zeros(6)
+        dx[k] = eps
+        R = np.asarray(Pose.from_rotvec(dx[3:], np.zeros(3)).R) @ R0
+        G[:, k] = (-R.T @ (t0 + dx[:3]) + R0.T @ t0) / eps
+    return G
+
+
+G_POSE = _chaser_jacobian(np.asarray(POSE.t, float), np.asarray(POSE.R, float))
+
+
 def _criterion(blocks, idx, arm):
+    """Chaser position variance + arm^2 attitude variance of a subset."""
     Q = np.linalg.inv(blocks[list(idx)].sum(0))
-    return np.trace(Q[:3, :3]) + arm**2 * np.trace(Q[3:, 3:])
+    return np.trace(G_POSE @ Q @ G_POSE.T) + arm**2 * np.trace(Q[3:, 3:])
 
 
 def test_feature_blocks_are_the_point_and_line_information_blocks():
@@ -59,7 +75,7 @@ def test_exact_path_equals_brute_force():
     arm = 0.3
     n = len(blocks)
     best = min(itertools.combinations(range(n), 6), key=lambda s: _criterion(blocks, s, arm))
-    got = B.select_dop(rows, np.ones(n, bool), 6, arm)
+    got = B.select_dop(rows, np.ones(n, bool), 6, B.criterion_weight(arm, POSE.t))
     assert tuple(got) == best
 
 
@@ -72,7 +88,8 @@ def test_greedy_selection_near_brute_force_and_better_than_random(monkeypatch):
     valid = np.r_[np.ones(15, bool), np.zeros(3, bool)]
     blocks = np.einsum("nki,nkj->nij", rows, rows)
     arm, N = 0.25, 7
-    got = B.select_dop(rows, valid, N, arm)
+    W = B.criterion_weight(arm, POSE.t)
+    got = B.select_dop(rows, valid, N, W)
     assert len(got) == N and len(set(got.tolist())) == N and np.all(got < 15)
     crit = _criterion(blocks, got, arm)
     opt = min(_criterion(blocks, s, arm) for s in itertools.combinations(range(15), N))
@@ -80,13 +97,14 @@ def test_greedy_selection_near_brute_force_and_better_than_random(monkeypatch):
     rng = np.random.default_rng(0)
     rand = [_criterion(blocks, rng.choice(15, N, replace=False), arm) for _ in range(200)]
     assert crit <= min(rand)
-    assert B.budget_criterion(blocks[got].sum(0), arm) == pytest.approx(crit, rel=1e-9)
+    assert B.budget_criterion(blocks[got].sum(0), W) == pytest.approx(crit, rel=1e-5)
 
 
 def test_fewer_candidates_than_the_budget_keeps_all():
     _, _, _, _, rows = _problem(n_p=4, n_l=2)
     valid = np.array([True, False, True, True, True, False])
-    np.testing.assert_array_equal(B.select_dop(rows, valid, 10, 0.3), [0, 2, 3, 4])
+    W = B.criterion_weight(0.3)
+    np.testing.assert_array_equal(B.select_dop(rows, valid, 10, W), [0, 2, 3, 4])
 
 
 @pytest.mark.parametrize(
@@ -112,13 +130,15 @@ def _matches(n_p=40, n_l=6, seed=3):
     L = rng.uniform(-0.4, 0.4, (n_l, 2, 3))
     n_obs = np.full(n_p, 5)
     n_obs[:5] = 1  # young: never chosen
+    last_seen = np.full(n_p, 3)
+    last_seen[-8:] = 1  # not inliers on the frame before: left out while 2 N others remain
     landmarks = SimpleNamespace(
-        points=SimpleNamespace(X=X, n_obs=n_obs), lines=SimpleNamespace(X=L)
+        points=SimpleNamespace(X=X, n_obs=n_obs, last_seen=last_seen), lines=SimpleNamespace(X=L)
     )
     seg = rng.uniform(0, 400, (n_l, 2, 2))
-    feats = SimpleNamespace(
-        points=rng.uniform(0, 600, (n_p, 2)), segments=seg, point_response=rng.uniform(size=n_p)
-    )
+    pixels = np.asarray(CAM.project(POSE.apply(X))) + rng.normal(0, 0.3, (n_p, 2)) + [4.0, -2.0]
+    pixels[[10, 11]] += [[15.0, 0.0], [0.0, -12.0]]  # two wrong matches
+    feats = SimpleNamespace(points=pixels, segments=seg, point_response=rng.uniform(size=n_p))
     stereo = SimpleNamespace(point_idx=np.arange(0, n_p, 2), line_idx=np.arange(n_l))
     rig = SimpleNamespace(left=CAM, t_rl=np.array([-0.3, 0.0, 0.0]))
     matches = (np.arange(n_p), np.arange(n_p), np.arange(n_l), np.arange(n_l))
@@ -132,13 +152,16 @@ def test_select_budget_rules(rule):
     kp, kl = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
     assert kp.sum() + kl.sum() == 12
     assert not kp[:5].any()  # young landmarks are left out
+    assert not kp[[10, 11]].any()  # wrong matches (off the frame's motion) are left out
+    assert not kp[-8:].any()  # not inliers on the frame before
+    allowed = np.r_[np.arange(5, 10), np.arange(12, 32)]
     again = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
     np.testing.assert_array_equal(np.r_[kp, kl], np.r_[again])  # deterministic
     if rule == "response":
-        # points and lines in proportion (40 - 5 young : 6), the strongest of each kind
+        # points and lines in proportion (25 allowed points : 6), the strongest of each kind
         assert (kp.sum(), kl.sum()) == (10, 2)
         resp = feats.point_response
-        assert resp[kp].min() >= np.sort(resp[5:])[-10]
+        assert resp[kp].min() >= np.sort(resp[allowed])[-10]
         length = np.linalg.norm(feats.segments[:, 1] - feats.segments[:, 0], axis=1)
         assert length[kl].min() >= np.sort(length)[-2]
     none = TrackerOptions()

@@ -14,11 +14,13 @@ the pose solve (:func:`jaxpose.pipelines.stereo.frame_pose.fit_pose`):
   segment's two endpoint-to-line distances (Yang et al. 2024 eq. 9,
   :func:`jaxpose.core.line_dop.line_jacobians`), in the tangent attitude state, so point and line
   blocks add (:func:`jaxpose.core.dilution.information_blocks`,
-  :func:`jaxpose.core.line_dop.line_information_blocks`). The criterion is
-  ``trace(Q_pp) + l^2 trace(Q_aa)`` with ``Q`` the inverse of the summed information and ``l``
-  the RMS distance of the matched landmarks from their centroid: the position variance of the
-  target plus the displacement variance its attitude error gives a landmark (``PDOP^2 +
-  (l ADOP)^2``); the tracker reports both position and attitude, so both count. The subset is
+  :func:`jaxpose.core.line_dop.line_information_blocks`). The criterion is ``trace(W Q)`` with
+  ``Q`` the inverse of the summed information (:func:`criterion_weight`): the variance of the
+  chaser's position in the target frame (the target's translation and, through the range, its
+  attitude: what a rendezvous needs and the tracker's error metric) plus ``l^2`` times the
+  attitude variance, ``l`` the RMS distance of the matched landmarks from their centroid (the
+  displacement an attitude error gives a landmark). Without the range term it is ``PDOP^2 +
+  (l ADOP)^2`` (Ning et al.'s PDOP and ADOP). The subset is
   chosen by forward greedy selection (each step adds the feature that lowers the criterion most,
   scored for every candidate at once by rank-one Sherman-Morrison updates of ``Q``, from a small
   prior ``1e-6`` times the mean block so that the first picks are defined) in one compiled call
@@ -38,7 +40,6 @@ minimise the PDOP or the ADOP alone: hence the forward greedy here.
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 import time
@@ -59,6 +60,7 @@ from jaxpose.pipelines.stereo.options import BUDGET_RULES, TrackerOptions
 __all__ = [
     "EXACT_SUBSETS",
     "budget_criterion",
+    "criterion_weight",
     "feature_rows",
     "fit_pose_budgeted",
     "select_budget",
@@ -103,21 +105,35 @@ def feature_rows(points_body, points_right, segments_body, segments_right, pose,
     return jnp.where(jnp.isfinite(rows), rows, 0.0)
 
 
-def budget_criterion(information, arm_m: float):
-    """``trace(Q_pp) + arm_m^2 trace(Q_aa)``, ``Q = information^-1`` (``inf`` when singular):
-    the criterion of the ``"dop"`` rule, ``PDOP^2 + (arm ADOP)^2``."""
+def criterion_weight(arm_m: float, t_cam=None) -> np.ndarray:
+    """``W`` (``6 x 6``) of the ``"dop"`` criterion ``trace(W Q)``: the variance of the chaser's
+    position in the target frame, ``G Q G^T`` with ``G = [I, [t]_x]`` (``-R^T (dt + [t]_x
+    d(theta))`` to first order for a translation error ``dt`` and a tangent attitude error
+    ``d(theta)`` at the translation ``t_cam``, metres; ``None``: the target origin's position),
+    plus ``arm_m^2`` times the attitude variance (a landmark ``arm_m`` from the centre)."""
+    G = np.zeros((3, 6))
+    G[:, :3] = np.eye(3)
+    if t_cam is not None:
+        x, y, z = np.asarray(t_cam, float)
+        G[:, 3:] = [[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]
+    return G.T @ G + np.diag(np.r_[np.zeros(3), np.full(3, float(arm_m) ** 2)])
+
+
+def budget_criterion(information, weight):
+    """``trace(W Q)``, ``Q = information^-1`` (``(..., 6, 6)``; ``inf`` when singular), ``W``
+    from :func:`criterion_weight`: the criterion of the ``"dop"`` rule."""
     A = np.asarray(information, float)
-    w = np.r_[np.ones(3), np.full(3, arm_m**2)]
     with np.errstate(all="ignore"):
         ev = np.linalg.eigvalsh(A)
         ok = ev[..., 0] > 1e-12 * ev[..., -1]
         Q = np.linalg.inv(np.where(ok[..., None, None], A, np.eye(6)))
-    return np.where(ok, np.einsum("...ii,i->...", Q, w), np.inf)
+    return np.where(ok, np.einsum("...ij,ji->...", Q, np.asarray(weight, float)), np.inf)
 
 
-@functools.partial(jax.jit, static_argnames=("n_keep",))
-def _greedy_forward(rows, valid, weight, n_keep: int):
-    """Forward greedy on ``trace(W Q)``: ``n_keep`` indices of ``rows`` (``(n, 4, 6)``)."""
+@jax.jit
+def _greedy_forward(rows, valid, weight, n_keep):
+    """Forward greedy on ``trace(W Q)``: a ``(n,)`` mask of the ``n_keep`` (traced: one
+    compilation a padded size) features of ``rows`` (``(n, 4, 6)``) it picks."""
     dtype = rows.dtype
     blocks = jnp.einsum("nki,nkj->nij", rows, rows)
     count = jnp.maximum(jnp.sum(valid), 1).astype(dtype)
@@ -127,7 +143,7 @@ def _greedy_forward(rows, valid, weight, n_keep: int):
     s_a = jnp.maximum(jnp.mean(d[3:]), jnp.finfo(dtype).tiny)
     scale = 1.0 / jnp.sqrt(jnp.r_[jnp.full(3, s_p), jnp.full(3, s_a)])  # entries of order one
     h = rows * scale  # (n, 4, 6): the state divided by ``scale``
-    w = weight * scale**2  # trace(W Q) in the scaled state
+    w = scale[:, None] * weight * scale[None, :]  # trace(W Q) in the scaled state
     Q0 = jnp.eye(6, dtype=dtype) / _PRIOR
 
     def add(Q, h_rows):
@@ -137,19 +153,19 @@ def _greedy_forward(rows, valid, weight, n_keep: int):
             Q = Q - v[..., :, None] * v[..., None, :] / den[..., None, None]
         return Q
 
-    def step(carry, _):
+    def step(_, carry):
         Q, free = carry
         Qs = add(jnp.broadcast_to(Q, (h.shape[0], 6, 6)), h)
-        score = jnp.einsum("nii,i->n", Qs, w)
+        score = jnp.einsum("nij,ji->n", Qs, w)
         score = jnp.where(free & jnp.isfinite(score), score, jnp.inf)
         k = jnp.argmin(score)
-        return (Qs[k], free.at[k].set(False)), k
+        return Qs[k], free.at[k].set(False)
 
-    (_, _), picked = jax.lax.scan(step, (Q0, valid), None, length=n_keep)
-    return picked
+    _, free = jax.lax.fori_loop(0, n_keep, step, (Q0, valid))
+    return valid & ~free
 
 
-def select_dop(rows, valid, n_keep: int, arm_m: float) -> np.ndarray:
+def select_dop(rows, valid, n_keep: int, weight) -> np.ndarray:
     """The ``"dop"`` rule: ``n_keep`` indices (ascending) of the valid features of ``rows``
     (``(n, 4, 6)`` from :func:`feature_rows`, padded; ``valid`` ``(n,)`` bool) minimising
     :func:`budget_criterion`: every subset scored when ``C(n_valid, n_keep) <=``
@@ -163,11 +179,11 @@ def select_dop(rows, valid, n_keep: int, arm_m: float) -> np.ndarray:
     if math.comb(len(idx), n_keep) <= EXACT_SUBSETS:
         blocks = np.einsum("nki,nkj->nij", rows_np[idx], rows_np[idx])
         subsets = np.array(list(itertools.combinations(range(len(idx)), n_keep)))
-        cost = budget_criterion(blocks[subsets].sum(1), arm_m)
+        cost = budget_criterion(blocks[subsets].sum(1), weight)
         return idx[subsets[int(np.argmin(cost))]]
-    weight = jnp.asarray(np.r_[np.ones(3), np.full(3, arm_m**2)])
-    picked = _greedy_forward(jnp.asarray(rows_np), jnp.asarray(valid), weight, int(n_keep))
-    return np.sort(np.asarray(picked))
+    W = jnp.asarray(np.asarray(weight, float))
+    picked = _greedy_forward(jnp.asarray(rows_np), jnp.asarray(valid), W, n_keep)
+    return np.nonzero(np.asarray(picked))[0]
 
 
 def _split(n_keep: int, n_p: int, n_l: int) -> tuple[int, int]:
@@ -175,6 +191,27 @@ def _split(n_keep: int, n_p: int, n_l: int) -> tuple[int, int]:
     k_l = min(n_l, int(round(n_keep * n_l / max(n_p + n_l, 1))))
     k_p = min(n_p, n_keep - k_l)
     return k_p, min(n_l, n_keep - k_p)
+
+
+def _consistent(predicted: np.ndarray, observed: np.ndarray, floor_px: float) -> np.ndarray:
+    """Matches that follow the frame's motion: an affine map of the predicted pixels onto the
+    observed ones, fitted by least squares twice (the second time without the matches beyond
+    the bound), and the matches within ``max(floor_px, 3 sigma)`` of it (``sigma`` from the
+    median absolute residual). A few wrong matches left among ``N`` features would pull a small
+    solve far more than they pull the solve on all matches."""
+    n = len(predicted)
+    keep = np.ones(n, bool)
+    if n < 8:
+        return keep
+    A = np.c_[predicted, np.ones(n)]
+    for _ in range(2):
+        coef = np.linalg.lstsq(A[keep], observed[keep], rcond=None)[0]
+        e = np.linalg.norm(A @ coef - observed, axis=1)
+        bound = max(floor_px, 3.0 * 1.4826 * float(np.median(e[keep])) / 1.1774)
+        keep = e < bound
+        if keep.sum() < 8:
+            return np.ones(n, bool)
+    return keep
 
 
 def select_budget(
@@ -192,7 +229,9 @@ def select_budget(
     """Which matched points and lines go into the pose solve: boolean masks ``(n_p,)`` and
     ``(n_l,)`` over ``matches = (i_m, i_cur, l_m, l_cur)``, at most ``options.feature_budget``
     true together (all matches when the budget is ``None`` or not smaller than their count).
-    Landmarks too young for the solve (``mature_obs``) are never chosen."""
+    Landmarks too young for the solve (``mature_obs``) and point matches that do not follow the
+    frame's motion (:func:`_consistent`) are never chosen, whatever the rule; nor, when at least
+    ``2 N`` others remain, point landmarks that were not inliers on the frame before."""
     o = options
     i_m, i_cur, l_m, l_cur = matches
     n_p, n_l = len(i_m), len(l_m)
@@ -205,6 +244,12 @@ def select_budget(
     ok_p = np.ones(n_p, bool)
     if o.mature_obs > 1:
         ok_p = landmarks.points.n_obs[i_m] >= o.mature_obs
+    ok_p &= _consistent(
+        project(rig.left, pose_pred, landmarks.points.X[i_m]), feats.points[i_cur], o.reject_px
+    )
+    recent = landmarks.points.last_seen[i_m] >= frame - 1  # an inlier on the frame before
+    if np.count_nonzero(ok_p & recent) >= 2 * N:
+        ok_p &= recent
     cand_p, cand_l = np.nonzero(ok_p)[0], np.arange(n_l)
     keep_p[:], keep_l[:] = False, False
     if len(cand_p) + n_l <= N:
@@ -229,7 +274,7 @@ def select_budget(
     rows, valid, arm = _dop_inputs(
         landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, line_sigma
     )
-    chosen = select_dop(rows, valid, N, arm)
+    chosen = select_dop(rows, valid, N, criterion_weight(arm, np.asarray(pose_pred.t, float)))
     B_p = _bucket(n_p, 64)
     keep_p[chosen[chosen < B_p]] = True
     keep_l[chosen[chosen >= B_p] - B_p] = True
@@ -241,7 +286,7 @@ def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, li
     lever arm ``l`` of the criterion."""
     i_m, i_cur, l_m, l_cur = matches
     n_p, n_l = len(i_m), len(l_m)
-    B_p, B_l = _bucket(n_p, 64), _bucket(n_l, 16)
+    B_p, B_l = _bucket(n_p, 64), _bucket(max(n_l, o.max_lines), 16)
     t_rl = np.asarray(rig.t_rl, float)
     shift = np.asarray(pose_pred.R, float).T @ t_rl
     X = np.asarray(landmarks.points.X[i_m], float)
