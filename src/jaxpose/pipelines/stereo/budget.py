@@ -70,6 +70,8 @@ __all__ = [
 #: the ``"dop"`` rule scores every subset when there are at most this many (else forward greedy)
 EXACT_SUBSETS = 3000
 _PRIOR = 1e-6
+#: the ``"dop"`` rule's picks are kept ``SPACING sqrt(area / N)`` pixels apart while it can
+SPACING = 0.5
 
 
 def _bucket(n: int, least: int) -> int:
@@ -131,9 +133,10 @@ def budget_criterion(information, weight):
 
 
 @jax.jit
-def _greedy_forward(rows, valid, weight, n_keep):
+def _greedy_forward(rows, valid, weight, n_keep, pixels, spacing):
     """Forward greedy on ``trace(W Q)``: a ``(n,)`` mask of the ``n_keep`` (traced: one
-    compilation a padded size) features of ``rows`` (``(n, 4, 6)``) it picks."""
+    compilation a padded size) features of ``rows`` (``(n, 4, 6)``) it picks, each at least
+    ``spacing`` pixels from those picked before while such candidates remain."""
     dtype = rows.dtype
     blocks = jnp.einsum("nki,nkj->nij", rows, rows)
     count = jnp.maximum(jnp.sum(valid), 1).astype(dtype)
@@ -154,23 +157,32 @@ def _greedy_forward(rows, valid, weight, n_keep):
         return Q
 
     def step(_, carry):
-        Q, free = carry
+        Q, free, chosen = carry
         Qs = add(jnp.broadcast_to(Q, (h.shape[0], 6, 6)), h)
         score = jnp.einsum("nij,ji->n", Qs, w)
-        score = jnp.where(free & jnp.isfinite(score), score, jnp.inf)
+        score = jnp.where(jnp.isfinite(score), score, jnp.inf)
+        spaced = jnp.where(free, score, jnp.inf)
+        # no spaced candidate left: any valid one not yet chosen
+        score = jnp.where(
+            jnp.isfinite(jnp.min(spaced)), spaced, jnp.where(valid & ~chosen, score, jnp.inf)
+        )
         k = jnp.argmin(score)
-        return Qs[k], free.at[k].set(False)
+        take = jnp.isfinite(score[k])
+        near = jnp.sum((pixels - pixels[k]) ** 2, axis=1) < spacing**2
+        free = jnp.where(take, free & ~near, free).at[k].set(False)
+        return jnp.where(take, Qs[k], Q), free, chosen.at[k].set(chosen[k] | take)
 
-    _, free = jax.lax.fori_loop(0, n_keep, step, (Q0, valid))
-    return valid & ~free
+    _, _, chosen = jax.lax.fori_loop(0, n_keep, step, (Q0, valid, jnp.zeros_like(valid)))
+    return chosen
 
 
-def select_dop(rows, valid, n_keep: int, weight) -> np.ndarray:
+def select_dop(rows, valid, n_keep: int, weight, *, pixels=None, spacing_px=0.0) -> np.ndarray:
     """The ``"dop"`` rule: ``n_keep`` indices (ascending) of the valid features of ``rows``
     (``(n, 4, 6)`` from :func:`feature_rows`, padded; ``valid`` ``(n,)`` bool) minimising
     :func:`budget_criterion`: every subset scored when ``C(n_valid, n_keep) <=``
-    :data:`EXACT_SUBSETS`, else forward greedy (module docstring). All valid indices when there
-    are no more than ``n_keep``."""
+    :data:`EXACT_SUBSETS`, else forward greedy (module docstring), which keeps its picks at least
+    ``spacing_px`` apart in the image (``pixels``, ``(n, 2)``) while it can. All valid indices
+    when there are no more than ``n_keep``."""
     valid = np.asarray(valid, bool)
     idx = np.nonzero(valid)[0]
     if len(idx) <= n_keep:
@@ -182,7 +194,10 @@ def select_dop(rows, valid, n_keep: int, weight) -> np.ndarray:
         cost = budget_criterion(blocks[subsets].sum(1), weight)
         return idx[subsets[int(np.argmin(cost))]]
     W = jnp.asarray(np.asarray(weight, float))
-    picked = _greedy_forward(jnp.asarray(rows_np), jnp.asarray(valid), W, n_keep)
+    pix = np.zeros((len(valid), 2)) if pixels is None else np.asarray(pixels, float)
+    picked = _greedy_forward(
+        jnp.asarray(rows_np), jnp.asarray(valid), W, n_keep, jnp.asarray(pix), float(spacing_px)
+    )
     return np.nonzero(np.asarray(picked))[0]
 
 
@@ -274,7 +289,17 @@ def select_budget(
     rows, valid, arm = _dop_inputs(
         landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, line_sigma
     )
-    chosen = select_dop(rows, valid, N, criterion_weight(arm, np.asarray(pose_pred.t, float)))
+    # image positions (point pixels, segment midpoints) and the spacing of N features spread
+    # over the box the candidates span: features a few pixels apart (one corner found at
+    # several ORB scales) share their landmark's error, which the DOP takes as independent
+    pix = np.zeros((len(valid), 2))
+    pix[: len(i_m)] = feats.points[i_cur]
+    b_p = _bucket(len(i_m), 64)
+    pix[b_p : b_p + len(l_m)] = feats.segments[l_cur].mean(axis=1)
+    span = np.ptp(pix[valid], axis=0)
+    spacing = SPACING * float(np.sqrt(span[0] * span[1] / N))
+    W = criterion_weight(arm, np.asarray(pose_pred.t, float))
+    chosen = select_dop(rows, valid, N, W, pixels=pix, spacing_px=spacing)
     B_p = _bucket(n_p, 64)
     keep_p[chosen[chosen < B_p]] = True
     keep_l[chosen[chosen >= B_p] - B_p] = True
