@@ -15,7 +15,7 @@ def scenes(rng, count=BATCH, n=N, planar=False, depth=5.0, noise=0.0, K=K):
     P = rng.uniform(-0.5, 0.5, (count, n, 3))
     if planar:
         P[..., 2] = 0.0
-    R = np.asarray(quat_to_dcm(rng.normal(size=(count, 4))))
+    R = np.asarray(quat_to_dcm(jnp.asarray(rng.normal(size=(count, 4)))))
     t = np.stack(
         [rng.uniform(-0.2, 0.2, count), rng.uniform(-0.2, 0.2, count), np.full(count, depth)], -1
     )
