@@ -326,27 +326,28 @@ def _compiled(name: str, cfg: _Static, two: bool, devices: int):
 
 
 _WARM_LOCK = threading.Lock()
-_WARMED: set = set()
+_WARMED: dict = {}
 _COMPILER: concurrent.futures.ThreadPoolExecutor | None = None
 
 
 def _compile_stage2_aside(cfg: _Static, devices: int, args, intrinsics):
     """On the first two-stage solve of a shape, compile the refinement stage in another thread
     while the closed-form stage compiles and runs (XLA compiles without the GIL: the two
-    compilations overlap, about 4 s of the 10 s of a cold start on two cores). Returns the
-    future, or ``None`` when this shape was seen before."""
+    compilations overlap). Returns the future of that compilation (the same one for the host
+    threads that share a batch, so that it is compiled once)."""
     global _COMPILER
     shapes = tuple(None if a is None else (np.shape(a), str(a.dtype)) for a in args)
     key = (cfg, devices, shapes)
     with _WARM_LOCK:
         if key in _WARMED:
-            return None
-        _WARMED.add(key)
+            return _WARMED[key]
         if _COMPILER is None:
             _COMPILER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="jaxpose-xla")
-    init = jax.eval_shape(_compiled("stage1", cfg, False, devices), *args, intrinsics)
-    stage2 = _compiled("stage2", cfg, False, devices)
-    return _COMPILER.submit(lambda: stage2.lower(init, *args[:3], intrinsics).compile())
+        init = jax.eval_shape(_compiled("stage1", cfg, False, devices), *args, intrinsics)
+        stage2 = _compiled("stage2", cfg, False, devices)
+        future = _COMPILER.submit(lambda: stage2.lower(init, *args[:3], intrinsics).compile())
+        _WARMED[key] = future
+    return future
 
 
 LM_SLOTS = 16
@@ -465,8 +466,7 @@ def _solve_eager(args, intrinsics, cfg: _Static, two: bool, devices: int, size: 
         aside = _compile_stage2_aside(cfg, devices, args, intrinsics)
         init = _compiled("stage1", cfg, False, devices)(*args, intrinsics)
         planar = np.asarray(init.result.planar) & (np.asarray(init.result.status) == 0)
-        if aside is not None:
-            aside.result()
+        aside.result()
         stage2 = _compiled("stage2", cfg, bool(planar.any()), devices)
         res = stage2(init, *args[:3], intrinsics)
     if res.status.ndim and res.status.shape[0] != size:
