@@ -97,7 +97,11 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
         float(options.silhouette_weight),
         *(_as_jax(image_maps.orientation_maps(det.image, det.roi)) if ori else (None, None)),
         float(options.orientation_weight),
-        *(_as_jax(image_maps.texture_maps(det.image, det.roi)) if panel is not None else (None, None)),
+        *(
+            _as_jax(image_maps.texture_maps(det.image, det.roi))
+            if panel is not None
+            else (None, None)
+        ),
         panel,
         float(options.panel_weight),
     )
