@@ -10,10 +10,13 @@ from jaxpose.core.geometry import Pose
 from jaxpose.vision.stereo_features import FeatureOptions
 from jaxpose.vision.stereo_match import StereoMatchOptions
 
-__all__ = ["STAGES", "FrameResult", "TrackerOptions"]
+__all__ = ["BUDGET_RULES", "STAGES", "FrameResult", "TrackerOptions"]
 
 #: Stages timed by :meth:`~jaxpose.pipelines.stereo.StereoTracker.process` (seconds each).
-STAGES = ("features", "stereo", "triangulate", "match", "pose")
+STAGES = ("features", "stereo", "triangulate", "match", "budget", "pose")
+
+#: Rules of ``TrackerOptions.feature_budget`` (:mod:`jaxpose.pipelines.stereo.budget`).
+BUDGET_RULES = ("dop", "random", "response")
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,11 @@ class TrackerOptions:
             excepted) are matched and refined but left out of the pose solve, so that a new
             landmark's position averages several frames' poses before a pose leans on it
             (0 or 1: every landmark is used at once).
+        feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
+            points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
+            dilution of precision at the predicted pose), ``"random"`` or ``"response"``
+            (strongest ORB responses, longest segments); see
+            :mod:`jaxpose.pipelines.stereo.budget`.
         stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
             StereoMatchOptions`).
     """
@@ -124,8 +132,18 @@ class TrackerOptions:
     line_scale_memory: float = 0.9
     mature_obs: int = 3
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
+    # feature budget (jaxpose.pipelines.stereo.budget)
+    feature_budget: int | None = None
+    budget_rule: str = "dop"
 
     def __post_init__(self):
+        fb = self.feature_budget
+        if fb is not None and (
+            isinstance(fb, bool) or not isinstance(fb, int | np.integer) or fb < 4
+        ):
+            raise ValueError(f"feature_budget must be an integer >= 4 or None; got {fb!r}")
+        if self.budget_rule not in BUDGET_RULES:
+            raise ValueError(f"budget_rule must be one of {BUDGET_RULES}; got {self.budget_rule!r}")
         if self.keypoint_spacing_px is not None and not self.keypoint_spacing_px > 0:
             raise ValueError(
                 f"keypoint_spacing_px must be positive or None; got {self.keypoint_spacing_px}"

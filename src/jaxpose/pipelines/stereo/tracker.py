@@ -44,7 +44,7 @@ from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo._arrays import angle_deg, compose, fraction, project, relative, rt
-from jaxpose.pipelines.stereo.frame_pose import fit_pose
+from jaxpose.pipelines.stereo.budget import fit_pose_budgeted
 from jaxpose.pipelines.stereo.guided import match_by_projection
 from jaxpose.pipelines.stereo.keyframes import (
     observe_point_rays,
@@ -329,7 +329,7 @@ class StereoTracker:
         update = None
         if n_p + n_l >= o.min_features:
             line_sigma = o.line_sigma_px * (self._line_scale if o.measured_line_sigma else 1.0)
-            fit = fit_pose(
+            fit = fit_pose_budgeted(  # all matches, or feature_budget of them (budget.py)
                 self.map,
                 feats,
                 stereo,
@@ -338,6 +338,8 @@ class StereoTracker:
                 self.rig,
                 o,
                 line_sigma,
+                frame=k,
+                timings=timings,
             )
             pose = fit.pose
             finite = _finite(pose)
@@ -386,7 +388,7 @@ class StereoTracker:
         if result.status != Status.OK:
             self._misses += 1
             self._pose_prev = pose_pred  # predict one more step of constant motion next time
-        timings["pose"] = time.perf_counter() - t2
+        timings["pose"] = time.perf_counter() - t2 - timings["budget"]
         if update is not None and (
             self._since_kf >= o.keyframe_every or result.inliers < o.keyframe_min
         ):
