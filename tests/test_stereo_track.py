@@ -81,7 +81,9 @@ def test_tracker_follows_a_short_sequence(frames, use_lines):
         angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
         assert angle < 1.0
         assert np.linalg.norm(res.t - t) < 0.02
-        assert set(res.timings) == {"features", "stereo", "triangulate", "match", "pose"}
+        stages = {"features", "match", "stereo", "triangulate", "pose", "map"}
+        assert set(res.timings) == stages and set(res.cpu_timings) == stages
+        assert all(v >= 0 for v in res.cpu_timings.values())
     if use_lines:
         assert res.n_lines > 0
 
