@@ -85,8 +85,8 @@ class TrackerOptions:
             (0 or 1: every landmark is used at once).
         predicted_disparity: a feature matched to a landmark is searched in the right image only
             around the landmark's disparity at the predicted pose, plus or minus a margin
-            measured on the previous frame (three times the 90th percentile of the measured
-            minus predicted disparities of the matched points, plus 2 px, within 3-24 px); an
+            measured on the previous frame (``4 sigma + 2`` px within 3-24 px, ``sigma`` the
+            robust scale of the measured minus predicted disparities of the matched points); an
             unmatched feature with matched points within ``neighbour_px`` around the range of
             their predicted disparities; the others over the map's depth window. ``False``:
             every feature over the window.
@@ -135,7 +135,7 @@ class TrackerOptions:
     mature_obs: int = 3
     predicted_disparity: bool = True
     disparity_margin_px: float = 6.0
-    neighbour_px: float = 30.0
+    neighbour_px: float = 40.0
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
 
     def __post_init__(self):

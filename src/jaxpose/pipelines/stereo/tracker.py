@@ -52,6 +52,7 @@ from jaxpose.pipelines.stereo._arrays import (
     project,
     relative,
     rt,
+    warm_up_projection,
 )
 from jaxpose.pipelines.stereo._clock import StageClock
 from jaxpose.pipelines.stereo.frame_pose import fit_pose
@@ -185,6 +186,7 @@ class StereoTracker:
         self._line_scale = 1.0  # running ratio of line to point residual scales (line_sigma)
         self._radius = float(options.search_radius_px)  # search-by-projection radius
         self._disparity_margin = float(options.disparity_margin_px)  # around predicted disparity
+        warm_up_projection(rig.left)
 
     # ------------------------------------------------------------------ scene-dependent settings
     def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
@@ -268,16 +270,16 @@ class StereoTracker:
           the measured margin ``m`` (:meth:`_update_disparity_margin`);
         * a matched segment: its landmark's endpoint disparities, widened by ``m`` and half
           their difference (the segment found may reach beyond the landmark's);
-        * an unmatched feature near matched points (at least 3 within ``neighbour_px``; a
-          segment: at each endpoint and its midpoint): the range of their predicted disparities
+        * an unmatched feature near matched points (at least 2 within ``neighbour_px``; a
+          segment: at two of its endpoints and midpoint): the range of their predicted disparities
           widened by ``m`` and by that range again (a rigid surface's disparity varies smoothly;
           a depth edge among the neighbours widens the window by itself);
         * the others: the window of :meth:`_disparities`.
 
-        A true disparity outside its window puts the ZNCC peak on the window's edge, which the
-        search rejects (no sub-pixel parabola there): a narrow window loses a match, it does not
-        make a wrong one. ``predicted`` holds the matched points' indices and predicted
-        disparities for the margin's update."""
+        A true disparity outside its window usually puts the ZNCC maximum on the window's edge,
+        which the search rejects (no sub-pixel parabola there): a narrow window mostly loses such
+        a match, unless a second peak inside it passes the NCC threshold. ``predicted`` holds
+        the matched points' indices and predicted disparities for the margin's update."""
         o = self.options
         base = np.array(self._disparities(pose_pred), np.int64)
         dp = np.tile(base, (len(feats.points), 1)).astype(np.float64)
@@ -306,7 +308,7 @@ class StereoTracker:
                 dj = np.where(near, d[np.minimum(j, len(d) - 1)], np.nan)
                 lo, hi = np.nanmin(dj, 1), np.nanmax(dj, 1)
                 spread = hi - lo
-                known = near.sum(1) >= 3
+                known = near.sum(1) >= 2
                 return known, lo - m - spread, hi + m + spread
 
             free = np.nonzero(~matched)[0]
@@ -321,7 +323,8 @@ class StereoTracker:
                 with np.errstate(invalid="ignore"), warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)
                     known, lo, hi = (a.reshape(3, -1) for a in around(q))
-                known = known.all(0)
+                lo, hi = np.where(known, lo, np.inf), np.where(known, hi, -np.inf)
+                known = known.sum(0) >= 2  # two of the endpoints and the midpoint
                 dl[known] = np.stack([lo[:, known].min(0), hi[:, known].max(0)], 1)
         dp[i_cur] = np.stack([d - m, d + m], 1)
         if len(l_m):
@@ -343,9 +346,11 @@ class StereoTracker:
         return dp.astype(np.int64), dl.astype(np.int64), (i_cur, d)
 
     def _update_disparity_margin(self, feats, stereo, predicted) -> None:
-        """The next frame's margin around the predicted disparities: three times the 90th
-        percentile of the difference between the measured and the predicted disparity of this
-        frame's matched points, plus 2 px (within 3-24 px)."""
+        """The next frame's margin around the predicted disparities from this frame's matched
+        points: ``4 sigma + 2`` px (within 3-24 px), ``sigma`` the robust scale (median absolute
+        value over 0.6745) of their measured minus predicted disparities. A tail of larger
+        differences (a landmark matched to the wrong keypoint, a stereo mismatch) falls outside
+        the window and is left unmatched."""
         if predicted is None or stereo is None:
             return
         idx, d_pred = predicted
@@ -353,8 +358,8 @@ class StereoTracker:
         if len(q) < 10:
             return
         d_meas = feats.points[idx[q], 0] - stereo.pixels_right[j, 0]
-        err = np.abs(d_meas - d_pred[q])
-        self._disparity_margin = float(np.clip(3.0 * np.percentile(err, 90) + 2.0, 3.0, 24.0))
+        sigma = float(np.median(np.abs(d_meas - d_pred[q]))) / 0.6745
+        self._disparity_margin = float(np.clip(4.0 * sigma + 2.0, 3.0, 24.0))
 
     # ------------------------------------------------------------------ main entry
     def _stereo(self, left, right, feats, clock, pose_pred=None, matches=None):
