@@ -9,6 +9,7 @@ all its observation planes), the others become new landmarks. Rays and planes ar
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -90,18 +91,28 @@ def stereo_correspondences(
         return _triangulate_frame(rig, feats, pm, lm, line_ok, o)
 
 
+_POOL: list = []
+
+
 def _search(left, right, feats, disparities, o: TrackerOptions):
     if np.ndim(disparities[0]) == 2:
         d_points, d_lines = disparities
     else:
         d_points = d_lines = disparities
-    pm = match_points_stereo(left, right, feats.points, d_points, options=o.stereo)
     if o.use_lines and len(feats.segments):
-        lm = match_lines_stereo(left, right, feats.segments, d_lines, options=o.stereo)
-        line_ok = lm.ok
-    else:
-        lm, line_ok = None, np.zeros(len(feats.segments), bool)
-    return pm, lm, line_ok
+        args = (left, right, feats.segments, d_lines)
+        if o.threads:  # the segments' samples in a second thread (NumPy and OpenCV release the GIL)
+            if not _POOL:
+                _POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxpose-zncc"))
+            pending = _POOL[0].submit(match_lines_stereo, *args, options=o.stereo)
+            pm = match_points_stereo(left, right, feats.points, d_points, options=o.stereo)
+            lm = pending.result()
+        else:
+            pm = match_points_stereo(left, right, feats.points, d_points, options=o.stereo)
+            lm = match_lines_stereo(*args, options=o.stereo)
+        return pm, lm, lm.ok
+    pm = match_points_stereo(left, right, feats.points, d_points, options=o.stereo)
+    return pm, None, np.zeros(len(feats.segments), bool)
 
 
 def _triangulate_frame(rig, feats, pm, lm, line_ok, o: TrackerOptions) -> FrameStereo:

@@ -93,6 +93,8 @@ class TrackerOptions:
         disparity_margin_px: the margin of the first tracked frame.
         neighbour_px: radius of the matched points that predict an unmatched feature's
             disparity.
+        threads: run the line detection (LSD + LBD) and the lines' stereo search in a second
+            thread, beside the points' (the same results; on two cores the wall times overlap).
         stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
             StereoMatchOptions`).
     """
@@ -136,6 +138,7 @@ class TrackerOptions:
     predicted_disparity: bool = True
     disparity_margin_px: float = 6.0
     neighbour_px: float = 40.0
+    threads: bool = True
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
 
     def __post_init__(self):

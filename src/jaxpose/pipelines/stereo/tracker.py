@@ -415,7 +415,13 @@ class StereoTracker:
         with clock.stage("features"):
             roi = target_roi(left) if roi is None else roi
             area = target_area(left)
-            feats = extract(left, options=self.feature_options(area), roi=roi, lines=o.use_lines)
+            feats = extract(
+                left,
+                options=self.feature_options(area),
+                roi=roi,
+                lines=o.use_lines,
+                threads=o.threads,
+            )
         k = self.index
         self.index += 1
         if not self._started:
