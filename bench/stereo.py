@@ -10,6 +10,7 @@ from the frame rate. The first tracked frame compiles the solver and is left out
     python bench/stereo.py                                  # the whole suite, one turn a scene
     python bench/stereo.py --frames 60 --split dev          # a quicker look at the dev scenes
     python bench/stereo.py --scenes d1-clean-2m --timing-only --frames 30   # time by stage
+    python bench/stereo.py --budget-sweep --frames 20       # feature budget: stereo_budget.py
 
 Writes ``runs/bench-stereo/results.json`` (per scene and mode: the stereo-track summary and the
 mean time per stage), ``rms_vs_range_rate.png`` (per-axis RMS against range and spin rate),
@@ -274,6 +275,12 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
     p.add_argument("--points-lines-only", action="store_true", help="skip the points-only mode")
     p.add_argument("--timing-only", action="store_true", help="points+lines only, one scene")
+    p.add_argument(
+        "--budget-sweep",
+        action="store_true",
+        help="accuracy and pose-stage time against the feature budget N for the dop, random and "
+        "response rules (bench/stereo_budget.py) on the selected scenes",
+    )
     p.add_argument("--out", type=Path, default=Path("runs/bench-stereo"))
     p.add_argument(
         "--from-results",
@@ -283,6 +290,13 @@ def main(argv=None) -> int:
         help="report on saved results.json files (e.g. the dev and check splits run apart)",
     )
     args = p.parse_args(argv)
+    if args.budget_sweep:  # feature budget (issue 17.3): its own bench module and outputs
+        from stereo_budget import main as budget_main
+
+        sweep = ["--split", args.split, "--seed", str(args.seed)]
+        sweep += ["--scenes", *args.scenes] if args.scenes else []
+        sweep += ["--frames", str(args.frames)] if args.frames else []
+        return budget_main(sweep)
     args.out.mkdir(parents=True, exist_ok=True)
     if args.from_results:
         results = [r for f in args.from_results for r in json.loads(f.read_text())]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxpose.core.status import Status
-from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions, target_roi
+from jaxpose.pipelines.stereo import STAGES, StereoTracker, TrackerOptions, target_roi
 from jaxpose.vision.stereo_features import extract
 from jaxpose.vision.stereo_match import disparity_range, match_points_stereo
 from jaxpose.vision.stereo_render import (
@@ -81,7 +81,7 @@ def test_tracker_follows_a_short_sequence(frames, use_lines):
         angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
         assert angle < 1.0
         assert np.linalg.norm(res.t - t) < 0.02
-        stages = {"features", "match", "stereo", "triangulate", "pose", "map"}
+        stages = set(STAGES)  # features, match, stereo, triangulate, budget, pose, map
         assert set(res.timings) == stages and set(res.cpu_timings) == stages
         assert all(v >= 0 for v in res.cpu_timings.values())
     if use_lines:

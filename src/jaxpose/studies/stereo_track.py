@@ -139,6 +139,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a stereo folder: calibration.json, left/*.png, right/*.png, optional poses.csv "
         "(default: render a sequence)",
     )
+    parser.add_argument(
+        "--feature-budget",
+        type=positive_int,
+        default=None,
+        help="solve each frame's pose on at most N of the matched points and lines, at least 4 "
+        "(default: all)",
+    )
+    parser.add_argument(
+        "--budget-rule",
+        choices=("dop", "random", "response"),
+        default="dop",
+        help="which N features: lowest DOP at the predicted pose, random, or strongest detector "
+        "response (default: dop)",
+    )
     add_out_argument(parser, "stereo-track", "trajectory, figures and summary")
     add_figures_argument(parser)
     add_progress_argument(parser)
@@ -363,6 +377,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.frames is not None and not 2 <= args.frames <= MAX_FRAMES:
         raise ValueError(f"--frames must be between 2 and {MAX_FRAMES}; got {args.frames}")
+    if args.feature_budget is not None and args.feature_budget < 4:
+        raise ValueError(f"--feature-budget must be at least 4; got {args.feature_budget}")
     w, h = args.image_size
     if w < 64 or h < 48:
         raise ValueError(f"--image-size must be at least 64x48; got {w}x{h}")
@@ -407,7 +423,12 @@ def run(args: argparse.Namespace) -> int:
     start_info = {"init": args.init or ("identity" if args.images is not None else "truth")}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    opts = TrackerOptions(use_lines=use_lines, depth_range_m=(0.3, max(8.0, 3 * range_m)))
+    opts = TrackerOptions(
+        use_lines=use_lines,
+        depth_range_m=(0.3, max(8.0, 3 * range_m)),
+        feature_budget=args.feature_budget,
+        budget_rule=args.budget_rule,
+    )
     with tqdm(total=n, disable=args.no_progress, desc="stereo-track", unit="frame") as bar:
         results, truths, seconds = track_sequence(
             frames, rig, use_lines=use_lines, initial_pose=initial, options=opts, progress=bar

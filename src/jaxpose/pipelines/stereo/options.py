@@ -10,10 +10,13 @@ from jaxpose.core.geometry import Pose
 from jaxpose.vision.stereo_features import FeatureOptions
 from jaxpose.vision.stereo_match import StereoMatchOptions
 
-__all__ = ["STAGES", "FrameResult", "TrackerOptions"]
+__all__ = ["BUDGET_RULES", "STAGES", "FrameResult", "TrackerOptions"]
 
 #: Stages timed by :meth:`~jaxpose.pipelines.stereo.StereoTracker.process` (seconds each).
-STAGES = ("features", "match", "stereo", "triangulate", "pose", "map")
+STAGES = ("features", "match", "stereo", "triangulate", "budget", "pose", "map")
+
+#: Rules of ``TrackerOptions.feature_budget`` (:mod:`jaxpose.pipelines.stereo.budget`).
+BUDGET_RULES = ("dop", "random", "response")
 
 
 @dataclass(frozen=True)
@@ -95,6 +98,11 @@ class TrackerOptions:
             disparity.
         threads: run the line detection (LSD + LBD) and the lines' stereo search in a second
             thread, beside the points' (the same results; on two cores the wall times overlap).
+        feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
+            points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
+            dilution of precision at the predicted pose), ``"random"`` or ``"response"``
+            (strongest ORB responses, longest segments); see
+            :mod:`jaxpose.pipelines.stereo.budget`.
         stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
             StereoMatchOptions`).
     """
@@ -140,8 +148,18 @@ class TrackerOptions:
     neighbour_px: float = 40.0
     threads: bool = True
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
+    # feature budget (jaxpose.pipelines.stereo.budget)
+    feature_budget: int | None = None
+    budget_rule: str = "dop"
 
     def __post_init__(self):
+        fb = self.feature_budget
+        if fb is not None and (
+            isinstance(fb, bool) or not isinstance(fb, int | np.integer) or fb < 4
+        ):
+            raise ValueError(f"feature_budget must be an integer >= 4 or None; got {fb!r}")
+        if self.budget_rule not in BUDGET_RULES:
+            raise ValueError(f"budget_rule must be one of {BUDGET_RULES}; got {self.budget_rule!r}")
         if self.keypoint_spacing_px is not None and not self.keypoint_spacing_px > 0:
             raise ValueError(
                 f"keypoint_spacing_px must be positive or None; got {self.keypoint_spacing_px}"
@@ -171,7 +189,8 @@ class FrameResult:
         keyframe: this frame updated the landmark map.
         timings: wall-clock seconds by stage (:data:`STAGES`).
         cpu_timings: CPU seconds of the process by stage (all its threads; steadier than wall
-            time on a shared machine).
+            time on a shared machine); the feature budget's selection is timed in wall time
+            only, its CPU time counts in ``pose``.
     """
 
     index: int

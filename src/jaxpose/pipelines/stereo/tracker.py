@@ -55,7 +55,7 @@ from jaxpose.pipelines.stereo._arrays import (
     warm_up_projection,
 )
 from jaxpose.pipelines.stereo._clock import StageClock
-from jaxpose.pipelines.stereo.frame_pose import fit_pose
+from jaxpose.pipelines.stereo.budget import fit_pose_budgeted
 from jaxpose.pipelines.stereo.guided import match_by_projection
 from jaxpose.pipelines.stereo.keyframes import (
     observe_point_rays,
@@ -455,6 +455,7 @@ class StereoTracker:
             result, update = self._fit_frame(
                 k, feats, stereo, pose_pred, (i_m, i_cur, cand, l_m, l_cur, lcand), clock
             )
+        clock.wall["pose"] -= clock.wall["budget"]  # the budget's selection is its own stage
         if update is not None and (
             self._since_kf >= o.keyframe_every or result.inliers < o.keyframe_min
         ):
@@ -489,7 +490,7 @@ class StereoTracker:
         update = None
         if n_p + n_l >= o.min_features:
             line_sigma = o.line_sigma_px * (self._line_scale if o.measured_line_sigma else 1.0)
-            fit = fit_pose(
+            fit = fit_pose_budgeted(  # all matches, or feature_budget of them (budget.py)
                 self.map,
                 feats,
                 stereo,
@@ -498,6 +499,8 @@ class StereoTracker:
                 self.rig,
                 o,
                 line_sigma,
+                frame=k,
+                timings=clock.wall,  # the selection's wall seconds (taken off "pose" below)
             )
             pose = fit.pose
             finite = _finite(pose)
