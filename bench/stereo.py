@@ -16,7 +16,10 @@ Writes ``runs/bench-stereo/results.json`` (per scene and mode: the stereo-track 
 mean time per stage), ``rms_vs_range_rate.png`` (per-axis RMS against range and spin rate),
 prints a Markdown table and, last, one JSON line: scenes run, how many meet the targets of
 issue 16 (per-axis RMS position <= 5 mm per metre of range, attitude <= 1 deg, no lost frame)
-per split, and the median frame rate with the machine's load average.
+per split, the median wall frame rate (``median_fps``) and CPU seconds a frame
+(``median_cpu_s_per_frame``, ``time.process_time`` of the process), the wall and CPU
+milliseconds a frame by stage (``median_stage_ms``, ``median_stage_cpu_ms``; points+lines,
+medians over the scenes) and the machine's load average before and after the run.
 
 Targets are checked per scene on the points+lines mode; "lines help" says whether points+lines
 is lower than points-only on every axis (asked for the scenes with blur or glints).
