@@ -86,13 +86,18 @@ class TrackerOptions:
             excepted) are matched and refined but left out of the pose solve, so that a new
             landmark's position averages several frames' poses before a pose leans on it
             (0 or 1: every landmark is used at once).
-        predicted_disparity: a feature matched to a landmark is searched in the right image only
-            around the landmark's disparity at the predicted pose, plus or minus a margin
-            measured on the previous frame (``4 sigma + 2`` px within 3-24 px, ``sigma`` the
-            robust scale of the measured minus predicted disparities of the matched points); an
-            unmatched feature with matched points within ``neighbour_px`` around the range of
-            their predicted disparities; the others over the map's depth window. ``False``:
-            every feature over the window.
+        predicted_disparity: search each feature's right match only in its own disparity window
+            (:meth:`~jaxpose.pipelines.stereo.StereoTracker.feature_disparities`): a feature
+            matched to a landmark around the landmark's disparity at the predicted pose, plus or
+            minus a margin measured on the previous frame (``4 sigma + 2`` px within 3-24 px,
+            ``sigma`` the robust scale of the measured minus predicted disparities of the
+            matched points); an unmatched feature with matched points within ``neighbour_px``
+            around the range of their predicted disparities; the others over the map's depth
+            window. Off by default: it halves the stereo search's time but on the 1.5 m
+            development scene it raised the errors by up to 60% (noise seeds 0 and 1): on the
+            quilt's repetitive texture a window centred on the prediction keeps a second ZNCC
+            peak near the prediction where the whole range would have found another, so a
+            landmark's error confirms itself (``docs/stereo.md``).
         disparity_margin_px: the margin of the first tracked frame.
         neighbour_px: radius of the matched points that predict an unmatched feature's
             disparity.
@@ -143,7 +148,7 @@ class TrackerOptions:
     measured_line_sigma: bool = True
     line_scale_memory: float = 0.9
     mature_obs: int = 3
-    predicted_disparity: bool = True
+    predicted_disparity: bool = False
     disparity_margin_px: float = 6.0
     neighbour_px: float = 40.0
     threads: bool = True

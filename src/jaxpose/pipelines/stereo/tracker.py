@@ -260,7 +260,7 @@ class StereoTracker:
         """The running ratio of the line to the point residual scale (weight of the lines)."""
         return self._line_scale
 
-    def _feature_disparities(self, feats, pose_pred: Pose | None, matches=None):
+    def feature_disparities(self, feats, pose_pred: Pose | None, matches=None):
         """Disparities searched for each feature, ``((N, 2), (M, 2), predicted)``.
 
         Without matches (or after a lost frame), every feature gets the window of
@@ -363,7 +363,7 @@ class StereoTracker:
 
     # ------------------------------------------------------------------ main entry
     def _stereo(self, left, right, feats, clock, pose_pred=None, matches=None):
-        dp, dl, predicted = self._feature_disparities(feats, pose_pred, matches)
+        dp, dl, predicted = self.feature_disparities(feats, pose_pred, matches)
         o = self.options
         stereo = stereo_correspondences(left, right, feats, self.rig, (dp, dl), o, clock)
         self._update_disparity_margin(feats, stereo, predicted)
