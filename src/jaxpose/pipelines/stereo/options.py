@@ -94,10 +94,10 @@ class TrackerOptions:
             matched points); an unmatched feature with matched points within ``neighbour_px``
             around the range of their predicted disparities; the others over the map's depth
             window. Off by default: it halves the stereo search's time but on the 1.5 m
-            development scene it raised the errors by up to 60% (noise seeds 0 and 1): on the
-            quilt's repetitive texture a window centred on the prediction keeps a second ZNCC
-            peak near the prediction where the whole range would have found another, so a
-            landmark's error confirms itself (``docs/stereo.md``).
+            development scene it raised the errors by up to 60% (noise seeds 0 and 1), and a
+            wider fixed margin did not help; our reading, not measured: on the quilt's
+            repetitive texture a window centred on the prediction keeps a second ZNCC peak near
+            a wrong landmark, so the landmark's error confirms itself (``docs/stereo.md``).
         disparity_margin_px: the margin of the first tracked frame.
         neighbour_px: radius of the matched points that predict an unmatched feature's
             disparity.
