@@ -40,6 +40,7 @@ minimise the PDOP or the ADOP alone: hence the forward greedy here.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import time
@@ -65,6 +66,7 @@ __all__ = [
     "fit_pose_budgeted",
     "select_budget",
     "select_dop",
+    "stage_timer",
 ]
 
 #: the ``"dop"`` rule scores every subset when there are at most this many (else forward greedy)
@@ -350,6 +352,21 @@ def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, li
     return rows, valid, arm
 
 
+def stage_timer(timings: dict):
+    """A ``stage(name)`` context-manager factory that adds the wall seconds of its block to
+    ``timings[name]``."""
+
+    @contextlib.contextmanager
+    def stage(name: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
+
+    return stage
+
+
 def fit_pose_budgeted(
     landmarks,
     feats,
@@ -361,7 +378,7 @@ def fit_pose_budgeted(
     line_sigma: float,
     *,
     frame: int = 0,
-    timings: dict | None = None,
+    stage=None,
 ) -> PoseFit:
     """:func:`~jaxpose.pipelines.stereo.frame_pose.fit_pose` on the features kept by
     :func:`select_budget` (the same call when ``options.feature_budget`` is ``None``).
@@ -370,16 +387,15 @@ def fit_pose_budgeted(
     room for the left and right residuals of ``N`` features), so its cost follows the budget.
     The returned errors, inlier flags, inlier count and RMS cover every matched feature at the
     fitted pose, as without a budget; ``kept_errors`` are the solve's.
-    The selection's seconds go to ``timings["budget"]``."""
+    The selection runs inside ``stage("budget")`` when ``stage`` is given (a context-manager
+    factory that times a named stage, e.g. :func:`stage_timer`)."""
     o = options
     if o.feature_budget is None:
         return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
-    t0 = time.perf_counter()
-    keep_p, keep_l = select_budget(
-        landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, frame=frame
-    )
-    if timings is not None:
-        timings["budget"] = time.perf_counter() - t0
+    with stage("budget") if stage is not None else contextlib.nullcontext():
+        keep_p, keep_l = select_budget(
+            landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, frame=frame
+        )
     i_m, i_cur, l_m, l_cur = matches
     sub = (i_m[keep_p], i_cur[keep_p], l_m[keep_l], l_cur[keep_l])
     # one padded size for a run (left and right residuals of up to N features): one compilation

@@ -44,7 +44,7 @@ from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo._arrays import angle_deg, compose, fraction, project, relative, rt
-from jaxpose.pipelines.stereo.budget import fit_pose_budgeted
+from jaxpose.pipelines.stereo.budget import fit_pose_budgeted, stage_timer
 from jaxpose.pipelines.stereo.guided import match_by_projection
 from jaxpose.pipelines.stereo.keyframes import (
     observe_point_rays,
@@ -339,7 +339,7 @@ class StereoTracker:
                 o,
                 line_sigma,
                 frame=k,
-                timings=timings,
+                stage=stage_timer(timings),
             )
             pose = fit.pose
             finite = _finite(pose)
