@@ -25,11 +25,16 @@ the pose solve (:func:`jaxpose.pipelines.stereo.frame_pose.fit_pose`):
   scored for every candidate at once by rank-one Sherman-Morrison updates of ``Q``, from a small
   prior ``1e-6`` times the mean block so that the first picks are defined) in one compiled call
   per frame at padded sizes; when ``C(n, N)`` is at most :data:`EXACT_SUBSETS`, every subset is
-  scored and the optimum kept.
+  scored and the optimum kept. The greedy keeps its picks ``SPACING sqrt(area / N)`` pixels apart
+  while it can (``area`` the box the candidates span): ORB finds one corner at several scales,
+  and such near-twins share their landmark's error, which the DOP counts as independent.
 * ``"random"``: ``N`` of the matched features at random (seeded by the frame number).
 * ``"response"``: the strongest detector responses: ORB (Harris) response of the points, pixel
   length of the segments, the two kinds in proportion to their matched counts.
 
+For every rule the candidates are the landmarks old enough for the solve (``mature_obs``), the
+point matches that follow the frame's motion (an affine map of the predicted onto the observed
+pixels) and, while at least ``2 N`` remain, the landmarks that were inliers on the frame before.
 The pose is solved on the kept features only; the post-fit checks and the map update use every
 matched feature at the fitted pose (a projection, cheap next to the solve), so that a frame is
 judged and the map maintained as without a budget. The core's backward elimination
