@@ -163,10 +163,23 @@ def _greedy_forward(rows, valid, weight, n_keep, pixels, spacing):
             Q = Q - v[..., :, None] * v[..., None, :] / den[..., None, None]
         return Q
 
+    def scores(Q):
+        """``trace(W Q_i)`` after adding each candidate's rows, without forming ``Q_i``: with
+        ``v_r = Q_(r-1) h_r``, ``trace(W Q_r) = trace(W Q_(r-1)) - v_r^T W v_r / (1 + h_r^T v_r)``,
+        and the later ``Q_r h_j`` follow from ``Q_(r-1) h_j`` by the same rank-one update."""
+        u = list(jnp.moveaxis(jnp.einsum("ij,nkj->nki", Q, h), 1, 0))  # Q h_k, (n, 6) each
+        drop = jnp.zeros(h.shape[0], dtype)
+        for r in range(len(u)):
+            v = u[r]
+            den = 1.0 + jnp.sum(h[:, r] * v, axis=-1)
+            drop = drop + jnp.einsum("ni,ij,nj->n", v, w, v) / den
+            for j in range(r + 1, len(u)):
+                u[j] = u[j] - v * (jnp.sum(v * h[:, j], axis=-1) / den)[:, None]
+        return jnp.trace(w @ Q) - drop
+
     def step(_, carry):
         Q, free, chosen = carry
-        Qs = add(jnp.broadcast_to(Q, (h.shape[0], 6, 6)), h)
-        score = jnp.einsum("nij,ji->n", Qs, w)
+        score = scores(Q)
         score = jnp.where(jnp.isfinite(score), score, jnp.inf)
         spaced = jnp.where(free, score, jnp.inf)
         # no spaced candidate left: any valid one not yet chosen
@@ -177,7 +190,7 @@ def _greedy_forward(rows, valid, weight, n_keep, pixels, spacing):
         take = jnp.isfinite(score[k])
         near = jnp.sum((pixels - pixels[k]) ** 2, axis=1) < spacing**2
         free = jnp.where(take, free & ~near, free).at[k].set(False)
-        return jnp.where(take, Qs[k], Q), free, chosen.at[k].set(chosen[k] | take)
+        return jnp.where(take, add(Q, h[k]), Q), free, chosen.at[k].set(chosen[k] | take)
 
     _, _, chosen = jax.lax.fori_loop(0, n_keep, step, (Q0, valid, jnp.zeros_like(valid)))
     return chosen
