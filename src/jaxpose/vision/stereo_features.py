@@ -19,6 +19,7 @@ pixel-centre convention of :mod:`jaxpose.core.camera`.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -186,14 +187,34 @@ def detect_lines(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(
     return seg + [u0, v0], np.asarray(desc, np.uint8)
 
 
+_POOL: list = []
+
+
 def extract(
-    image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None, lines: bool = True
+    image: np.ndarray,
+    *,
+    options: FeatureOptions = FeatureOptions(),
+    roi=None,
+    lines: bool = True,
+    threads: bool = True,
 ):
-    """:class:`FrameFeatures` of one image (``lines=False`` for the points-only mode)."""
-    pts, pdesc, resp = detect_points(image, options=options, roi=roi, response=True)
-    if lines:
+    """:class:`FrameFeatures` of one image (``lines=False`` for the points-only mode).
+
+    ``threads``: detect the lines (LSD + LBD) in a second thread while the points (ORB +
+    ``cornerSubPix``) are detected in this one. Both are OpenCV calls that release the GIL, so on
+    two cores the two detectors' wall times overlap (about 20 ms each at 2 m); the features are
+    the same either way."""
+    if lines and threads:
+        if not _POOL:
+            _POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxpose-lsd"))
+        pending = _POOL[0].submit(detect_lines, image, options=options, roi=roi)
+        pts, pdesc, resp = detect_points(image, options=options, roi=roi, response=True)
+        seg, ldesc = pending.result()
+    elif lines:
+        pts, pdesc, resp = detect_points(image, options=options, roi=roi, response=True)
         seg, ldesc = detect_lines(image, options=options, roi=roi)
     else:
+        pts, pdesc, resp = detect_points(image, options=options, roi=roi, response=True)
         seg, ldesc = np.zeros((0, 2, 2)), np.zeros((0, 32), np.uint8)
     return FrameFeatures(pts, pdesc, seg, ldesc, resp)
 
