@@ -26,7 +26,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxpose.core._checks import float_dtype
 from jaxpose.core.camera import PinholeCamera
@@ -234,11 +234,11 @@ batches of non-planar problems are refined once."""
 
 
 def solve_pnp(
-    points_body: Float[Array, "... n 3"],
-    pixels: Float[Array, "... n 2"],
-    camera: PinholeCamera | Float[Array, "3 3"],
+    points_body: Float[ArrayLike, "... n 3"],
+    pixels: Float[ArrayLike, "... n 2"],
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    mask: Bool[Array, "... n"] | None = None,
+    mask: Bool[ArrayLike, "... n"] | None = None,
     key: Array | None = None,
     options: PnPOptions = PnPOptions(),
     throw: bool = True,
