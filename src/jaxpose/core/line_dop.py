@@ -110,7 +110,7 @@ def line_information_blocks(
     pose: Pose,
     camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    sigma: Float[ArrayLike, " n"] | float | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float | None = None,
     mask: Bool[ArrayLike, " n"] | None = None,
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",

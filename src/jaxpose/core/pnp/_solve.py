@@ -345,7 +345,7 @@ def _solve_eager(args, intrinsics, cfg: _Static, two: bool, devices: int, size: 
     return res
 
 
-def _intrinsics(camera) -> tuple[Array, bool]:
+def _intrinsics(camera) -> tuple[Float[Array, "9"] | Float[np.ndarray, "9"], bool]:
     """``(fx, fy, cx, cy, k1, k2, p1, p2, k3)`` of a camera or ``K``, and whether to undistort."""
     if isinstance(camera, PinholeCamera):
         leaves = (camera.fx, camera.fy, camera.cx, camera.cy)

@@ -88,11 +88,11 @@ def refine_pose(
     camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
     mask: Bool[ArrayLike, " n"] | None = None,
-    sigma: Float[ArrayLike, " n"] | float | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float | None = None,
     segments_body: Float[ArrayLike, "k 2 3"] | None = None,
     lines_img: Float[ArrayLike, "k 3"] | None = None,
     line_mask: Bool[ArrayLike, " k"] | None = None,
-    line_sigma: Float[ArrayLike, " k"] | float | None = None,
+    line_sigma: Float[ArrayLike, " k"] | Float[ArrayLike, ""] | float | None = None,
     options: RefineOptions = RefineOptions(),
     throw: bool = True,
 ) -> RefineResult:

@@ -28,11 +28,11 @@ def pose_covariance(
     pose: Pose,
     camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    sigma: Float[ArrayLike, " n"] | float = 1.0,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float = 1.0,
     mask: Bool[ArrayLike, " n"] | None = None,
     segments_body: Float[ArrayLike, "k 2 3"] | None = None,
     lines_img: Float[ArrayLike, "k 3"] | None = None,
-    line_sigma: Float[ArrayLike, " k"] | float | None = None,
+    line_sigma: Float[ArrayLike, " k"] | Float[ArrayLike, ""] | float | None = None,
     line_mask: Bool[ArrayLike, " k"] | None = None,
 ) -> Float[Array, "6 6"]:
     """First-order pose covariance ``(J^T W J)^-1 = sigma^2 (J^T J)^-1`` (metres, radians).
@@ -114,11 +114,11 @@ def sensitivity(
     camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
     mask: Bool[ArrayLike, " n"] | None = None,
-    sigma: Float[ArrayLike, " n"] | float | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float | None = None,
     segments_body: Float[ArrayLike, "k 2 3"] | None = None,
     lines_img: Float[ArrayLike, "k 3"] | None = None,
     line_mask: Bool[ArrayLike, " k"] | None = None,
-    line_sigma: Float[ArrayLike, " k"] | float | None = None,
+    line_sigma: Float[ArrayLike, " k"] | Float[ArrayLike, ""] | float | None = None,
     options: RefineOptions = RefineOptions(),
     throw: bool = True,
 ) -> PoseSensitivity:

@@ -33,7 +33,7 @@ def select_features(
     criterion: str = "pdop",
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
-    sigma: Float[ArrayLike, " n"] | float | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float | None = None,
     mask: Bool[ArrayLike, " n"] | None = None,
 ) -> Int[Array, " m"]:
     """Indices (ascending) of the ``m`` feature points to use, by the chosen method.
