@@ -35,6 +35,7 @@ from jaxpose.pipelines.monocular import (  # noqa: E402
     ATTITUDE_GRID,
     CONFIDENCE,
     ORIENTATION_WEIGHT,
+    PANEL_WEIGHT,
     REGION_WEIGHT,
     SILHOUETTE_WEIGHT,
     InitOptions,
@@ -227,6 +228,12 @@ def main() -> None:
         help="weight of the gradient-orientation (LINE-2D) term in the ranking (0: off)",
     )
     ap.add_argument(
+        "--panel-weight",
+        type=float,
+        default=PANEL_WEIGHT,
+        help="weight of the solar-panel (cell lines) term in the ranking (0: off)",
+    )
+    ap.add_argument(
         "--grid-on-roi",
         action="store_true",
         help="place the attitude grid on the ROI when the image has no silhouette "
@@ -281,6 +288,7 @@ def main() -> None:
         silhouette_weight=args.silhouette_weight,
         attitude_grid=args.attitude_grid,
         orientation_weight=args.orientation_weight,
+        panel_weight=args.panel_weight,
         grid_without_silhouette=args.grid_on_roi,
         confidence=dict(
             CONFIDENCE, **({} if args.low_score is None else {"low_score": args.low_score})

@@ -10,7 +10,8 @@ edge coverage at least ``high_coverage``, the orientation agreement at least
 (:func:`jaxpose.pipelines.monocular.classify`). Thresholds are chosen on a training set as the
 rule that gives the most correct ``high`` answers with a training precision of at least
 ``--precision`` on the renders and on the SPEED+ images apart (the renders, far more numerous and
-far cleaner, would otherwise set the rule for the photographs), among thresholds at the observed values (the most conservative on ties).
+far cleaner, would otherwise set the rule for the photographs), among thresholds at the observed
+values (the most conservative on ties).
 
 Reported: the thresholds chosen on everything (renders and SPEED+ images together), and the
 leave-one-out figures on the SPEED+ images: each image classified by thresholds chosen without

@@ -10,12 +10,16 @@ from the frame rate. The first tracked frame compiles the solver and is left out
     python bench/stereo.py                                  # the whole suite, one turn a scene
     python bench/stereo.py --frames 60 --split dev          # a quicker look at the dev scenes
     python bench/stereo.py --scenes d1-clean-2m --timing-only --frames 30   # time by stage
+    python bench/stereo.py --budget-sweep --frames 20       # feature budget: stereo_budget.py
 
 Writes ``runs/bench-stereo/results.json`` (per scene and mode: the stereo-track summary and the
 mean time per stage), ``rms_vs_range_rate.png`` (per-axis RMS against range and spin rate),
 prints a Markdown table and, last, one JSON line: scenes run, how many meet the targets of
 issue 16 (per-axis RMS position <= 5 mm per metre of range, attitude <= 1 deg, no lost frame)
-per split, and the median frame rate with the machine's load average.
+per split, the median wall frame rate (``median_fps``) and CPU seconds a frame
+(``median_cpu_s_per_frame``, ``time.process_time`` of the process), the wall and CPU
+milliseconds a frame by stage (``median_stage_ms``, ``median_stage_cpu_ms``; points+lines,
+medians over the scenes) and the machine's load average before and after the run.
 
 Targets are checked per scene on the points+lines mode; "lines help" says whether points+lines
 is lower than points-only on every axis (asked for the scenes with blur or glints).
@@ -172,12 +176,14 @@ def run_scene(name: str, frames: int | None, modes=MODES, seed: int = 0, options
         # frame 0 makes the first keyframe; frame 1 compiles the solver: both left out of timings
         rep = summarize(results, truths, [0.0] + seconds[2:] if len(seconds) > 2 else seconds)
         stage = {k: float(np.mean([r.timings[k] for r in results[2:]])) for k in STAGES}
+        stage_cpu = {k: float(np.mean([r.cpu_timings[k] for r in results[2:]])) for k in STAGES}
         out[mode] = {
             **rep["summary"],
             "meets_targets": meets_targets(rep["summary"], scene.range_m),
             "compile_s": seconds[1] if len(seconds) > 1 else None,
             "keyframes": int(sum(r.keyframe for r in results)),
             "mean_stage_s": stage,
+            "mean_stage_cpu_s": stage_cpu,
             "mean_frame_s": float(np.mean(seconds[2:])) if len(seconds) > 2 else None,
             # CPU seconds of this process a frame (all its threads): steadier than wall time on
             # a shared machine, for ratios between versions
@@ -272,6 +278,12 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
     p.add_argument("--points-lines-only", action="store_true", help="skip the points-only mode")
     p.add_argument("--timing-only", action="store_true", help="points+lines only, one scene")
+    p.add_argument(
+        "--budget-sweep",
+        action="store_true",
+        help="accuracy and pose-stage time against the feature budget N for the dop, random and "
+        "response rules (bench/stereo_budget.py) on the selected scenes",
+    )
     p.add_argument("--out", type=Path, default=Path("runs/bench-stereo"))
     p.add_argument(
         "--from-results",
@@ -281,6 +293,13 @@ def main(argv=None) -> int:
         help="report on saved results.json files (e.g. the dev and check splits run apart)",
     )
     args = p.parse_args(argv)
+    if args.budget_sweep:  # feature budget (issue 17.3): its own bench module and outputs
+        from stereo_budget import main as budget_main
+
+        sweep = ["--split", args.split, "--seed", str(args.seed)]
+        sweep += ["--scenes", *args.scenes] if args.scenes else []
+        sweep += ["--frames", str(args.frames)] if args.frames else []
+        return budget_main(sweep)
     args.out.mkdir(parents=True, exist_ok=True)
     if args.from_results:
         results = [r for f in args.from_results for r in json.loads(f.read_text())]
@@ -308,14 +327,28 @@ def main(argv=None) -> int:
     return 0
 
 
+def _stage_medians(results, key: str) -> dict:
+    rows = [r["points+lines"].get(key) for r in results]
+    rows = [row for row in rows if row]
+    if not rows:
+        return {}
+    return {
+        k: round(1000 * float(np.median([row.get(k, 0.0) for row in rows])), 1) for k in rows[0]
+    }
+
+
 def report(results, modes, out: Path, frames, load0, *, timing: bool = False) -> None:
     """Markdown table, figure and the last JSON line of a run (or of saved results)."""
     print("\n".join(table(results, modes)))
     if timing or len(results) == 1:
         m = results[0]["points+lines"]
+        cpu = m.get("mean_stage_cpu_s", {})
         print(
-            "\n| stage | ms a frame |\n|---|---|\n"
-            + "\n".join(f"| {k} | {1000 * v:.1f} |" for k, v in m["mean_stage_s"].items())
+            "\n| stage | wall ms a frame | CPU ms a frame |\n|---|---|---|\n"
+            + "\n".join(
+                f"| {k} | {1000 * v:.1f} | {1000 * cpu.get(k, float('nan')):.1f} |"
+                for k, v in m["mean_stage_s"].items()
+            )
         )
     figure(results, out / "rms_vs_range_rate.png")
     fps = [r["points+lines"]["fps"] for r in results if r["points+lines"]["fps"]]
@@ -336,6 +369,9 @@ def report(results, modes, out: Path, frames, load0, *, timing: bool = False) ->
         "median_cpu_s_per_frame": float(
             np.median([r["points+lines"]["mean_frame_cpu_s"] for r in results])
         ),
+        # per stage, points+lines, median over the scenes: wall and CPU milliseconds a frame
+        "median_stage_ms": _stage_medians(results, "mean_stage_s"),
+        "median_stage_cpu_ms": _stage_medians(results, "mean_stage_cpu_s"),
         "load_average": None
         if load0 is None
         else [round(x, 2) for x in (*load0, *os.getloadavg())],

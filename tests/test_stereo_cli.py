@@ -162,6 +162,12 @@ def test_rendering_options_with_images_are_refused(pairs, tmp_path, capsys):
         capsys,
     )
     assert code == 2 and "--range-m" in err and "--images" in err
+    # the monocular start needs the target's model, which a folder does not carry
+    code, _, err = _cli(
+        ["stereo-track", "--images", str(folder), "--init", "monocular", "--out", str(tmp_path)],
+        capsys,
+    )
+    assert code == 2 and "--init monocular" in err and "model" in err
 
 
 def test_help_shows_every_option_with_a_default(capsys):

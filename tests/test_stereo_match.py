@@ -75,6 +75,33 @@ def test_point_epipolar_search_subpixel(pair):
         StereoMatchOptions(window=4)
 
 
+def test_per_point_disparity_ranges(pair):
+    left, right, d = pair
+    pts = extract(left, lines=False).points
+    wide = match_points_stereo(left, right, pts, (5, 60))
+    # a narrow range a point around the truth: the same matches as the wide search
+    rng = np.random.default_rng(1)
+    lo = np.floor(d - rng.uniform(2, 6, len(pts))).astype(int)
+    hi = np.ceil(d + rng.uniform(2, 6, len(pts))).astype(int)
+    narrow = match_points_stereo(left, right, pts, np.stack([lo, hi], 1))
+    assert narrow.ok.sum() >= 0.95 * wide.ok.sum()
+    both = narrow.ok & wide.ok
+    np.testing.assert_allclose(narrow.pixels_right[both], wide.pixels_right[both], atol=1e-4)
+    # half the points get a range beside the truth: those give no match, the others are kept
+    beside = np.arange(len(pts)) % 2 == 0
+    ranges = np.stack([lo, hi], 1)
+    ranges[beside] = [int(d) + 4, int(d) + 20]
+    mixed = match_points_stereo(left, right, pts, ranges)
+    assert mixed.ok[beside].mean() < 0.05
+    np.testing.assert_array_equal(mixed.ok[~beside], narrow.ok[~beside])
+    with pytest.raises(ValueError, match="feature 3"):
+        bad = np.stack([lo, hi], 1)
+        bad[3] = [10, 11]
+        match_points_stereo(left, right, pts, bad)
+    with pytest.raises(ValueError, match="one pair per feature"):
+        match_points_stereo(left, right, pts, np.zeros((len(pts) + 1, 2)))
+
+
 def test_line_stereo_match_and_cut(pair):
     left, right, d = pair
     seg, desc = detect_lines(left)

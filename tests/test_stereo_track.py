@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxpose.core.status import Status
-from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions, target_roi
+from jaxpose.pipelines.stereo import STAGES, StereoTracker, TrackerOptions, target_roi
 from jaxpose.vision.stereo_features import extract
 from jaxpose.vision.stereo_match import disparity_range, match_points_stereo
 from jaxpose.vision.stereo_render import (
@@ -81,7 +81,9 @@ def test_tracker_follows_a_short_sequence(frames, use_lines):
         angle = np.degrees(np.arccos(np.clip((np.trace(res.R @ R.T) - 1) / 2, -1, 1)))
         assert angle < 1.0
         assert np.linalg.norm(res.t - t) < 0.02
-        assert set(res.timings) == {"features", "stereo", "triangulate", "match", "pose"}
+        stages = set(STAGES)  # features, match, stereo, triangulate, budget, pose, map
+        assert set(res.timings) == stages and set(res.cpu_timings) == stages
+        assert all(v >= 0 for v in res.cpu_timings.values())
     if use_lines:
         assert res.n_lines > 0
 
@@ -321,3 +323,57 @@ def test_young_landmarks_are_matched_but_left_out_of_the_pose_solve():
     # those below reject_px get rays, the others not
     np.testing.assert_array_equal(fits[3].kept_points[120:], young < 1.5)
     assert fits[3].kept_points[:120].all()
+
+
+def test_monocular_start_feeds_the_tracker_and_falls_back_to_the_identity(frames, monkeypatch):
+    """--init monocular: the first left image goes to jaxpose.initialise_pose with the rendered
+    target's model and the rig's left camera; its pose starts the tracker, whose errors after
+    aligning the first frame are those of a start at the truth. With no full pose the start is
+    the identity. (initialise_pose itself is replaced by a stand-in here: its own tests cover
+    it, and its compilation would take half a minute.)"""
+    from types import SimpleNamespace
+
+    import jaxpose
+    from jaxpose.core.geometry import Pose
+    from jaxpose.studies.stereo_track import monocular_start, summarize, track_sequence
+
+    truth0 = frames[0].pose
+    off = Pose.from_rotvec(np.radians([4.0, -6.0, 3.0]), np.array([0.03, -0.02, 0.05]))
+    guess = off @ truth0
+    calls = []
+
+    def fake(image, camera, model, options=None):
+        calls.append((image, camera, model))
+        return SimpleNamespace(pose=guess, confidence="low", message="")
+
+    monkeypatch.setattr(jaxpose, "initialise_pose", fake)
+    model = tumbler_model()
+    info = {}
+    start = monocular_start(frames[0].left, RIG, model, info=info)
+    assert calls[0][0] is frames[0].left and calls[0][1] is RIG.left and calls[0][2] is model
+    np.testing.assert_allclose(np.asarray(start.R), np.asarray(guess.R), atol=1e-12)
+    assert info["init"] == "monocular" and info["confidence"] == "low"
+
+    truths = [fr.pose for fr in frames]
+    runs = {}
+    for name, initial in (("truth", None), ("monocular", lambda fr: start)):
+        results, _, seconds = track_sequence(frames, RIG, initial_pose=initial)
+        assert all(r.status == Status.OK for r in results)
+        runs[name] = (results, summarize(results, truths, seconds)["summary"])
+    np.testing.assert_allclose(runs["monocular"][0][0].R, np.asarray(guess.R), atol=1e-9)
+    a, b = runs["truth"][1], runs["monocular"][1]
+    assert max(b["rms_position_mm"]) < 20.0 and max(b["rms_attitude_deg"]) < 0.5
+    np.testing.assert_allclose(b["rms_position_mm"], a["rms_position_mm"], atol=3.0)
+    np.testing.assert_allclose(b["rms_attitude_deg"], a["rms_attitude_deg"], atol=0.1)
+
+    # no full pose: the identity, and the summary says so
+    monkeypatch.setattr(
+        jaxpose,
+        "initialise_pose",
+        lambda *a, **k: SimpleNamespace(pose=None, confidence="none", message="no target"),
+    )
+    info = {}
+    start = monocular_start(frames[0].left, RIG, model, info=info)
+    np.testing.assert_allclose(np.asarray(start.R), np.eye(3))
+    np.testing.assert_allclose(np.asarray(start.t), np.zeros(3))
+    assert info["init"].startswith("identity") and info["message"] == "no target"

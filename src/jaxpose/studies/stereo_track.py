@@ -15,8 +15,13 @@ tracks it, and this module writes
 
 Start: ``--init truth`` (default for a rendered sequence, as the paper initialises) gives the
 tracker the true first pose; ``--init identity`` starts without ground truth: the target frame is
-the first left camera frame. Errors are always reported after aligning the first tracked frame,
-``est_k est_0^-1 truth_0`` (a no-op for ``--init truth``).
+the first left camera frame; ``--init monocular`` starts from the monocular initialisation
+(:func:`jaxpose.initialise_pose`, Sharma, Ventura, D'Amico 2018) of the first left image with the
+rendered target's wireframe model (:func:`jaxpose.vision.stereo_render.tumbler_model`), falling
+back to the identity when it finds no full pose (:func:`monocular_start`). Errors are always
+reported after aligning the first tracked frame, ``est_k est_0^-1 truth_0`` (a no-op for
+``--init truth``); ``summary.json`` also holds the start (``init``) and, for the monocular start
+with a truth, its own error before the alignment.
 
 Errors: position ``c_est - c_true`` with ``c = -R^T t`` (chaser in target axes, mm); attitude the
 ``XYZ`` Euler angles (roll, pitch, yaw) of ``R_est R_true^T`` (deg). RMS over tracked frames
@@ -41,6 +46,7 @@ import numpy as np
 __all__ = [
     "MAX_FRAMES",
     "add_arguments",
+    "monocular_start",
     "run",
     "summarize",
     "track_sequence",
@@ -114,10 +120,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_image_size_argument(parser, d["image_size"], help="rendered image size, pixels")
     parser.add_argument(
         "--init",
-        choices=("truth", "identity"),
+        choices=("truth", "identity", "monocular"),
         default=None,
-        help="first pose: the rendered truth, or the identity (target frame = first left camera "
-        "frame; errors after aligning the first frame) (default: truth; identity with --images)",
+        help="first pose: the rendered truth, the identity (target frame = first left camera "
+        "frame), or the monocular initialisation of the first left image with the rendered "
+        "target's model; errors after aligning the first frame (default: truth; identity with "
+        "--images)",
     )
     parser.add_argument(
         "--points-only",
@@ -130,6 +138,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="a stereo folder: calibration.json, left/*.png, right/*.png, optional poses.csv "
         "(default: render a sequence)",
+    )
+    parser.add_argument(
+        "--feature-budget",
+        type=positive_int,
+        default=None,
+        help="solve each frame's pose on at most N of the matched points and lines, at least 4 "
+        "(default: all)",
+    )
+    parser.add_argument(
+        "--budget-rule",
+        choices=("dop", "random", "response"),
+        default="dop",
+        help="which N features: lowest DOP at the predicted pose, random, or strongest detector "
+        "response (default: dop)",
     )
     add_out_argument(parser, "stereo-track", "trajectory, figures and summary")
     add_figures_argument(parser)
@@ -151,7 +173,8 @@ def track_sequence(
     """Track an iterable of frames (objects with ``left``, ``right``, optional ``pose``).
 
     ``initial_pose``: the tracker's first pose (``None``: the first frame's ``pose``, the truth
-    of a rendered sequence, or the identity when it has none). Returns ``(results, truths,
+    of a rendered sequence, or the identity when it has none), or a function of the first frame
+    that returns it (e.g. :func:`monocular_start`). Returns ``(results, truths,
     seconds)``: the :class:`~jaxpose.pipelines.stereo.FrameResult` of each frame, the true poses
     (``None`` where unknown) and the tracking time of each frame.
     """
@@ -162,9 +185,8 @@ def track_sequence(
     for fr in frames:
         truth = getattr(fr, "pose", None)
         if tracker is None:
-            tracker = StereoTracker(
-                rig, truth if initial_pose is None else initial_pose, options=options
-            )
+            start = initial_pose(fr) if callable(initial_pose) else initial_pose
+            tracker = StereoTracker(rig, truth if start is None else start, options=options)
         t0 = time.perf_counter()
         res = tracker.process(fr.left, fr.right)
         seconds.append(time.perf_counter() - t0)
@@ -173,6 +195,40 @@ def track_sequence(
         if progress is not None:
             progress.update(1)
     return results, truths, seconds
+
+
+def monocular_start(image, rig, model, *, info: dict | None = None):
+    """The tracker's first pose from one left image without ground truth: the monocular
+    initialisation (:func:`jaxpose.initialise_pose`) with the target's wireframe ``model`` and the
+    rig's left camera. When it finds no full pose (confidence ``"none"`` or ``"position-only"``)
+    the start is the identity (the target frame is then the first left camera frame). ``info``,
+    when given, receives ``init``, ``confidence`` and ``message``."""
+    from jaxpose import initialise_pose
+    from jaxpose.core.geometry import Pose
+
+    res = initialise_pose(np.asarray(image), rig.left, model)
+    found = res.pose is not None and res.confidence in ("high", "low")
+    if info is not None:
+        info.update(
+            init="monocular" if found else "identity (the monocular initialisation found no pose)",
+            confidence=res.confidence,
+            message=res.message,
+        )
+    if not found:
+        return Pose.identity()
+    return Pose(np.asarray(res.pose.R, float), np.asarray(res.pose.t, float))
+
+
+def _start_error(start, truth) -> dict:
+    """Attitude (deg) and position (mm, target origin in the camera) error of a first pose."""
+    from jaxpose.core.geometry import rotation_angle
+
+    R, t = np.asarray(start.R, float), np.asarray(start.t, float)
+    Rt, tt = np.asarray(truth.R, float), np.asarray(truth.t, float)
+    return {
+        "start_attitude_error_deg": float(np.degrees(rotation_angle(R, Rt))),
+        "start_position_error_mm": float(1000 * np.linalg.norm(t - tt)),
+    }
 
 
 def _alignment(results, truths):
@@ -321,6 +377,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.frames is not None and not 2 <= args.frames <= MAX_FRAMES:
         raise ValueError(f"--frames must be between 2 and {MAX_FRAMES}; got {args.frames}")
+    if args.feature_budget is not None and args.feature_budget < 4:
+        raise ValueError(f"--feature-budget must be at least 4; got {args.feature_budget}")
     w, h = args.image_size
     if w < 64 or h < 48:
         raise ValueError(f"--image-size must be at least 64x48; got {w}x{h}")
@@ -337,8 +395,12 @@ def run(args: argparse.Namespace) -> int:
                 f"{', '.join(given)} set the rendering and do not apply to --images; leave "
                 f"{'it' if len(given) == 1 else 'them'} out"
             )
-        if args.init == "truth":
-            raise ValueError("--init truth needs a rendered sequence; --images starts at identity")
+        if args.init in ("truth", "monocular"):
+            raise ValueError(
+                f"--init {args.init} needs a rendered sequence (the monocular start needs the "
+                "target's wireframe model, which a stereo folder does not carry); --images starts "
+                "at the identity"
+            )
         from jaxpose.studies._stereo_folder import open_stereo_folder
 
         folder = open_stereo_folder(args.images)
@@ -348,9 +410,25 @@ def run(args: argparse.Namespace) -> int:
     else:
         rig, frames, n, range_m = _rendered(args)
         initial = Pose.identity() if args.init == "identity" else None
+        if args.init == "monocular":
+            from jaxpose.vision.stereo_render import tumbler_model
+
+            model = tumbler_model()
+
+            def initial(frame):
+                pose = monocular_start(frame.left, rig, model, info=start_info)
+                start_info.update(_start_error(pose, frame.pose))
+                return pose
+
+    start_info = {"init": args.init or ("identity" if args.images is not None else "truth")}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    opts = TrackerOptions(use_lines=use_lines, depth_range_m=(0.3, max(8.0, 3 * range_m)))
+    opts = TrackerOptions(
+        use_lines=use_lines,
+        depth_range_m=(0.3, max(8.0, 3 * range_m)),
+        feature_budget=args.feature_budget,
+        budget_rule=args.budget_rule,
+    )
     with tqdm(total=n, disable=args.no_progress, desc="stereo-track", unit="frame") as bar:
         results, truths, seconds = track_sequence(
             frames, rig, use_lines=use_lines, initial_pose=initial, options=opts, progress=bar
@@ -364,7 +442,10 @@ def run(args: argparse.Namespace) -> int:
     }
     s = report["summary"]
     (out / "summary.json").write_text(
-        json.dumps({**s, "mean_stage_s": stage, "mode": mode.replace(" ", "-")}, indent=1)
+        json.dumps(
+            {**s, "mean_stage_s": stage, "mode": mode.replace(" ", "-"), "start": start_info},
+            indent=1,
+        )
     )
     if args.json:
         print(json.dumps(s))

@@ -23,6 +23,7 @@ __all__ = [
     "rod_map",
     "segment_samples",
     "silhouette_grid",
+    "texture_maps",
 ]
 
 
@@ -188,6 +189,43 @@ def orientation_maps(image: np.ndarray, roi) -> tuple[np.ndarray, np.ndarray]:
     sim = np.abs(np.cos((d[:, None] - d[None]) * np.pi / B)).astype(np.float32)  # (o, b)
     resp = np.max(sim[:, :, None, None] * spread[None], axis=1)  # (o, h, w)
     maps[:, :h, :w] = resp
+    return maps, frame
+
+
+#: Texture-orientation maps (:func:`texture_maps`): the local histogram of gradient orientations
+#: (modulo 180 deg, ``ORIENTATION_BINS`` bins, magnitude-weighted, each pixel voting for its two
+#: nearest bins) over a box window of ``TEXTURE_WINDOW x l_ROI`` on the same crop as
+#: :func:`orientation_maps`. A panel of solar cells (a grid of straight lines) gives peaks at its
+#: lines' normals; a smooth or blanket-wrinkled face a flat histogram. Chosen, not tuned.
+TEXTURE_WINDOW = 0.04
+
+
+def texture_maps(image: np.ndarray, roi) -> tuple[np.ndarray, np.ndarray]:
+    """Local gradient-orientation histograms around the ROI: ``(maps (B, S, S), [u0, v0,
+    scale])`` with ``B = ORIENTATION_BINS``, ``S = ROD_SIDE`` and the frame of :func:`rod_map`.
+
+    ``maps[:, i, j]`` sums to at most 1: the share of the gradient magnitude in the window around
+    cell ``(i, j)`` whose orientation falls in each bin (bin ``b`` centred on ``b x 180 / B``
+    deg); a flat window (no gradient above the crop's noise) gives about zero everywhere."""
+    (a0, b0, a1, b1), k, (w, h) = _crop_frame(image.shape, roi, ROD_GROW, ROD_SIDE)
+    small = cv2.resize(image[b0:b1, a0:a1].astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    gx = cv2.Sobel(small, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(small, cv2.CV_32F, 0, 1, ksize=3)
+    mag = np.hypot(gx, gy)
+    B = ORIENTATION_BINS
+    maps = np.zeros((B, ROD_SIDE, ROD_SIDE), np.float32)
+    frame = np.asarray([a0 - 0.5 + 0.5 / k, b0 - 0.5 + 0.5 / k, k])
+    x = np.mod(np.arctan2(gy, gx), np.pi) / (np.pi / B)  # in [0, B)
+    lo = np.floor(x).astype(int)
+    f = (x - lo).astype(np.float32)
+    size = max(3, int(TEXTURE_WINDOW * roi_diagonal(roi) * k) | 1)
+    votes = np.zeros((B, h, w), np.float32)
+    for b in range(B):
+        v = mag * ((lo % B == b) * (1.0 - f) + ((lo + 1) % B == b) * f)
+        votes[b] = cv2.boxFilter(v, -1, (size, size), normalize=True)
+    noise = float(np.median(mag)) if mag.size else 0.0
+    total = votes.sum(0) + noise + 1e-6
+    maps[:, :h, :w] = votes / total[None]
     return maps, frame
 
 

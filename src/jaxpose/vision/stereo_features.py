@@ -19,6 +19,7 @@ pixel-centre convention of :mod:`jaxpose.core.camera`.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -80,12 +81,14 @@ class FrameFeatures:
         point_desc: ``(N, 32)`` uint8 ORB descriptors.
         segments: ``(M, 2, 2)`` line segments (start, end) in pixels.
         line_desc: ``(M, 32)`` uint8 LBD descriptors (256 bits).
+        point_response: ``(N,)`` ORB (Harris) responses of the keypoints, or ``None``.
     """
 
     points: np.ndarray
     point_desc: np.ndarray
     segments: np.ndarray
     line_desc: np.ndarray
+    point_response: np.ndarray | None = None
 
 
 def _gray(image: np.ndarray) -> np.ndarray:
@@ -121,8 +124,15 @@ _LSD: list = []
 _LBD: list = []
 
 
-def detect_points(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None):
-    """ORB keypoints ``(N, 2)`` and descriptors ``(N, 32)`` uint8 of a grayscale image."""
+def detect_points(
+    image: np.ndarray,
+    *,
+    options: FeatureOptions = FeatureOptions(),
+    roi=None,
+    response: bool = False,
+):
+    """ORB keypoints ``(N, 2)`` and descriptors ``(N, 32)`` uint8 of a grayscale image (and, with
+    ``response=True``, their ORB responses ``(N,)``)."""
     img = _gray(image)
     key = (options.n_points, options.orb_fast_threshold)
     if key not in _ORB:
@@ -132,7 +142,8 @@ def detect_points(image: np.ndarray, *, options: FeatureOptions = FeatureOptions
     u0, v0, u1, v1 = _roi_slice(img.shape, roi)
     kps, desc = _ORB[key].detectAndCompute(np.ascontiguousarray(img[v0:v1, u0:u1]), None)
     if desc is None or not kps:
-        return np.zeros((0, 2)), np.zeros((0, 32), np.uint8)
+        empty = np.zeros((0, 2)), np.zeros((0, 32), np.uint8)
+        return (*empty, np.zeros(0)) if response else empty
     pts = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 1, 2)
     if options.subpixel:
         # ORB keypoints sit on the FAST grid of their pyramid level (1.2^k px); refine at full
@@ -140,7 +151,10 @@ def detect_points(image: np.ndarray, *, options: FeatureOptions = FeatureOptions
         crop = np.ascontiguousarray(img[v0:v1, u0:u1])
         w = int(options.subpixel_half_window)
         pts = cv2.cornerSubPix(crop, pts, (w, w), (-1, -1), _SUBPIX_CRITERIA)
-    return pts.reshape(-1, 2).astype(np.float64) + [u0, v0], desc
+    pts = pts.reshape(-1, 2).astype(np.float64) + [u0, v0]
+    if response:
+        return pts, desc, np.array([k.response for k in kps], np.float64)
+    return pts, desc
 
 
 def detect_lines(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None):
@@ -174,16 +188,36 @@ def detect_lines(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(
     return seg + [u0, v0], np.asarray(desc, np.uint8)
 
 
+_POOL: list = []
+
+
 def extract(
-    image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None, lines: bool = True
+    image: np.ndarray,
+    *,
+    options: FeatureOptions = FeatureOptions(),
+    roi=None,
+    lines: bool = True,
+    threads: bool = True,
 ):
-    """:class:`FrameFeatures` of one image (``lines=False`` for the points-only mode)."""
-    pts, pdesc = detect_points(image, options=options, roi=roi)
-    if lines:
+    """:class:`FrameFeatures` of one image (``lines=False`` for the points-only mode).
+
+    ``threads``: detect the lines (LSD + LBD) in a second thread while the points (ORB +
+    ``cornerSubPix``) are detected in this one. Both are OpenCV calls that release the GIL, so on
+    two cores the two detectors' wall times overlap (about 20 ms each at 2 m); the features are
+    the same either way."""
+    if lines and threads:
+        if not _POOL:
+            _POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxpose-lsd"))
+        pending = _POOL[0].submit(detect_lines, image, options=options, roi=roi)
+        pts, pdesc, resp = detect_points(image, options=options, roi=roi, response=True)
+        seg, ldesc = pending.result()
+    elif lines:
+        pts, pdesc, resp = detect_points(image, options=options, roi=roi, response=True)
         seg, ldesc = detect_lines(image, options=options, roi=roi)
     else:
+        pts, pdesc, resp = detect_points(image, options=options, roi=roi, response=True)
         seg, ldesc = np.zeros((0, 2, 2)), np.zeros((0, 32), np.uint8)
-    return FrameFeatures(pts, pdesc, seg, ldesc)
+    return FrameFeatures(pts, pdesc, seg, ldesc, resp)
 
 
 _BF: list = []

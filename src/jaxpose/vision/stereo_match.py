@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 __all__ = [
     "LineMatches",
@@ -159,32 +160,59 @@ def _gather(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarr
     return np.concatenate(rows, 0).reshape(shape)
 
 
-def _strips(image: np.ndarray, c0: np.ndarray, v: np.ndarray, width: int, wr: int, hr: int):
-    """``(N, wr, width)`` float32 strips of ``image``: integer columns ``c0 .. c0 + width - 1``,
-    rows ``v - hr .. v + hr`` at the sub-pixel ``v`` (linear interpolation between the two
-    integer rows; the image edge replicated beyond the border). Slices of a padded copy: no
-    per-sample interpolation along the row, which the parabola over integer disparities does
-    not need."""
+def _padded(image: np.ndarray, c0: np.ndarray, v: np.ndarray, width: int, hr: int):
+    """``image`` with its edge replicated far enough for the strips of :func:`_strips`, and the
+    padding ``(pad_x, pad_y)``."""
     H, W = image.shape
-    N = len(c0)
+    vi = np.floor(v).astype(np.int64)
+    pad_x = int(max(0, -c0.min(), c0.max() + width - W)) if len(c0) else 0
+    pad_y = int(max(0, hr - vi.min(), vi.max() + hr + 2 - H)) if len(c0) else 0
+    padded = cv2.copyMakeBorder(image, pad_y, pad_y, pad_x, pad_x, cv2.BORDER_REPLICATE)
+    return padded, (pad_x, pad_y)
+
+
+def _strips(padded, pads, c0: np.ndarray, v: np.ndarray, width: int, wr: int, hr: int):
+    """``(N, wr, width)`` float32 strips of an image (``padded`` by :func:`_padded`): integer
+    columns ``c0 .. c0 + width - 1``, rows ``v - hr .. v + hr`` at the sub-pixel ``v`` (linear
+    interpolation between the two integer rows; the image edge replicated beyond the border).
+    One fancy-indexed gather from the sliding-window view of the padded image: no per-sample
+    interpolation along the row, which the parabola over integer disparities does not need."""
     vi = np.floor(v).astype(np.int64)
     frac = (v - vi).astype(np.float32)[:, None, None]
-    pad_x = int(max(0, -c0.min(), c0.max() + width - W)) if N else 0
-    pad_y = int(max(0, hr - vi.min(), vi.max() + hr + 2 - H)) if N else 0
-    padded = cv2.copyMakeBorder(image, pad_y, pad_y, pad_x, pad_x, cv2.BORDER_REPLICATE)
-    rows = vi - hr + pad_y
-    cols = c0 + pad_x
-    out = np.empty((N, wr + 1, width), np.float32)
-    for n in range(N):
-        out[n] = padded[rows[n] : rows[n] + wr + 1, cols[n] : cols[n] + width]
+    out = sliding_window_view(padded, (wr + 1, width))[vi - hr + pads[1], c0 + pads[0]]
     return out[:, :-1] * (1.0 - frac) + out[:, 1:] * frac
+
+
+def _per_feature(disparities, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(n,)`` integer ``d_min`` and ``d_max`` of each feature from one ``(d_min, d_max)`` pair
+    or an ``(n, 2)`` array; each range must span at least 3 disparities."""
+    d = np.asarray(disparities)
+    if d.shape == (2,):
+        if d[1] - d[0] < 2:
+            raise ValueError(
+                f"the disparity range must span at least 3 values; got {tuple(disparities)}"
+            )
+        d = np.broadcast_to(d, (n, 2))
+    if d.shape != (n, 2):
+        raise ValueError(
+            f"disparities must be (d_min, d_max) or one pair per feature ({n}, 2); got "
+            f"shape {d.shape}"
+        )
+    d_min, d_max = np.floor(d[:, 0]).astype(np.int64), np.ceil(d[:, 1]).astype(np.int64)
+    if n and np.any(d_max - d_min < 2):
+        bad = int(np.argmax(d_max - d_min < 2))
+        raise ValueError(
+            f"the disparity range must span at least 3 values; feature {bad} has "
+            f"{tuple(d[bad].tolist())}"
+        )
+    return d_min, d_max
 
 
 def match_points_stereo(
     left: np.ndarray,
     right: np.ndarray,
     pixels_left: np.ndarray,
-    disparities: tuple[int, int],
+    disparities,
     *,
     options: StereoMatchOptions = StereoMatchOptions(),
 ) -> PointMatches:
@@ -193,18 +221,37 @@ def match_points_stereo(
     Args:
         left, right: rectified grayscale images (same size).
         pixels_left: ``(N, 2)`` left pixels ``(u, v)`` (sub-pixel allowed).
-        disparities: integer ``(d_min, d_max)`` searched (``u_right = u_left - d``).
+        disparities: integer ``(d_min, d_max)`` searched (``u_right = u_left - d``), the same for
+            every point, or ``(N, 2)``: one range a point (e.g. around the disparity predicted
+            from a landmark map). Points with ranges of similar width are searched together.
     """
     L, Rimg = _as_float(left), _as_float(right)
     if L.shape != Rimg.shape:
         raise ValueError(f"left and right images differ in size: {L.shape} vs {Rimg.shape}")
     p = np.asarray(pixels_left, dtype=np.float64).reshape(-1, 2)
     N = len(p)
-    d_min, d_max = int(disparities[0]), int(disparities[1])
-    if d_max - d_min < 2:
-        raise ValueError(f"the disparity range must span at least 3 values; got {disparities}")
+    d_min, d_max = _per_feature(disparities, N)
     if N == 0:
         return PointMatches(np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool))
+    out = PointMatches(np.zeros((N, 2)), np.full(N, -1.0), np.zeros(N, bool))
+    D = d_max - d_min + 1
+    w, hr = options.window, (options.window_rows or options.window) // 2
+    c0 = np.floor(p[:, 0]).astype(np.int64) - d_max - w // 2  # first column of each strip
+    padded = _padded(Rimg, np.r_[c0, c0 + D.max()], p[:, 1], w, hr)
+    # widths rounded up to a power of two: a few groups, each searched at its largest width
+    group = np.ceil(np.log2(D)).astype(np.int64)
+    for g in np.unique(group):
+        sel = np.nonzero(group == g)[0]
+        uv_r, best, ok = _search_rows(L, padded, p[sel], d_max[sel], int(D[sel].max()), options)
+        out.pixels_right[sel], out.score[sel], out.ok[sel] = uv_r, best, ok
+    return out
+
+
+def _search_rows(L, padded, p, d_max, D: int, options: StereoMatchOptions):
+    """ZNCC of each left patch against the ``D`` right windows ending at disparity ``d_max``
+    (per point) on its row (the right image ``padded`` by :func:`_padded`), the best score, its
+    parabolic sub-pixel column and the tests."""
+    N = len(p)
     w = options.window  # columns
     wr = options.window_rows or w  # rows
     h, hr = w // 2, wr // 2
@@ -218,17 +265,19 @@ def match_points_stereo(
         np.broadcast_to(u[:, None, None] + offs[None, None, :], (N, wr, w)),
         np.broadcast_to(rows_y, (N, wr, w)),
     )
-    D = d_max - d_min + 1
     c0 = np.floor(u).astype(np.int64) - d_max - h  # first column of each right strip
-    strip = _strips(Rimg, c0, v, D + w - 1, wr, hr)  # (N, wr, D + w - 1) float32
+    strip = _strips(*padded, c0, v, D + w - 1, wr, hr)  # (N, wr, D + w - 1) float32
     a = patch.astype(np.float64)
     a = a - a.mean(axis=(1, 2), keepdims=True)
     aa = (a * a).sum(axis=(1, 2))
-    # windowed sums of the strip along the row (box filter via cumulative sums, float64)
-    col1 = strip.sum(axis=1, dtype=np.float64)  # (N, D + w - 1)
-    col2 = (strip.astype(np.float64) ** 2).sum(axis=1)
-    c1 = np.concatenate([np.zeros((N, 1)), np.cumsum(col1, 1)], 1)
-    c2 = np.concatenate([np.zeros((N, 1)), np.cumsum(col2, 1)], 1)
+    # windowed sums of the strip along the row: column sums in float32 (at most wr * 255^2 a
+    # column), the running sums and the variance in float64
+    col1 = strip.sum(axis=1)  # (N, D + w - 1)
+    col2 = np.einsum("nij,nij->nj", strip, strip)
+    c1 = np.zeros((N, D + w), np.float64)
+    c2 = np.zeros((N, D + w), np.float64)
+    np.cumsum(col1, 1, dtype=np.float64, out=c1[:, 1:])
+    np.cumsum(col2, 1, dtype=np.float64, out=c2[:, 1:])
     s1 = c1[:, w:] - c1[:, :-w]  # (N, D)
     s2 = c2[:, w:] - c2[:, :-w]
     bb = np.maximum(s2 - s1 * s1 / (w * wr), 0.0)
@@ -239,7 +288,6 @@ def match_points_stereo(
     ab = np.zeros((N, D), np.float32)
     for k in range(w):
         ab += np.einsum("ni,nij->nj", a32[:, :, k], strip[:, :, k : k + D])
-    ab = ab.astype(np.float64)
     den = np.sqrt(aa[:, None] * bb)
     score = np.where(den > 1e-9, ab / np.where(den > 1e-9, den, 1.0), -1.0)
     # a window reaching outside the right image is not a candidate
@@ -254,7 +302,7 @@ def match_points_stereo(
     texture = np.sqrt(aa / (w * wr)) >= options.min_texture
     inside = (v - hr >= 0) & (v + hr <= H - 1) & (u - h >= 0) & (u + h <= W - 1)
     ok = inner & (best >= options.ncc_threshold) & texture & inside
-    return PointMatches(np.stack([u_right, v], 1), best, ok)
+    return np.stack([u_right, v], 1), best, ok
 
 
 def _line_samples(segments: np.ndarray, options: StereoMatchOptions):
@@ -274,17 +322,20 @@ def match_lines_stereo(
     left: np.ndarray,
     right: np.ndarray,
     segments_left: np.ndarray,
-    disparities: tuple[int, int],
+    disparities,
     *,
     options: StereoMatchOptions = StereoMatchOptions(),
 ) -> LineMatches:
-    """Right segments of left segments ``(M, 2, 2)`` by sampled ZNCC matches and eq. 5.
+    """Right segments of left segments ``(M, 2, 2)`` by sampled ZNCC matches and eq. 5;
+    ``disparities`` as in :func:`match_points_stereo`, one range for all or ``(M, 2)``, one range
+    a segment for all its samples.
 
     Returns the right segments cut at the rows of the left endpoints, so that
     ``segments_left[i, k]`` and ``segments_right[i, k]`` are the same 3-D point.
     """
     seg = np.asarray(segments_left, dtype=np.float64).reshape(-1, 2, 2)
     M = len(seg)
+    d_seg = np.stack(_per_feature(disparities, M), 1)
     out = np.full((M, 2, 2), np.nan)
     fit_error = np.full(M, np.inf)
     n_matched = np.zeros(M, int)
@@ -300,8 +351,8 @@ def match_lines_stereo(
     if len(idx) == 0:
         return LineMatches(out, fit_error, n_matched, ok)
     samples, owner_local = _line_samples(seg[idx], options)
-    pm = match_points_stereo(left, right, samples, disparities, options=options)
     owner = idx[owner_local]
+    pm = match_points_stereo(left, right, samples, d_seg[owner], options=options)
     n_samples = np.bincount(owner, minlength=M)
     n_matched = np.bincount(owner[pm.ok], minlength=M)
     cand = (n_matched >= options.line_min_matches) & (2 * n_matched >= n_samples) & steep

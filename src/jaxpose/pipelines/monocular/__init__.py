@@ -30,6 +30,7 @@ from jaxpose.pipelines.monocular.options import ATTITUDE_GRID as ATTITUDE_GRID
 from jaxpose.pipelines.monocular.options import CONFIDENCE as CONFIDENCE
 from jaxpose.pipelines.monocular.options import GRID_WITHOUT_SILHOUETTE as GRID_WITHOUT_SILHOUETTE
 from jaxpose.pipelines.monocular.options import ORIENTATION_WEIGHT as ORIENTATION_WEIGHT
+from jaxpose.pipelines.monocular.options import PANEL_WEIGHT as PANEL_WEIGHT
 from jaxpose.pipelines.monocular.options import REGION_WEIGHT as REGION_WEIGHT
 from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR as ROI_LENGTH_FACTOR
 from jaxpose.pipelines.monocular.options import SILHOUETTE_WEIGHT as SILHOUETTE_WEIGHT
@@ -44,6 +45,7 @@ __all__ = [
     "CONFIDENCE",
     "GRID_WITHOUT_SILHOUETTE",
     "ORIENTATION_WEIGHT",
+    "PANEL_WEIGHT",
     "REGION_WEIGHT",
     "ROI_LENGTH_FACTOR",
     "SILHOUETTE_WEIGHT",

@@ -19,6 +19,7 @@ __all__ = [
     "SILHOUETTE_WEIGHT",
     "GRID_WITHOUT_SILHOUETTE",
     "ORIENTATION_WEIGHT",
+    "PANEL_WEIGHT",
     "InitOptions",
     "InitResult",
 ]
@@ -106,6 +107,13 @@ ORIENTATION_WEIGHT = 0.0
 #: on the SPEED+ photographs over the Earth it changed no failure into a success.
 GRID_WITHOUT_SILHOUETTE = False
 
+#: Weight of the panel term (:func:`~jaxpose.pipelines.monocular.score._panel_term`: solar-cell
+#: lines inside the projected panel) in the quick score and the ranking key: ``+ PANEL_WEIGHT x
+#: tau x`` the term (pixels). 0 (off): on 30 lightbox development renders (seed 7) weight 0.25
+#: gave the same 29 successes as 0 and one wrong ``high``; on the 24 SPEED+ development images
+#: weights 0.25 and 1 gave 6 and 5 successes against 7 (docs: monocular evaluation).
+PANEL_WEIGHT = 0.0
+
 
 @dataclass(frozen=True)
 class InitOptions:
@@ -125,6 +133,7 @@ class InitOptions:
     orientation_weight: float = ORIENTATION_WEIGHT  # + this x tau x _orientation_term (0: off)
     # place the attitude grid on the ROI when the image has no silhouette (an Earth behind)
     grid_without_silhouette: bool = GRID_WITHOUT_SILHOUETTE
+    panel_weight: float = PANEL_WEIGHT  # + this x tau x _panel_term (0: off)
     ransac_iterations: int | None = None
     ransac_seed: int = 0
     confidence: dict = field(default_factory=lambda: dict(CONFIDENCE))

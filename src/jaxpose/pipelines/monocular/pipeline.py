@@ -51,6 +51,7 @@ def initialise_pose(
         "antenna_weight",
         "silhouette_weight",
         "orientation_weight",
+        "panel_weight",
     ):
         w = getattr(options, name)
         if not np.isfinite(w) or w < 0:

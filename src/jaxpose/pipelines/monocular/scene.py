@@ -33,7 +33,10 @@ class _EdgeScene(NamedTuple):
     :func:`jaxpose.vision.image_maps.silhouette_grid`, for the silhouette term (``None`` without a
     silhouette: an Earth behind the target, or the weight 0); ``ori (B, S, S)``, ``ori_frame (3,)``:
     :func:`jaxpose.vision.image_maps.orientation_maps` and its frame, for the orientation term
-    (``None`` when its weight is 0)."""
+    (``None`` when its weight is 0); ``tex (B, S, S)``, ``tex_frame (3,)``:
+    :func:`jaxpose.vision.image_maps.texture_maps`, and ``panel (N + 3, 3)``: samples inside the
+    model's solar panel followed by its corner and two sides (:func:`_panel_geometry`), for the
+    panel term (``None`` when its weight is 0 or the model has no panel)."""
 
     geom: tuple
     img_pts: jax.Array
@@ -54,6 +57,10 @@ class _EdgeScene(NamedTuple):
     ori: jax.Array | None = None
     ori_frame: jax.Array | None = None
     orientation_weight: float = 0.0
+    tex: jax.Array | None = None
+    tex_frame: jax.Array | None = None
+    panel: jax.Array | None = None
+    panel_weight: float = 0.0
 
     def chamfer_inputs(self):
         """``(geom, img_pts, img_mask, dt, tau, cam4)``: the fields the chamfer terms use."""
@@ -69,6 +76,7 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
     antennas = options.antenna_weight > 0 and len(model.antennas) > 0
     sil = options.silhouette_weight > 0 and det.silhouette is not None and len(model.faces) > 0
     ori = options.orientation_weight > 0
+    panel = _panel_geometry(model) if options.panel_weight > 0 else None
     return _EdgeScene(
         _model_geometry(model),
         img_pts,
@@ -89,6 +97,13 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
         float(options.silhouette_weight),
         *(_as_jax(image_maps.orientation_maps(det.image, det.roi)) if ori else (None, None)),
         float(options.orientation_weight),
+        *(
+            _as_jax(image_maps.texture_maps(det.image, det.roi))
+            if panel is not None
+            else (None, None)
+        ),
+        panel,
+        float(options.panel_weight),
     )
 
 
@@ -112,6 +127,28 @@ def _model_geometry(model: WireframeModel, samples: int = 8):
     normals = model.face_normals if F else np.zeros((1, 3))
     centres = model.face_centres if F else np.zeros((1, 3))
     return tuple(jnp.asarray(x) for x in (segs, pts, ef, normals, centres))
+
+
+#: Samples per side of the grid inside the solar panel (:func:`_panel_geometry`), and the share of
+#: each side left out along the panel's border (its outline is an edge, not a cell line).
+PANEL_SAMPLES = 6
+PANEL_BORDER = 0.15
+
+
+@functools.lru_cache(maxsize=8)
+def _panel_geometry(model: WireframeModel) -> jax.Array | None:
+    """The solar panel of the built-in Tango (face 0: the top of the panel, a grid of cells, as
+    :func:`jaxpose.vision.render.default_textures` renders it): ``PANEL_SAMPLES`` squared points
+    inside it, then its corner and its two sides (body frame, metres), ``(N + 3, 3)``; ``None``
+    for other models (no known panel)."""
+    if model.name != "tango" or not len(model.faces):
+        return None
+    V = np.asarray(model.vertices, float)
+    o, u, v = V[0], V[3] - V[0], V[1] - V[0]
+    a = np.linspace(PANEL_BORDER, 1.0 - PANEL_BORDER, PANEL_SAMPLES)
+    A, Bm = np.meshgrid(a, a, indexing="ij")
+    pts = o + A.reshape(-1, 1) * u + Bm.reshape(-1, 1) * v
+    return jnp.asarray(np.concatenate([pts, [o, u, v]]))
 
 
 @functools.lru_cache(maxsize=8)

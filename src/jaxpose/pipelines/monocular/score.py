@@ -183,6 +183,62 @@ def _jit_orientation_term():
     return jax.jit(_orientation_term)
 
 
+#: Share of ``(1 - cos)`` of the panel's viewing angle under which it counts fully (a panel seen
+#: edge-on shows no cells): its weight is ``min(1, cos / PANEL_COS)``. Chosen, not tuned.
+PANEL_COS = 0.3
+#: Mean excess (:func:`_panel_term`) that counts as full evidence of the cell lines: the
+#: photographed panels of SPEED+ show the lines of one direction, about 0.35-0.45 of the window's
+#: gradient above the uniform share. Chosen, not tuned.
+PANEL_FULL = 0.4
+
+
+def _panel_term(R, t, sc: _EdgeScene):
+    """Solar-cell evidence against the pose, in ``[0, 1]``: ``1 -`` the mean excess, at samples
+    inside the projected solar panel, of the local gradient-orientation histogram
+    (:func:`jaxpose.vision.image_maps.texture_maps`) in the two bins around the normal of one
+    of the panel's projected sides over their uniform share (the cells' lines run along the
+    sides; the larger of the two sides' excesses, as photographs often show the lines of one
+    direction only), scaled so that a mean excess of ``PANEL_FULL`` gives 1.
+
+    The panel is the one face of Tango that the near-symmetric flips (180 deg about an axis in
+    its plane) move to the other side of the body: at the true pose the cell lines lie where the
+    term looks for them; a flip puts a smooth or blanket-covered face there, or a face with
+    lines in other directions. A panel turned away (or seen edge-on) is neither evidence for
+    nor against: it pays ``0.5``, weighted by the panel's visibility."""
+    pts, o, u, v = sc.panel[:-3], sc.panel[-3], sc.panel[-2], sc.panel[-1]
+    B = sc.tex.shape[0]
+    S = sc.tex.shape[1]
+    n_cam = R @ jnp.cross(u, v)  # outward (face 0's winding, right-hand rule)
+    c_cam = R @ (o + 0.5 * (u + v)) + t
+    cosv = -jnp.sum(n_cam * c_cam) / jnp.maximum(
+        jnp.linalg.norm(n_cam) * jnp.linalg.norm(c_cam), 1e-12
+    )
+    corners = _project(jnp.stack([o, o + u, o + v]) @ R.T + t, sc.cam4)
+    du, dv = corners[1] - corners[0], corners[2] - corners[0]
+
+    def normal_bins(d):  # the two bins around the normal's orientation
+        x = jnp.mod(jnp.arctan2(d[1], d[0]) + 0.5 * jnp.pi, jnp.pi) / (jnp.pi / B)
+        lo = jnp.floor(x).astype(jnp.int32)
+        return jnp.mod(lo, B), jnp.mod(lo + 1, B)
+
+    pc = pts @ R.T + t
+    uv = (_project(pc, sc.cam4) - sc.tex_frame[:2]) * sc.tex_frame[2]
+    inside = jnp.all((uv >= 0) & (uv <= S - 1), axis=-1) & (pc[:, 2] > 1e-3)
+    ij = jnp.clip(jnp.round(uv).astype(jnp.int32), 0, S - 1)
+    h = sc.tex[:, ij[:, 1], ij[:, 0]].astype(pc.dtype)  # (B, N)
+    total = jnp.sum(h, 0)
+
+    def excess(d):
+        a, b = normal_bins(d)
+        return (h[a] + h[b] - 2.0 / B * total) / (1.0 - 2.0 / B)
+
+    ex = jnp.maximum(excess(du), excess(dv))
+    m = inside.astype(h.dtype)
+    ev = jnp.clip(jnp.sum(ex * m) / jnp.maximum(jnp.sum(m), 1.0) / PANEL_FULL, 0.0, 1.0)
+    w = jnp.where(jnp.sum(m) > 0, jnp.clip(cosv / PANEL_COS, 0.0, 1.0), 0.0)
+    return w * (1.0 - ev) + (1.0 - w) * 0.5
+
+
 def _quick_score(R, t, sc: _EdgeScene, roi):
     """Cheap ranking score of many hypotheses: the model side of :func:`_chamfer` plus a penalty
     when the projected model's box does not match the ROI in size (a small, far-away projection
@@ -213,6 +269,8 @@ def _quick_score(R, t, sc: _EdgeScene, roi):
         out = out + sc.silhouette_weight * tau * _silhouette_term(R, t, sc, coarse=True)
     if sc.ori is not None:
         out = out + sc.orientation_weight * tau * _orientation_term(R, t, sc)
+    if sc.panel is not None:
+        out = out + sc.panel_weight * tau * _panel_term(R, t, sc)
     return out
 
 
@@ -267,6 +325,8 @@ def _rank_key(R, t, sc: _EdgeScene):
         key = key + sc.silhouette_weight * sc.tau * _silhouette_term(R, t, sc)
     if sc.ori is not None:
         key = key + sc.orientation_weight * sc.tau * _orientation_term(R, t, sc)
+    if sc.panel is not None:
+        key = key + sc.panel_weight * sc.tau * _panel_term(R, t, sc)
     return key, ch, near
 
 

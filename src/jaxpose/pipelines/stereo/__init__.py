@@ -4,12 +4,14 @@ Stages, one module each: :mod:`~jaxpose.pipelines.stereo.options` (options and t
 result), :mod:`~jaxpose.pipelines.stereo.landmarks` (the body-frame landmark map),
 :mod:`~jaxpose.pipelines.stereo.guided` (search by projection),
 :mod:`~jaxpose.pipelines.stereo.frame_pose` (the pose of a frame),
+:mod:`~jaxpose.pipelines.stereo.budget` (the features of a frame's pose solve under a budget),
 :mod:`~jaxpose.pipelines.stereo.keyframes` (stereo correspondences and the map update) and
 :mod:`~jaxpose.pipelines.stereo.tracker` (:class:`StereoTracker`, which runs them).
 """
 
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap as LandmarkMap
 from jaxpose.pipelines.stereo.landmarks import LandmarkSet as LandmarkSet
+from jaxpose.pipelines.stereo.options import BUDGET_RULES as BUDGET_RULES
 from jaxpose.pipelines.stereo.options import STAGES as STAGES
 from jaxpose.pipelines.stereo.options import FrameResult as FrameResult
 from jaxpose.pipelines.stereo.options import TrackerOptions as TrackerOptions
@@ -18,6 +20,7 @@ from jaxpose.pipelines.stereo.tracker import as_gray_uint8 as as_gray_uint8
 from jaxpose.pipelines.stereo.tracker import target_roi as target_roi
 
 __all__ = [
+    "BUDGET_RULES",
     "STAGES",
     "FrameResult",
     "LandmarkMap",

@@ -59,16 +59,34 @@ def angle_deg(R_a, R_b):
     return jnp.degrees(rotation_angle(R_a, R_b))
 
 
+def _padded_size(n: int) -> int:
+    """The padded size of ``n`` projected points: a power of four, at least 64."""
+    size = 64
+    while size < n:
+        size *= 4
+    return size
+
+
+def warm_up_projection(camera: PinholeCamera, largest: int = 16384) -> None:
+    """Compile :func:`project` for every padded size up to ``largest`` points (one compilation
+    a size, some 50 ms each, at the start rather than in the middle of a sequence)."""
+    pose = Pose(jnp.eye(3), jnp.zeros(3))
+    size = 64
+    while size <= largest:
+        _project(camera, pose, jnp.ones((size, 3))).block_until_ready()
+        size *= 4
+
+
 def project(camera: PinholeCamera, pose: Pose | None, points_body: np.ndarray) -> np.ndarray:
     """Pixels ``(..., 2)`` of body points ``(..., 3)`` seen at ``pose`` (``None``: the points are
-    in the camera frame), by :meth:`PinholeCamera.project`. The points are padded to a power of two
-    (at least 64) so that a sequence compiles a handful of sizes, not one a frame."""
+    in the camera frame), by :meth:`PinholeCamera.project`. The points are padded to a power of
+    four (at least 64) so that a sequence compiles a handful of sizes, not one a frame."""
     X = np.asarray(points_body, np.float64)
     flat = X.reshape(-1, 3)
     n = len(flat)
     if n == 0:
         return np.zeros((*X.shape[:-1], 2))
-    size = max(64, 1 << (n - 1).bit_length())
+    size = _padded_size(n)
     pose = Pose(jnp.eye(3), jnp.zeros(3)) if pose is None else pose
     uv = np.asarray(_project(camera, pose, jnp.asarray(pad(flat, size, 1.0))))[:n]
     return uv.reshape(*X.shape[:-1], 2)

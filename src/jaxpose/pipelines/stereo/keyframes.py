@@ -9,7 +9,7 @@ all its observation planes), the others become new landmarks. Rays and planes ar
 
 from __future__ import annotations
 
-import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import equinox as eqx
@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.pipelines.stereo._arrays import pad, project, rt
+from jaxpose.pipelines.stereo._clock import StageClock
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
 from jaxpose.pipelines.stereo.options import TrackerOptions
 from jaxpose.vision.stereo_match import match_lines_stereo, match_points_stereo
@@ -70,19 +71,51 @@ def _triangulate(rig: StereoCamera, left, right):
 
 
 def stereo_correspondences(
-    left, right, feats, rig: StereoCamera, disparities, options: TrackerOptions, timings: dict
+    left,
+    right,
+    feats,
+    rig: StereoCamera,
+    disparities,
+    options: TrackerOptions,
+    clock: StageClock | None = None,
 ) -> FrameStereo:
     """Stereo correspondence (eqs. 4-5) and triangulation of the frame's features, searched over
-    ``disparities``; times the stages ``stereo`` and ``triangulate`` into ``timings``."""
+    ``disparities``: one ``(d_min, d_max)`` for every feature, or a pair of arrays, ``(N, 2)``
+    ranges of the points and ``(M, 2)`` of the segments; times the stages ``stereo`` and
+    ``triangulate`` on ``clock``."""
     o = options
-    t0 = time.perf_counter()
-    pm = match_points_stereo(left, right, feats.points, disparities, options=o.stereo)
-    if o.use_lines and len(feats.segments):
-        lm = match_lines_stereo(left, right, feats.segments, disparities, options=o.stereo)
-        line_ok = lm.ok
+    clock = StageClock(("stereo", "triangulate")) if clock is None else clock
+    with clock.stage("stereo"):
+        pm, lm, line_ok = _search(left, right, feats, disparities, o)
+    with clock.stage("triangulate"):
+        return _triangulate_frame(rig, feats, pm, lm, line_ok, o)
+
+
+_POOL: list = []
+
+
+def _search(left, right, feats, disparities, o: TrackerOptions):
+    if np.ndim(disparities[0]) == 2:
+        d_points, d_lines = disparities
     else:
-        lm, line_ok = None, np.zeros(len(feats.segments), bool)
-    t1 = time.perf_counter()
+        d_points = d_lines = disparities
+    if o.use_lines and len(feats.segments):
+        args = (left, right, feats.segments, d_lines)
+        if o.threads:  # the segments' samples in a second thread (NumPy and OpenCV release the GIL)
+            if not _POOL:
+                _POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxpose-zncc"))
+            pending = _POOL[0].submit(match_lines_stereo, *args, options=o.stereo)
+            pm = match_points_stereo(left, right, feats.points, d_points, options=o.stereo)
+            lm = pending.result()
+        else:
+            pm = match_points_stereo(left, right, feats.points, d_points, options=o.stereo)
+            lm = match_lines_stereo(*args, options=o.stereo)
+        return pm, lm, lm.ok
+    pm = match_points_stereo(left, right, feats.points, d_points, options=o.stereo)
+    return pm, None, np.zeros(len(feats.segments), bool)
+
+
+def _triangulate_frame(rig, feats, pm, lm, line_ok, o: TrackerOptions) -> FrameStereo:
     ip = np.nonzero(pm.ok)[0]
     il = np.nonzero(line_ok)[0][: o.max_lines]
     n_tri = o.features.n_points + 2 * o.max_lines
@@ -105,8 +138,6 @@ def stereo_correspondences(
     lo, hi = o.depth_range_m
     okp = np.isfinite(P).all(1) & (P[:, 2] > lo) & (P[:, 2] < hi)
     oks = np.isfinite(S).all((1, 2)) & (S[..., 2] > lo).all(1) & (S[..., 2] < hi).all(1)
-    timings["stereo"] = t1 - t0
-    timings["triangulate"] = time.perf_counter() - t1
     return FrameStereo(ip[okp], P[okp], pm.pixels_right[ip[okp]], il[oks], S[oks])
 
 

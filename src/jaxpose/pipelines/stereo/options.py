@@ -10,10 +10,13 @@ from jaxpose.core.geometry import Pose
 from jaxpose.vision.stereo_features import FeatureOptions
 from jaxpose.vision.stereo_match import StereoMatchOptions
 
-__all__ = ["STAGES", "FrameResult", "TrackerOptions"]
+__all__ = ["BUDGET_RULES", "STAGES", "FrameResult", "TrackerOptions"]
 
 #: Stages timed by :meth:`~jaxpose.pipelines.stereo.StereoTracker.process` (seconds each).
-STAGES = ("features", "stereo", "triangulate", "match", "pose")
+STAGES = ("features", "match", "stereo", "triangulate", "budget", "pose", "map")
+
+#: Rules of ``TrackerOptions.feature_budget`` (:mod:`jaxpose.pipelines.stereo.budget`).
+BUDGET_RULES = ("dop", "random", "response")
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,28 @@ class TrackerOptions:
             excepted) are matched and refined but left out of the pose solve, so that a new
             landmark's position averages several frames' poses before a pose leans on it
             (0 or 1: every landmark is used at once).
+        predicted_disparity: search each feature's right match only in its own disparity window
+            (:meth:`~jaxpose.pipelines.stereo.StereoTracker.feature_disparities`): a feature
+            matched to a landmark around the landmark's disparity at the predicted pose, plus or
+            minus a margin measured on the previous frame (``4 sigma + 2`` px within 3-24 px,
+            ``sigma`` the robust scale of the measured minus predicted disparities of the
+            matched points); an unmatched feature with matched points within ``neighbour_px``
+            around the range of their predicted disparities; the others over the map's depth
+            window. Off by default: it halves the stereo search's time but on the 1.5 m
+            development scene it raised the errors by up to 60% (noise seeds 0 and 1), and a
+            wider fixed margin did not help; our reading, not measured: on the quilt's
+            repetitive texture a window centred on the prediction keeps a second ZNCC peak near
+            a wrong landmark, so the landmark's error confirms itself (``docs/stereo.md``).
+        disparity_margin_px: the margin of the first tracked frame.
+        neighbour_px: radius of the matched points that predict an unmatched feature's
+            disparity.
+        threads: run the line detection (LSD + LBD) and the lines' stereo search in a second
+            thread, beside the points' (the same results; on two cores the wall times overlap).
+        feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
+            points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
+            dilution of precision at the predicted pose), ``"random"`` or ``"response"``
+            (strongest ORB responses, longest segments); see
+            :mod:`jaxpose.pipelines.stereo.budget`.
         stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
             StereoMatchOptions`).
     """
@@ -123,9 +148,23 @@ class TrackerOptions:
     measured_line_sigma: bool = True
     line_scale_memory: float = 0.9
     mature_obs: int = 3
+    predicted_disparity: bool = False
+    disparity_margin_px: float = 6.0
+    neighbour_px: float = 40.0
+    threads: bool = True
     stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
+    # feature budget (jaxpose.pipelines.stereo.budget)
+    feature_budget: int | None = None
+    budget_rule: str = "dop"
 
     def __post_init__(self):
+        fb = self.feature_budget
+        if fb is not None and (
+            isinstance(fb, bool) or not isinstance(fb, int | np.integer) or fb < 4
+        ):
+            raise ValueError(f"feature_budget must be an integer >= 4 or None; got {fb!r}")
+        if self.budget_rule not in BUDGET_RULES:
+            raise ValueError(f"budget_rule must be one of {BUDGET_RULES}; got {self.budget_rule!r}")
         if self.keypoint_spacing_px is not None and not self.keypoint_spacing_px > 0:
             raise ValueError(
                 f"keypoint_spacing_px must be positive or None; got {self.keypoint_spacing_px}"
@@ -153,7 +192,10 @@ class FrameResult:
         n_points, n_lines: features given to the solver.
         inliers: post-fit inliers; ``rms_px``: their post-fit RMS (pixels).
         keyframe: this frame updated the landmark map.
-        timings: seconds by stage (:data:`STAGES`).
+        timings: wall-clock seconds by stage (:data:`STAGES`).
+        cpu_timings: CPU seconds of the process by stage (all its threads; steadier than wall
+            time on a shared machine); the feature budget's selection is timed in wall time
+            only, its CPU time counts in ``pose``.
     """
 
     index: int
@@ -165,6 +207,7 @@ class FrameResult:
     rms_px: float = float("nan")
     keyframe: bool = False
     timings: dict = field(default_factory=dict)
+    cpu_timings: dict = field(default_factory=dict)
 
     @property
     def R(self) -> np.ndarray:

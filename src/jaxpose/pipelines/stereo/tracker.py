@@ -34,17 +34,28 @@ with fewer than ``min_features`` triangulated features (a black or unreadable fr
 
 from __future__ import annotations
 
-import time
+import warnings
 from dataclasses import replace
 
 import jax.numpy as jnp
 import numpy as np
+from scipy.spatial import cKDTree
 
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.status import Status
-from jaxpose.pipelines.stereo._arrays import angle_deg, compose, fraction, project, relative, rt
-from jaxpose.pipelines.stereo.frame_pose import fit_pose
+from jaxpose.pipelines.stereo._arrays import (
+    angle_deg,
+    compose,
+    find,
+    fraction,
+    project,
+    relative,
+    rt,
+    warm_up_projection,
+)
+from jaxpose.pipelines.stereo._clock import StageClock
+from jaxpose.pipelines.stereo.budget import fit_pose_budgeted
 from jaxpose.pipelines.stereo.guided import match_by_projection
 from jaxpose.pipelines.stereo.keyframes import (
     observe_point_rays,
@@ -174,6 +185,8 @@ class StereoTracker:
         self.index = 0
         self._line_scale = 1.0  # running ratio of line to point residual scales (line_sigma)
         self._radius = float(options.search_radius_px)  # search-by-projection radius
+        self._disparity_margin = float(options.disparity_margin_px)  # around predicted disparity
+        warm_up_projection(rig.left)
 
     # ------------------------------------------------------------------ scene-dependent settings
     def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
@@ -247,21 +260,131 @@ class StereoTracker:
         """The running ratio of the line to the point residual scale (weight of the lines)."""
         return self._line_scale
 
-    # ------------------------------------------------------------------ main entry
-    def _stereo(self, left, right, feats, timings, pose_pred=None):
-        return stereo_correspondences(
-            left, right, feats, self.rig, self._disparities(pose_pred), self.options, timings
-        )
+    def feature_disparities(self, feats, pose_pred: Pose | None, matches=None):
+        """Disparities searched for each feature, ``((N, 2), (M, 2), predicted)``.
 
-    def _first_frame(self, left, right, feats, timings) -> FrameResult:
+        Without matches (or after a lost frame), every feature gets the window of
+        :meth:`_disparities`. With ``matches = (i_m, i_cur, l_m, l_cur)``:
+
+        * a point matched to a landmark: the landmark's disparity at ``pose_pred``, plus or minus
+          the measured margin ``m`` (:meth:`_update_disparity_margin`);
+        * a matched segment: its landmark's endpoint disparities, widened by ``m`` and half
+          their difference (the segment found may reach beyond the landmark's);
+        * an unmatched feature near matched points (at least 2 within ``neighbour_px``; a
+          segment: at two of its endpoints and midpoint): the range of their predicted disparities
+          widened by ``m`` and by that range again (a rigid surface's disparity varies smoothly;
+          a depth edge among the neighbours widens the window by itself);
+        * the others: the window of :meth:`_disparities`.
+
+        A true disparity outside its window usually puts the ZNCC maximum on the window's edge,
+        which the search rejects (no sub-pixel parabola there): a narrow window mostly loses such
+        a match, unless a second peak inside it passes the NCC threshold. ``predicted`` holds
+        the matched points' indices and predicted disparities for the margin's update."""
+        o = self.options
+        base = np.array(self._disparities(pose_pred), np.int64)
+        dp = np.tile(base, (len(feats.points), 1)).astype(np.float64)
+        dl = np.tile(base, (len(feats.segments), 1)).astype(np.float64)
+        if matches is None or not o.predicted_disparity or self._misses:
+            return dp.astype(np.int64), dl.astype(np.int64), None
+        i_m, i_cur, l_m, l_cur = matches
+        R, t = rt(pose_pred)
+        fb = float(self.rig.left.fx) * float(self.rig.baseline)
+        m = self._disparity_margin
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = self.map.points.X[i_m] @ R[2] + t[2]
+            d = fb / z
+        good = np.isfinite(d) & (z > 0)
+        i_cur, d = i_cur[good], d[good]
+        matched = np.zeros(len(dp), bool)
+        matched[i_cur] = True
+        if len(i_cur) >= 3:
+            tree = cKDTree(feats.points[i_cur])
+
+            def around(pixels):
+                dist, j = tree.query(
+                    pixels, k=min(8, len(i_cur)), distance_upper_bound=o.neighbour_px
+                )
+                near = np.isfinite(dist)
+                dj = np.where(near, d[np.minimum(j, len(d) - 1)], np.nan)
+                lo, hi = np.nanmin(dj, 1), np.nanmax(dj, 1)
+                spread = hi - lo
+                known = near.sum(1) >= 2
+                return known, lo - m - spread, hi + m + spread
+
+            free = np.nonzero(~matched)[0]
+            if len(free):
+                with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    known, lo, hi = around(feats.points[free])
+                dp[free[known]] = np.stack([lo[known], hi[known]], 1)
+            if len(feats.segments):
+                seg = feats.segments
+                q = np.concatenate([seg[:, 0], seg[:, 1], seg.mean(1)])
+                with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    known, lo, hi = (a.reshape(3, -1) for a in around(q))
+                lo, hi = np.where(known, lo, np.inf), np.where(known, hi, -np.inf)
+                known = known.sum(0) >= 2  # two of the endpoints and the midpoint
+                dl[known] = np.stack([lo[:, known].min(0), hi[:, known].max(0)], 1)
+        dp[i_cur] = np.stack([d - m, d + m], 1)
+        if len(l_m):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                zl = self.map.lines.X[l_m] @ R[2] + t[2]  # (k, 2)
+                dd = fb / zl
+            ok = np.isfinite(dd).all(1) & (zl > 0).all(1)
+            slack = m + 0.5 * np.abs(dd[:, 1] - dd[:, 0])
+            dl[l_cur[ok]] = np.stack([dd[ok].min(1) - slack[ok], dd[ok].max(1) + slack[ok]], 1)
+        # never wider than the window of the map's depths
+        dp = np.clip(dp, base[0], base[1])
+        dl = np.clip(dl, base[0], base[1])
+        dp = np.stack(
+            [np.floor(dp[:, 0]), np.maximum(np.ceil(dp[:, 1]), np.floor(dp[:, 0]) + 2)], 1
+        )
+        dl = np.stack(
+            [np.floor(dl[:, 0]), np.maximum(np.ceil(dl[:, 1]), np.floor(dl[:, 0]) + 2)], 1
+        )
+        return dp.astype(np.int64), dl.astype(np.int64), (i_cur, d)
+
+    def _update_disparity_margin(self, feats, stereo, predicted) -> None:
+        """The next frame's margin around the predicted disparities from this frame's matched
+        points: ``4 sigma + 2`` px (within 3-24 px), ``sigma`` the robust scale (median absolute
+        value over 0.6745) of their measured minus predicted disparities. A tail of larger
+        differences (a landmark matched to the wrong keypoint, a stereo mismatch) falls outside
+        the window and is left unmatched."""
+        if predicted is None or stereo is None:
+            return
+        idx, d_pred = predicted
+        q, j = find(stereo.point_idx, idx) if len(stereo.point_idx) else (np.zeros(0, int),) * 2
+        if len(q) < 10:
+            return
+        d_meas = feats.points[idx[q], 0] - stereo.pixels_right[j, 0]
+        sigma = float(np.median(np.abs(d_meas - d_pred[q]))) / 0.6745
+        self._disparity_margin = float(np.clip(4.0 * sigma + 2.0, 3.0, 24.0))
+
+    # ------------------------------------------------------------------ main entry
+    def _stereo(self, left, right, feats, clock, pose_pred=None, matches=None):
+        dp, dl, predicted = self.feature_disparities(feats, pose_pred, matches)
+        o = self.options
+        stereo = stereo_correspondences(left, right, feats, self.rig, (dp, dl), o, clock)
+        self._update_disparity_margin(feats, stereo, predicted)
+        return stereo
+
+    def _first_frame(self, left, right, feats, clock) -> FrameResult:
         """Start the map at the initial pose (frame 0, or the first frame with enough features)."""
         o = self.options
         pose = self.initial_pose
-        stereo = self._stereo(left, right, feats, timings)
+        stereo = self._stereo(left, right, feats, clock)
         k = self.index - 1
         if len(stereo.point_idx) + len(stereo.line_idx) < o.min_features:
-            return FrameResult(k, lost_pose(), int(Status.TOO_FEW_POINTS), timings=timings)
-        update_map(self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k)
+            return FrameResult(
+                k,
+                lost_pose(),
+                int(Status.TOO_FEW_POINTS),
+                timings=clock.wall,
+                cpu_timings=clock.cpu,
+            )
+        with clock.stage("map"):
+            update_map(self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k)
         if o.mature_obs > 1:  # the first frame's landmarks sit at the given pose: mature
             self.map.points.n_obs[:] = np.maximum(self.map.points.n_obs, o.mature_obs)
         self._started = True
@@ -273,7 +396,8 @@ class StereoTracker:
             len(self.map.points),
             len(self.map.lines),
             keyframe=True,
-            timings=timings,
+            timings=clock.wall,
+            cpu_timings=clock.cpu,
         )
 
     def process(self, left: np.ndarray, right: np.ndarray, *, roi=None) -> FrameResult:
@@ -287,49 +411,86 @@ class StereoTracker:
                 f"images must be {W}x{H} (the rig's size); got {left.shape} and {right.shape}"
             )
         left, right = as_gray_uint8(left, "left"), as_gray_uint8(right, "right")
-        timings = dict.fromkeys(STAGES, 0.0)
-        t0 = time.perf_counter()
-        roi = target_roi(left) if roi is None else roi
-        area = target_area(left)
-        feats = extract(left, options=self.feature_options(area), roi=roi, lines=o.use_lines)
-        timings["features"] = time.perf_counter() - t0
+        clock = StageClock(STAGES)
+        with clock.stage("features"):
+            roi = target_roi(left) if roi is None else roi
+            area = target_area(left)
+            feats = extract(
+                left,
+                options=self.feature_options(area),
+                roi=roi,
+                lines=o.use_lines,
+                threads=o.threads,
+            )
         k = self.index
         self.index += 1
         if not self._started:
-            return self._first_frame(left, right, feats, timings)
+            return self._first_frame(left, right, feats, clock)
 
         pose_pred = compose(self._delta, self._pose_prev)
+        with clock.stage("match"):
+            radius = self._radius * (2.0 if self._misses else 1.0)
+            (i_m, i_cur, cand), (l_m, l_cur, lcand) = match_by_projection(
+                self.map,
+                feats,
+                pose_pred,
+                self.rig.left,
+                radius,
+                use_lines=o.use_lines,
+                line_angle_deg=o.line_angle_deg,
+                options=o.features,
+            )
+            if len(i_m) > o.max_points:  # keep the best-observed landmarks
+                keep = np.argsort(-self.map.points.n_obs[i_m], kind="stable")[: o.max_points]
+                i_m, i_cur = i_m[keep], i_cur[keep]
+            if o.stereo_residuals and len(i_m) > o.max_points // 2:
+                keep = np.argsort(-self.map.points.n_obs[i_m], kind="stable")[: o.max_points // 2]
+                i_m, i_cur = i_m[keep], i_cur[keep]
+            l_m, l_cur = l_m[: o.max_lines], l_cur[: o.max_lines]
         stereo = None
         if o.stereo_residuals or o.keyframe_every <= 1:
-            stereo = self._stereo(left, right, feats, timings, pose_pred)
-        t1 = time.perf_counter()
-        radius = self._radius * (2.0 if self._misses else 1.0)
-        (i_m, i_cur, cand), (l_m, l_cur, lcand) = match_by_projection(
-            self.map,
-            feats,
-            pose_pred,
-            self.rig.left,
-            radius,
-            use_lines=o.use_lines,
-            line_angle_deg=o.line_angle_deg,
-            options=o.features,
-        )
-        if len(i_m) > o.max_points:  # keep the best-observed landmarks
-            keep = np.argsort(-self.map.points.n_obs[i_m], kind="stable")[: o.max_points]
-            i_m, i_cur = i_m[keep], i_cur[keep]
-        if o.stereo_residuals and len(i_m) > o.max_points // 2:
-            keep = np.argsort(-self.map.points.n_obs[i_m], kind="stable")[: o.max_points // 2]
-            i_m, i_cur = i_m[keep], i_cur[keep]
-        l_m, l_cur = l_m[: o.max_lines], l_cur[: o.max_lines]
-        timings["match"] = time.perf_counter() - t1
+            stereo = self._stereo(left, right, feats, clock, pose_pred, (i_m, i_cur, l_m, l_cur))
 
-        t2 = time.perf_counter()
+        with clock.stage("pose"):
+            result, update = self._fit_frame(
+                k, feats, stereo, pose_pred, (i_m, i_cur, cand, l_m, l_cur, lcand), clock
+            )
+        clock.wall["pose"] -= clock.wall["budget"]  # the budget's selection is its own stage
+        if update is not None and (
+            self._since_kf >= o.keyframe_every or result.inliers < o.keyframe_min
+        ):
+            if stereo is None:
+                stereo = self._stereo(left, right, feats, clock, pose_pred)
+            with clock.stage("map"):
+                update_map(
+                    self.map,
+                    self.rig,
+                    o,
+                    result.pose,
+                    feats,
+                    stereo,
+                    *update,
+                    self._rejected_p,
+                    self._rejected_l,
+                    k,
+                )
+            self._since_kf = 0
+            result.keyframe = True
+        return result
+
+    def _fit_frame(self, k, feats, stereo, pose_pred, matches, clock: StageClock):
+        """The pose of frame ``k`` from its matches, the tracker's state moved on when it is good;
+        returns the frame's result and the map update (matched feature to landmark, or ``None``)."""
+        o = self.options
+        i_m, i_cur, cand, l_m, l_cur, lcand = matches
         n_p, n_l = len(i_m), len(l_m)
-        result = FrameResult(k, lost_pose(), int(Status.LOST), n_p, n_l, timings=timings)
+        result = FrameResult(
+            k, lost_pose(), int(Status.LOST), n_p, n_l, timings=clock.wall, cpu_timings=clock.cpu
+        )
         update = None
         if n_p + n_l >= o.min_features:
             line_sigma = o.line_sigma_px * (self._line_scale if o.measured_line_sigma else 1.0)
-            fit = fit_pose(
+            fit = fit_pose_budgeted(  # all matches, or feature_budget of them (budget.py)
                 self.map,
                 feats,
                 stereo,
@@ -338,6 +499,8 @@ class StereoTracker:
                 self.rig,
                 o,
                 line_sigma,
+                frame=k,
+                timings=clock.wall,  # the selection's wall seconds (taken off "pose" below)
             )
             pose = fit.pose
             finite = _finite(pose)
@@ -386,24 +549,4 @@ class StereoTracker:
         if result.status != Status.OK:
             self._misses += 1
             self._pose_prev = pose_pred  # predict one more step of constant motion next time
-        timings["pose"] = time.perf_counter() - t2
-        if update is not None and (
-            self._since_kf >= o.keyframe_every or result.inliers < o.keyframe_min
-        ):
-            if stereo is None:
-                stereo = self._stereo(left, right, feats, timings, pose_pred)
-            update_map(
-                self.map,
-                self.rig,
-                o,
-                result.pose,
-                feats,
-                stereo,
-                *update,
-                self._rejected_p,
-                self._rejected_l,
-                k,
-            )
-            self._since_kf = 0
-            result.keyframe = True
-        return result
+        return result, update

@@ -1,0 +1,366 @@
+"""DOP-budgeted stereo tracking: accuracy and pose-stage time against the feature budget ``N``.
+
+For each scene of the suite of ``bench/stereo.py`` (points+lines mode), one tracker solves the
+pose on every matched feature and one tracker per rule (``dop``, ``random``, ``response``) and
+budget ``N`` on ``N`` of them (``TrackerOptions(feature_budget=N, budget_rule=rule)``). Each scene
+is rendered once and every tracker sees the same images; the features of a frame do not depend on
+the tracker's state and are extracted once and shared (the feature stage is left out of the
+timings here, see ``bench/stereo.py`` for it). The first two frames (first keyframe, compilation)
+are left out of the timings.
+
+    python bench/stereo_budget.py --split dev --frames 30          # choosing anything: dev only
+    python bench/stereo_budget.py --frames 40                      # the suite
+    python bench/stereo.py --budget-sweep --frames 40              # the same, from bench/stereo.py
+
+Measured per scene and tracker: per-axis RMS position (mm) and attitude (deg) after aligning the
+first frame, lost frames, the CPU seconds a frame of the pose stage (selection included: the
+process's CPU time around the selection and the solve, steadier than wall time on a shared
+machine) and of the selection alone (medians over frames: a frame that meets a new padded size
+compiles), and the RMS ratio to all features that the DOP alone predicts for the kept features
+(the square root of the ratio of their ``dop`` criteria, median over frames). Writes
+``runs/bench-stereo-budget/results.json`` and ``budget.png`` (sum over axes of the RMS position
+and attitude against ``N``, one line per rule, and the pose-stage CPU time against ``N``),
+prints a Markdown table and, last, one JSON line.
+
+Target (issue 17.3), checked per scene at ``N = 30``: the ``dop`` rule's per-axis RMS within 1.5x
+of all features (position and attitude, every axis), and its sum over axes lower than
+``random``'s and ``response``'s (position and attitude).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+
+import jaxpose.pipelines.stereo.budget as budget_mod  # noqa: E402
+import jaxpose.pipelines.stereo.tracker as tracker_mod  # noqa: E402
+from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions  # noqa: E402
+from jaxpose.studies.stereo_track import summarize  # noqa: E402
+from jaxpose.vision.stereo_render import default_rig, render_sequence  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from stereo import SCENES, scene_of  # noqa: E402
+
+RULES = ("dop", "random", "response")
+BUDGETS = (10, 20, 30, 50)
+TARGET_N = 30
+ALL = "all"
+
+
+class _CPU:
+    """CPU seconds of the pose stage (the budgeted solve) and of the selection, per call."""
+
+    def __init__(self):
+        self.pose: list[float] = []
+        self.select: list[float] = []
+        self.dop_ratio: list[float] = []
+        self._fit = tracker_mod.fit_pose_budgeted
+        self._select = budget_mod.select_budget
+
+    def __enter__(self):
+        def fit(*a, **k):
+            c0 = time.process_time()
+            out = self._fit(*a, **k)
+            self.pose.append(time.process_time() - c0)
+            return out
+
+        def select(*a, **k):
+            c0 = time.process_time()
+            out = self._select(*a, **k)
+            self.select.append(time.process_time() - c0)
+            self.dop_ratio.append(_dop_ratio(*a, out))
+            return out
+
+        tracker_mod.fit_pose_budgeted = fit
+        budget_mod.select_budget = select
+        return self
+
+    def __exit__(self, *exc):
+        tracker_mod.fit_pose_budgeted = self._fit
+        budget_mod.select_budget = self._select
+
+
+def _dop_ratio(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, kept) -> float:
+    """``sqrt`` of the ``dop`` criterion of the kept features over that of all the candidates:
+    the RMS error ratio to expect from the DOP alone (not timed)."""
+    keep_p, keep_l = kept
+    i_m = matches[0]
+    cand = np.nonzero(landmarks.points.n_obs[i_m] >= o.mature_obs)[0]
+    rows, valid, arm = budget_mod._dop_inputs(
+        landmarks, feats, stereo, matches, cand, pose_pred, rig, o, line_sigma
+    )
+    blocks = np.einsum("nki,nkj->nij", np.asarray(rows), np.asarray(rows))
+    b_p = budget_mod._bucket(len(i_m), 64)
+    sel = np.r_[
+        np.nonzero(keep_p & np.isin(np.arange(len(i_m)), cand))[0], b_p + np.nonzero(keep_l)[0]
+    ]
+    W = budget_mod.criterion_weight(arm, np.asarray(pose_pred.t, float))
+    c_all = budget_mod.budget_criterion(blocks[valid].sum(0), W)
+    c_sel = budget_mod.budget_criterion(blocks[sel].sum(0), W)
+    return float(np.sqrt(c_sel / c_all))
+
+
+class _SharedFeatures:
+    """One feature extraction per image for every tracker (keyed by the image's identity)."""
+
+    def __init__(self):
+        self._extract = tracker_mod.extract
+        self._cache: dict = {}
+
+    def __enter__(self):
+        def extract(image, **kw):
+            key = (id(image), repr(kw.get("options")), kw.get("lines"))
+            if key not in self._cache:
+                self._cache = {k: v for k, v in self._cache.items() if k[0] == id(image)}
+                self._cache[key] = self._extract(image, **kw)
+            return self._cache[key]
+
+        tracker_mod.extract = extract
+        return self
+
+    def __exit__(self, *exc):
+        tracker_mod.extract = self._extract
+
+
+def configs(budgets=BUDGETS, rules=RULES) -> list[tuple[str, int | None]]:
+    return [(ALL, None)] + [(r, n) for r in rules for n in budgets]
+
+
+def run_scene(name: str, frames: int | None, budgets=BUDGETS, rules=RULES, seed: int = 0) -> dict:
+    scene = scene_of(name, frames, seed)
+    rig = default_rig()
+    depth = (0.3, max(8.0, 3 * scene.range_m))
+    cfgs = configs(budgets, rules)
+    trackers, logs = {}, {c: ([], [], [], [], [], []) for c in cfgs}
+    with _SharedFeatures():
+        for fr in render_sequence(scene, rig):
+            left = np.ascontiguousarray(fr.left)
+            for cfg in cfgs:
+                rule, n = cfg
+                if cfg not in trackers:
+                    opts = TrackerOptions(
+                        depth_range_m=depth,
+                        feature_budget=n,
+                        budget_rule="dop" if rule == ALL else rule,
+                    )
+                    trackers[cfg] = StereoTracker(rig, fr.pose, options=opts)
+                results, truths, pose_cpu, sel_cpu, solved, ratio = logs[cfg]
+                with _CPU() as cpu:
+                    res = trackers[cfg].process(left, fr.right)
+                results.append(res)
+                truths.append(fr.pose)
+                pose_cpu.append(sum(cpu.pose))
+                sel_cpu.append(sum(cpu.select))
+                ratio.extend(cpu.dop_ratio)
+                solved.append(res.n_points + res.n_lines)
+    split, params = SCENES[name]
+    out = {
+        "scene": {
+            "name": name,
+            "split": split,
+            "range_m": scene.range_m,
+            "rate_deg_s": scene.rate_deg_s,
+            "frames": scene.n_frames(),
+            "seed": seed,
+        },
+        "runs": [],
+    }
+    for (rule, n), (results, truths, pose_cpu, sel_cpu, solved, ratio) in logs.items():
+        rep = summarize(results, truths, [0.0] * len(results))["summary"]
+        tracked = results[2:]
+        out["runs"].append(
+            {
+                "rule": rule,
+                "N": n,
+                "rms_position_mm": rep["rms_position_mm"],
+                "rms_attitude_deg": rep["rms_attitude_deg"],
+                "lost_frames": rep["lost_frames"],
+                # medians over frames: a frame that meets a new padded size compiles
+                "pose_cpu_ms": 1000 * float(np.median(pose_cpu[2:])),
+                "select_cpu_ms": 1000 * float(np.median(sel_cpu[2:])),
+                "pose_wall_ms": 1000 * float(np.median([r.timings["pose"] for r in tracked])),
+                "budget_wall_ms": 1000 * float(np.median([r.timings["budget"] for r in tracked])),
+                "matched_features": float(np.mean(solved[2:])),
+                # RMS ratio to all features that the DOP predicts (median over frames)
+                "dop_rms_ratio": float(np.median(ratio)) if ratio else 1.0,
+            }
+        )
+    out["target"] = target(out)
+    return out
+
+
+def _run(scene_result: dict, rule: str, n) -> dict | None:
+    for r in scene_result["runs"]:
+        if r["rule"] == rule and r["N"] == n:
+            return r
+    return None
+
+
+def target(scene_result: dict, n: int = TARGET_N) -> dict | None:
+    """Issue 17.3's target on one scene at ``N = n`` (module docstring)."""
+    base, dop = _run(scene_result, ALL, None), _run(scene_result, "dop", n)
+    if base is None or dop is None or not base["rms_position_mm"] or not dop["rms_position_mm"]:
+        return None
+    ratio = max(
+        max(a / b for a, b in zip(dop["rms_position_mm"], base["rms_position_mm"], strict=True)),
+        max(a / b for a, b in zip(dop["rms_attitude_deg"], base["rms_attitude_deg"], strict=True)),
+    )
+    beats = {}
+    for other in ("random", "response"):
+        o = _run(scene_result, other, n)
+        if o is None:
+            continue
+        if not o["rms_position_mm"]:
+            beats[other] = True
+            continue
+        beats[other] = bool(
+            sum(dop["rms_position_mm"]) < sum(o["rms_position_mm"])
+            and sum(dop["rms_attitude_deg"]) < sum(o["rms_attitude_deg"])
+        )
+    return {
+        "N": n,
+        "worst_axis_ratio_to_all": round(ratio, 3),
+        "within_1.5x": bool(ratio <= 1.5 and dop["lost_frames"] == 0),
+        "beats": beats,
+        "met": bool(ratio <= 1.5 and dop["lost_frames"] == 0 and all(beats.values())),
+    }
+
+
+def figure(results: list[dict], path: Path) -> None:
+    """Sum over axes of the RMS position and attitude (median over scenes, relative to all
+    features) and the pose-stage CPU time, against ``N``, one line per rule."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    budgets = sorted({r["N"] for s in results for r in s["runs"] if r["N"] is not None})
+    x_all = budgets[-1] * 1.6
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
+    colours = {"dop": "tab:blue", "random": "tab:orange", "response": "tab:green"}
+    for rule, c in colours.items():
+        ys = {k: [] for k in ("pos", "att", "cpu")}
+        for n in budgets:
+            rel_p, rel_a, cpu = [], [], []
+            for s in results:
+                base, run = _run(s, ALL, None), _run(s, rule, n)
+                if run is None or not base["rms_position_mm"]:
+                    continue
+                if run["rms_position_mm"]:
+                    rel_p.append(sum(run["rms_position_mm"]) / sum(base["rms_position_mm"]))
+                    rel_a.append(sum(run["rms_attitude_deg"]) / sum(base["rms_attitude_deg"]))
+                cpu.append(run["pose_cpu_ms"])
+            ys["pos"].append(np.median(rel_p) if rel_p else np.nan)
+            ys["att"].append(np.median(rel_a) if rel_a else np.nan)
+            ys["cpu"].append(np.median(cpu) if cpu else np.nan)
+        for ax, key in zip(axes, ("pos", "att", "cpu"), strict=True):
+            ax.plot(budgets, ys[key], "o-", color=c, label=rule)
+    cpu_all = np.median([_run(s, ALL, None)["pose_cpu_ms"] for s in results])
+    for ax in axes[:2]:
+        ax.axhline(1.0, color="k", lw=0.8, label="all features")
+        ax.axhline(1.5, color="red", lw=0.8, ls="--", label="1.5x all")
+        ax.set_yscale("log")
+    axes[2].plot([x_all], [cpu_all], "ks", label="all features")
+    axes[0].set_ylabel("sum over x, y, z of RMS position / same with all features")
+    axes[1].set_ylabel("sum over roll, pitch, yaw of RMS attitude / same with all")
+    axes[2].set_ylabel("pose stage, CPU ms a frame (selection included)")
+    for ax in axes:
+        ax.set_xlabel("feature budget N (points + lines)")
+        ax.axvline(TARGET_N, color="gray", lw=0.6, ls=":")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"DOP-budgeted stereo tracking: median over {len(results)} scenes", y=0.99)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def table(results: list[dict]) -> list[str]:
+    lines = [
+        "| scene | rule | N | lost | RMS position x, y, z (mm) | RMS attitude r, p, y (deg) "
+        "| DOP ratio | pose CPU ms | selection CPU ms |",
+        "|" + "---|" * 9,
+    ]
+    for s in results:
+        for r in s["runs"]:
+            pos = ", ".join(f"{v:.1f}" for v in r["rms_position_mm"] or [])
+            att = ", ".join(f"{v:.2f}" for v in r["rms_attitude_deg"] or [])
+            lines.append(
+                f"| {s['scene']['name']} | {r['rule']} | {r['N'] or 'all'} | {r['lost_frames']} "
+                f"| {pos} | {att} | {r['dop_rms_ratio']:.2f} | {r['pose_cpu_ms']:.1f} "
+                f"| {r['select_cpu_ms']:.1f} |"
+            )
+    return lines
+
+
+def report(results: list[dict], out: Path, frames, load0) -> dict:
+    print("\n".join(table(results)))
+    figure(results, out / "budget.png")
+    per_scene = {s["scene"]["name"]: s["target"] for s in results}
+    cpu = {
+        f"{rule}@{n}" if n else rule: round(
+            float(np.median([_run(s, rule, n)["pose_cpu_ms"] for s in results])), 2
+        )
+        for rule, n in [(ALL, None)] + [(r, TARGET_N) for r in RULES]
+        if all(_run(s, rule, n) for s in results)
+    }
+    summary = {
+        "bench": "stereo-budget",
+        "scenes": len(results),
+        "frames_per_scene": frames,
+        "N": TARGET_N,
+        "target_met": f"{sum(bool(t and t['met']) for t in per_scene.values())}/{len(results)}",
+        "within_1.5x": f"{sum(bool(t and t['within_1.5x']) for t in per_scene.values())}"
+        f"/{len(results)}",
+        "per_scene": {k: (v and v["met"]) for k, v in per_scene.items()},
+        "median_pose_cpu_ms": cpu,
+        "load_average": None
+        if load0 is None
+        else [round(x, 2) for x in (*load0, *os.getloadavg())],
+    }
+    print(json.dumps(summary))
+    return summary
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--scenes", nargs="+", default=None, choices=list(SCENES))
+    p.add_argument("--split", choices=("dev", "check", "all"), default="all")
+    p.add_argument("--frames", type=int, default=None, help="frames per scene (default: one turn)")
+    p.add_argument("--budgets", type=int, nargs="+", default=list(BUDGETS))
+    p.add_argument("--rules", nargs="+", choices=RULES, default=list(RULES))
+    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
+    p.add_argument("--out", type=Path, default=Path("runs/bench-stereo-budget"))
+    p.add_argument("--from-results", nargs="+", type=Path, default=None)
+    args = p.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.from_results:
+        results = [r for f in args.from_results for r in json.loads(f.read_text())]
+        report(results, args.out, results[0]["scene"]["frames"], None)
+        return 0
+    names = args.scenes or [n for n, (s, _) in SCENES.items() if args.split in ("all", s)]
+    load0 = os.getloadavg()
+    results = []
+    for name in names:
+        r = run_scene(name, args.frames, args.budgets, args.rules, seed=args.seed)
+        results.append(r)
+        (args.out / "results.json").write_text(json.dumps(results, indent=1))
+        print(f"done {name}: {r['target']}", file=sys.stderr, flush=True)
+    report(results, args.out, args.frames, load0)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,412 @@
+"""Feature budget of the stereo tracker: the ``N`` matched features that go into the pose solve.
+
+Ning, Zhang, Wang (2018) select feature points because an onboard computer cannot afford the
+pose solve on all of them; the selection should keep the geometry that fixes the pose best. Here
+the budget applies to the matched landmarks of a frame, points and lines together
+(``TrackerOptions(feature_budget=N, budget_rule=...)``), after search by projection and before
+the pose solve (:func:`jaxpose.pipelines.stereo.frame_pose.fit_pose`):
+
+* ``"dop"``: the ``N`` features whose summed information gives the lowest dilution of precision
+  at the predicted pose. A feature's information is the ``6 x 6`` block of its left-image
+  observation plus, when it has a stereo match, of its right-image one (the landmark shifted by
+  ``R^T t_rl``, as the pose solve sees it): ``J^T J / sigma^2`` with ``J`` the ``2 x 6`` Jacobian
+  of a point's pixels (Ning et al. eq. 7, :func:`jaxpose.core.dilution.point_jacobians`) or of a
+  segment's two endpoint-to-line distances (Yang et al. 2024 eq. 9,
+  :func:`jaxpose.core.line_dop.line_jacobians`), in the tangent attitude state, so point and line
+  blocks add (:func:`jaxpose.core.dilution.information_blocks`,
+  :func:`jaxpose.core.line_dop.line_information_blocks`). The criterion is ``trace(W Q)`` with
+  ``Q`` the inverse of the summed information (:func:`criterion_weight`): the variance of the
+  chaser's position in the target frame (the target's translation and, through the range, its
+  attitude: what a rendezvous needs and the tracker's error metric) plus ``l^2`` times the
+  attitude variance, ``l`` the RMS distance of the matched landmarks from their centroid (the
+  displacement an attitude error gives a landmark). Without the range term it is ``PDOP^2 +
+  (l ADOP)^2`` (Ning et al.'s PDOP and ADOP). The subset is
+  chosen by forward greedy selection (each step adds the feature that lowers the criterion most,
+  scored for every candidate at once by rank-one Sherman-Morrison updates of ``Q``, from a small
+  prior ``1e-6`` times the mean block so that the first picks are defined) in one compiled call
+  per frame at padded sizes; when ``C(n, N)`` is at most :data:`EXACT_SUBSETS`, every subset is
+  scored and the optimum kept.
+* ``"random"``: ``N`` of the matched features at random (seeded by the frame number).
+* ``"response"``: the strongest detector responses: ORB (Harris) response of the points, pixel
+  length of the segments, the two kinds in proportion to their matched counts.
+
+The pose is solved on the kept features only; the post-fit checks and the map update use every
+matched feature at the fitted pose (a projection, cheap next to the solve), so that a frame is
+judged and the map maintained as without a budget. The core's backward elimination
+(:func:`jaxpose.core.select.greedy`) scores ``n`` removals on each of ``n - N`` steps, ``O(n^3)``
+for the hundreds of matched features of a frame, and its branch and bound and exhaustive search
+minimise the PDOP or the ADOP alone: hence the forward greedy here.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from dataclasses import replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpose.core.camera import PinholeCamera
+from jaxpose.core.dilution import point_jacobians
+from jaxpose.core.geometry import Pose
+from jaxpose.core.line_dop import line_jacobians
+from jaxpose.pipelines.stereo._arrays import find, lines_from_segments, project
+from jaxpose.pipelines.stereo.frame_pose import PoseFit, fit_pose
+from jaxpose.pipelines.stereo.options import BUDGET_RULES, TrackerOptions
+
+__all__ = [
+    "EXACT_SUBSETS",
+    "budget_criterion",
+    "criterion_weight",
+    "feature_rows",
+    "fit_pose_budgeted",
+    "select_budget",
+    "select_dop",
+]
+
+#: the ``"dop"`` rule scores every subset when there are at most this many (else forward greedy)
+EXACT_SUBSETS = 3000
+_PRIOR = 1e-6
+#: the ``"dop"`` rule's picks are kept ``SPACING sqrt(area / N)`` pixels apart while it can
+SPACING = 0.5
+
+
+def _bucket(n: int, least: int) -> int:
+    """Padded size: a power of two, at least ``least`` (a handful of compiled shapes)."""
+    return max(least, 1 << max(0, n - 1).bit_length())
+
+
+@jax.jit
+def feature_rows(points_body, points_right, segments_body, segments_right, pose, camera, w_p, w_l):
+    """Weighted Jacobian rows ``(n_p + n_l, 4, 6)`` of every feature: left-image rows, then
+    right-image rows (zero without a stereo match), each divided by its pixel noise.
+
+    Args:
+        points_body: ``(n_p, 3)`` matched point landmarks, body frame, metres.
+        points_right: ``(n_p, 3)`` the same shifted by ``R^T t_rl`` (the right image seen through
+            the left camera and the same pose).
+        segments_body, segments_right: ``(n_l, 2, 3)`` matched segment landmarks, likewise.
+        pose: predicted pose; camera: the (rectified) left camera.
+        w_p, w_l: ``(n_p, 2)`` and ``(n_l, 2)``: ``1 / sigma`` of the left and right observation
+            of each feature (0 where there is none).
+    The block of a feature is ``rows^T rows`` (:func:`jaxpose.core.dilution.information_blocks`
+    and :func:`jaxpose.core.line_dop.line_information_blocks` of its observations, summed), in
+    the tangent attitude state.
+    """
+    kw = dict(parameterization="tangent")
+    Jp = point_jacobians(points_body, pose, camera, **kw) * w_p[:, 0, None, None]
+    Jpr = point_jacobians(points_right, pose, camera, **kw) * w_p[:, 1, None, None]
+    Jl = line_jacobians(segments_body, pose, camera, **kw) * w_l[:, 0, None, None]
+    Jlr = line_jacobians(segments_right, pose, camera, **kw) * w_l[:, 1, None, None]
+    rows = jnp.concatenate(
+        [jnp.concatenate([Jp, Jpr], axis=1), jnp.concatenate([Jl, Jlr], axis=1)], axis=0
+    )
+    return jnp.where(jnp.isfinite(rows), rows, 0.0)
+
+
+def criterion_weight(arm_m: float, t_cam=None) -> np.ndarray:
+    """``W`` (``6 x 6``) of the ``"dop"`` criterion ``trace(W Q)``: the variance of the chaser's
+    position in the target frame, ``G Q G^T`` with ``G = [I, [t]_x]`` (``-R^T (dt + [t]_x
+    d(theta))`` to first order for a translation error ``dt`` and a tangent attitude error
+    ``d(theta)`` at the translation ``t_cam``, metres; ``None``: the target origin's position),
+    plus ``arm_m^2`` times the attitude variance (a landmark ``arm_m`` from the centre)."""
+    G = np.zeros((3, 6))
+    G[:, :3] = np.eye(3)
+    if t_cam is not None:
+        x, y, z = np.asarray(t_cam, float)
+        G[:, 3:] = [[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]
+    return G.T @ G + np.diag(np.r_[np.zeros(3), np.full(3, float(arm_m) ** 2)])
+
+
+def budget_criterion(information, weight):
+    """``trace(W Q)``, ``Q = information^-1`` (``(..., 6, 6)``; ``inf`` when singular), ``W``
+    from :func:`criterion_weight`: the criterion of the ``"dop"`` rule."""
+    A = np.asarray(information, float)
+    with np.errstate(all="ignore"):
+        ev = np.linalg.eigvalsh(A)
+        ok = ev[..., 0] > 1e-12 * ev[..., -1]
+        Q = np.linalg.inv(np.where(ok[..., None, None], A, np.eye(6)))
+    return np.where(ok, np.einsum("...ij,ji->...", Q, np.asarray(weight, float)), np.inf)
+
+
+@jax.jit
+def _greedy_forward(rows, valid, weight, n_keep, pixels, spacing):
+    """Forward greedy on ``trace(W Q)``: a ``(n,)`` mask of the ``n_keep`` (traced: one
+    compilation a padded size) features of ``rows`` (``(n, 4, 6)``) it picks, each at least
+    ``spacing`` pixels from those picked before while such candidates remain."""
+    dtype = rows.dtype
+    blocks = jnp.einsum("nki,nkj->nij", rows, rows)
+    count = jnp.maximum(jnp.sum(valid), 1).astype(dtype)
+    mean = jnp.sum(jnp.where(valid[:, None, None], blocks, 0.0), 0) / count
+    d = jnp.diagonal(mean)
+    s_p = jnp.maximum(jnp.mean(d[:3]), jnp.finfo(dtype).tiny)
+    s_a = jnp.maximum(jnp.mean(d[3:]), jnp.finfo(dtype).tiny)
+    scale = 1.0 / jnp.sqrt(jnp.r_[jnp.full(3, s_p), jnp.full(3, s_a)])  # entries of order one
+    h = rows * scale  # (n, 4, 6): the state divided by ``scale``
+    w = scale[:, None] * weight * scale[None, :]  # trace(W Q) in the scaled state
+    Q0 = jnp.eye(6, dtype=dtype) / _PRIOR
+
+    def add(Q, h_rows):
+        for k in range(h_rows.shape[-2]):  # rank-one Sherman-Morrison updates
+            v = jnp.einsum("...ij,...j->...i", Q, h_rows[..., k, :])
+            den = 1.0 + jnp.einsum("...i,...i->...", h_rows[..., k, :], v)
+            Q = Q - v[..., :, None] * v[..., None, :] / den[..., None, None]
+        return Q
+
+    def step(_, carry):
+        Q, free, chosen = carry
+        Qs = add(jnp.broadcast_to(Q, (h.shape[0], 6, 6)), h)
+        score = jnp.einsum("nij,ji->n", Qs, w)
+        score = jnp.where(jnp.isfinite(score), score, jnp.inf)
+        spaced = jnp.where(free, score, jnp.inf)
+        # no spaced candidate left: any valid one not yet chosen
+        score = jnp.where(
+            jnp.isfinite(jnp.min(spaced)), spaced, jnp.where(valid & ~chosen, score, jnp.inf)
+        )
+        k = jnp.argmin(score)
+        take = jnp.isfinite(score[k])
+        near = jnp.sum((pixels - pixels[k]) ** 2, axis=1) < spacing**2
+        free = jnp.where(take, free & ~near, free).at[k].set(False)
+        return jnp.where(take, Qs[k], Q), free, chosen.at[k].set(chosen[k] | take)
+
+    _, _, chosen = jax.lax.fori_loop(0, n_keep, step, (Q0, valid, jnp.zeros_like(valid)))
+    return chosen
+
+
+def select_dop(rows, valid, n_keep: int, weight, *, pixels=None, spacing_px=0.0) -> np.ndarray:
+    """The ``"dop"`` rule: ``n_keep`` indices (ascending) of the valid features of ``rows``
+    (``(n, 4, 6)`` from :func:`feature_rows`, padded; ``valid`` ``(n,)`` bool) minimising
+    :func:`budget_criterion`: every subset scored when ``C(n_valid, n_keep) <=``
+    :data:`EXACT_SUBSETS`, else forward greedy (module docstring), which keeps its picks at least
+    ``spacing_px`` apart in the image (``pixels``, ``(n, 2)``) while it can. All valid indices
+    when there are no more than ``n_keep``."""
+    valid = np.asarray(valid, bool)
+    idx = np.nonzero(valid)[0]
+    if len(idx) <= n_keep:
+        return idx
+    rows_np = np.asarray(rows, float)
+    if math.comb(len(idx), n_keep) <= EXACT_SUBSETS:
+        blocks = np.einsum("nki,nkj->nij", rows_np[idx], rows_np[idx])
+        subsets = np.array(list(itertools.combinations(range(len(idx)), n_keep)))
+        cost = budget_criterion(blocks[subsets].sum(1), weight)
+        return idx[subsets[int(np.argmin(cost))]]
+    W = jnp.asarray(np.asarray(weight, float))
+    pix = np.zeros((len(valid), 2)) if pixels is None else np.asarray(pixels, float)
+    picked = _greedy_forward(
+        jnp.asarray(rows_np), jnp.asarray(valid), W, n_keep, jnp.asarray(pix), float(spacing_px)
+    )
+    return np.nonzero(np.asarray(picked))[0]
+
+
+def _split(n_keep: int, n_p: int, n_l: int) -> tuple[int, int]:
+    """``n_keep`` shared between points and lines in proportion to their counts."""
+    k_l = min(n_l, int(round(n_keep * n_l / max(n_p + n_l, 1))))
+    k_p = min(n_p, n_keep - k_l)
+    return k_p, min(n_l, n_keep - k_p)
+
+
+def _consistent(predicted: np.ndarray, observed: np.ndarray, floor_px: float) -> np.ndarray:
+    """Matches that follow the frame's motion: an affine map of the predicted pixels onto the
+    observed ones, fitted by least squares twice (the second time without the matches beyond
+    the bound), and the matches within ``max(floor_px, 3 sigma)`` of it (``sigma`` from the
+    median absolute residual). A few wrong matches left among ``N`` features would pull a small
+    solve far more than they pull the solve on all matches."""
+    n = len(predicted)
+    keep = np.ones(n, bool)
+    if n < 8:
+        return keep
+    A = np.c_[predicted, np.ones(n)]
+    for _ in range(2):
+        coef = np.linalg.lstsq(A[keep], observed[keep], rcond=None)[0]
+        e = np.linalg.norm(A @ coef - observed, axis=1)
+        bound = max(floor_px, 3.0 * 1.4826 * float(np.median(e[keep])) / 1.1774)
+        keep = e < bound
+        if keep.sum() < 8:
+            return np.ones(n, bool)
+    return keep
+
+
+def select_budget(
+    landmarks,
+    feats,
+    stereo,
+    matches,
+    pose_pred: Pose,
+    rig,
+    options: TrackerOptions,
+    line_sigma: float,
+    *,
+    frame: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which matched points and lines go into the pose solve: boolean masks ``(n_p,)`` and
+    ``(n_l,)`` over ``matches = (i_m, i_cur, l_m, l_cur)``, at most ``options.feature_budget``
+    true together (all matches when the budget is ``None`` or not smaller than their count).
+    Landmarks too young for the solve (``mature_obs``) and point matches that do not follow the
+    frame's motion (:func:`_consistent`) are never chosen, whatever the rule; nor, when at least
+    ``2 N`` others remain, point landmarks that were not inliers on the frame before."""
+    o = options
+    i_m, i_cur, l_m, l_cur = matches
+    n_p, n_l = len(i_m), len(l_m)
+    keep_p, keep_l = np.ones(n_p, bool), np.ones(n_l, bool)
+    N = o.feature_budget
+    if N is None or n_p + n_l <= N:
+        return keep_p, keep_l
+    if o.budget_rule not in BUDGET_RULES:
+        raise ValueError(f"budget_rule must be one of {BUDGET_RULES}; got {o.budget_rule!r}")
+    ok_p = np.ones(n_p, bool)
+    if o.mature_obs > 1:
+        ok_p = landmarks.points.n_obs[i_m] >= o.mature_obs
+    ok_p &= _consistent(
+        project(rig.left, pose_pred, landmarks.points.X[i_m]), feats.points[i_cur], o.reject_px
+    )
+    recent = landmarks.points.last_seen[i_m] >= frame - 1  # an inlier on the frame before
+    if np.count_nonzero(ok_p & recent) >= 2 * N:
+        ok_p &= recent
+    cand_p, cand_l = np.nonzero(ok_p)[0], np.arange(n_l)
+    keep_p[:], keep_l[:] = False, False
+    if len(cand_p) + n_l <= N:
+        keep_p[cand_p], keep_l[cand_l] = True, True
+        return keep_p, keep_l
+    if o.budget_rule == "random":
+        rng = np.random.default_rng([frame, 20180])
+        pick = rng.choice(len(cand_p) + n_l, size=N, replace=False)
+        keep_p[cand_p[pick[pick < len(cand_p)]]] = True
+        keep_l[pick[pick >= len(cand_p)] - len(cand_p)] = True
+        return keep_p, keep_l
+    if o.budget_rule == "response":
+        k_p, k_l = _split(N, len(cand_p), n_l)
+        resp = getattr(feats, "point_response", None)
+        if resp is None or len(resp) != len(feats.points):
+            resp = np.zeros(len(feats.points))  # no responses: the first matches
+        order = np.argsort(-np.asarray(resp)[i_cur[cand_p]], kind="stable")
+        keep_p[cand_p[order[:k_p]]] = True
+        length = np.linalg.norm(np.diff(feats.segments[l_cur], axis=1)[:, 0], axis=-1)
+        keep_l[np.argsort(-length, kind="stable")[:k_l]] = True
+        return keep_p, keep_l
+    rows, valid, arm = _dop_inputs(
+        landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, line_sigma
+    )
+    # image positions (point pixels, segment midpoints) and the spacing of N features spread
+    # over the box the candidates span: features a few pixels apart (one corner found at
+    # several ORB scales) share their landmark's error, which the DOP takes as independent
+    pix = np.zeros((len(valid), 2))
+    pix[: len(i_m)] = feats.points[i_cur]
+    b_p = _bucket(len(i_m), 64)
+    pix[b_p : b_p + len(l_m)] = feats.segments[l_cur].mean(axis=1)
+    span = np.ptp(pix[valid], axis=0)
+    spacing = SPACING * float(np.sqrt(span[0] * span[1] / N))
+    W = criterion_weight(arm, np.asarray(pose_pred.t, float))
+    chosen = select_dop(rows, valid, N, W, pixels=pix, spacing_px=spacing)
+    B_p = _bucket(n_p, 64)
+    keep_p[chosen[chosen < B_p]] = True
+    keep_l[chosen[chosen >= B_p] - B_p] = True
+    return keep_p, keep_l
+
+
+def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, line_sigma):
+    """Padded inputs of :func:`feature_rows` for the matches, its rows, the valid mask and the
+    lever arm ``l`` of the criterion."""
+    i_m, i_cur, l_m, l_cur = matches
+    n_p, n_l = len(i_m), len(l_m)
+    B_p, B_l = _bucket(n_p, 64), _bucket(max(n_l, o.max_lines), 16)
+    t_rl = np.asarray(rig.t_rl, float)
+    shift = np.asarray(pose_pred.R, float).T @ t_rl
+    X = np.asarray(landmarks.points.X[i_m], float)
+    S = np.asarray(landmarks.lines.X[l_m], float).reshape(-1, 2, 3)
+    w_p, w_l = np.zeros((B_p, 2)), np.zeros((B_l, 2))
+    w_p[cand_p, 0] = 1.0 / o.sigma_px
+    w_l[:n_l, 0] = 1.0 / line_sigma
+    if o.stereo_residuals and stereo is not None:
+        if len(stereo.point_idx):
+            q, _ = find(stereo.point_idx, i_cur)
+            q = q[np.isin(q, cand_p)]
+            w_p[q, 1] = 1.0 / o.sigma_px
+        if o.line_stereo_residuals and n_l and len(stereo.line_idx):
+            q, _ = find(stereo.line_idx, l_cur)
+            w_l[q, 1] = 1.0 / line_sigma
+    # padding: a harmless point 1 m in front of the camera, weight 0
+    far = (np.array([0.0, 0.0, 1.0]) - np.asarray(pose_pred.t, float)) @ np.asarray(pose_pred.R)
+    P = np.tile(far, (B_p, 1))
+    P[:n_p] = X
+    Sg = np.tile(far, (B_l, 2, 1)) + np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]])
+    Sg[:n_l] = S
+    camera: PinholeCamera = rig.left
+    rows = feature_rows(
+        jnp.asarray(P),
+        jnp.asarray(P + shift),
+        jnp.asarray(Sg),
+        jnp.asarray(Sg + shift),
+        pose_pred,
+        camera,
+        jnp.asarray(w_p),
+        jnp.asarray(w_l),
+    )
+    valid = np.r_[w_p[:, 0] > 0, w_l[:, 0] > 0]
+    centres = np.concatenate([X[cand_p], S.mean(axis=1)])
+    arm = float(np.sqrt(np.mean(np.sum((centres - centres.mean(0)) ** 2, axis=1))))
+    return rows, valid, arm
+
+
+def fit_pose_budgeted(
+    landmarks,
+    feats,
+    stereo,
+    matches,
+    pose_pred: Pose,
+    rig,
+    options: TrackerOptions,
+    line_sigma: float,
+    *,
+    frame: int = 0,
+    timings: dict | None = None,
+) -> PoseFit:
+    """:func:`~jaxpose.pipelines.stereo.frame_pose.fit_pose` on the features kept by
+    :func:`select_budget` (the same call when ``options.feature_budget`` is ``None``).
+
+    The solve runs at a padded size fitted to the budget (the power of two at or above ``2 N``,
+    room for the left and right residuals of ``N`` features), so its cost follows the budget.
+    The returned errors, inlier flags, inlier count and RMS cover every matched feature at the
+    fitted pose, as without a budget; ``kept_errors`` are the solve's.
+    The selection's seconds go to ``timings["budget"]``."""
+    o = options
+    if o.feature_budget is None:
+        return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
+    t0 = time.perf_counter()
+    keep_p, keep_l = select_budget(
+        landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, frame=frame
+    )
+    if timings is not None:
+        timings["budget"] = time.perf_counter() - t0
+    i_m, i_cur, l_m, l_cur = matches
+    sub = (i_m[keep_p], i_cur[keep_p], l_m[keep_l], l_cur[keep_l])
+    # one padded size for a run (left and right residuals of up to N features): one compilation
+    size = _bucket(2 * o.feature_budget, 16)
+    o_sub = replace(o, max_points=min(o.max_points, size), max_lines=min(o.max_lines, size))
+    fit = fit_pose(landmarks, feats, stereo, sub, pose_pred, rig, o_sub, line_sigma)
+    pose = fit.pose
+    cam = rig.left
+    e_p = np.linalg.norm(project(cam, pose, landmarks.points.X[i_m]) - feats.points[i_cur], axis=1)
+    e_l = np.zeros(len(l_m))
+    if len(l_m):
+        pix = project(cam, pose, landmarks.lines.X[l_m])  # (n_l, 2, 2)
+        L = lines_from_segments(feats.segments[l_cur])
+        nrm = np.linalg.norm(L[:, :2], axis=1, keepdims=True)
+        d = (np.einsum("ki,kmi->km", L[:, :2], pix) + L[:, 2:3]) / np.where(nrm > 0, nrm, 1.0)
+        e_l = np.max(np.abs(d), axis=1)
+    in_p, in_l = e_p < o.inlier_px, e_l < o.inlier_px
+    kept = e_p < o.reject_px
+    kept[keep_p] = fit.kept_points
+    inl = np.concatenate([e_p[in_p], e_l[in_l]])
+    return replace(
+        fit,
+        e_points=e_p,
+        e_lines=e_l,
+        in_points=in_p,
+        in_lines=in_l,
+        kept_points=kept,
+        inliers=int(in_p.sum() + in_l.sum()),
+        rms_px=float(np.sqrt(np.mean(inl**2))) if len(inl) else float("inf"),
+    )

@@ -1,0 +1,239 @@
+"""Feature budget of the stereo tracker (jaxpose.pipelines.stereo.budget): the selection rules on
+small synthetic problems against brute force, option checks, and short tracking runs."""
+
+import itertools
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from jaxpose import PinholeCamera, Pose, information_blocks, line_information_blocks
+from jaxpose.core.status import Status
+from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
+from jaxpose.pipelines.stereo import budget as B
+from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
+
+CAM = PinholeCamera(600.0, 600.0, 319.5, 239.5, width=640, height=480)
+POSE = Pose.from_euler(np.radians([10.0, -20.0, 30.0]), np.array([0.05, -0.02, 2.0]))
+SHIFT = np.array([0.3, -0.1, 0.05])  # a right camera: the body points shifted (R^T t_rl)
+
+
+def _problem(n_p=14, n_l=6, seed=0):
+    rng = np.random.default_rng(seed)
+    P = rng.uniform(-0.4, 0.4, (n_p, 3))
+    S = rng.uniform(-0.4, 0.4, (n_l, 2, 3))
+    w_p = np.c_[np.full(n_p, 1.0), (rng.uniform(size=n_p) < 0.5) / 0.8]  # sigma 1 and 0.8 px
+    w_l = np.c_[np.full(n_l, 1 / 1.5), (rng.uniform(size=n_l) < 0.5) / 1.5]
+    rows = B.feature_rows(P, P + SHIFT, S, S + SHIFT, POSE, CAM, w_p, w_l)
+    return P, S, w_p, w_l, np.asarray(rows)
+
+
+def _chaser_jacobian(t0, R0, eps=1e-6):
+    """d(chaser position)/d(dt, d) by finite differences (independent of criterion_weight): the
+    chaser c = -R^T t, R = exp(d) R0, t = t0 + dt."""
+    G = np.zeros((3, 6))
+    for k in range(6):
+        dx = np.zeros(6)
+        dx[k] = eps
+        R = np.asarray(Pose.from_rotvec(dx[3:], np.zeros(3)).R) @ R0
+        G[:, k] = (-R.T @ (t0 + dx[:3]) + R0.T @ t0) / eps
+    return G
+
+
+G_POSE = _chaser_jacobian(np.asarray(POSE.t, float), np.asarray(POSE.R, float))
+
+
+def _criterion(blocks, idx, arm):
+    """Chaser position variance + arm^2 attitude variance of a subset."""
+    Q = np.linalg.inv(blocks[list(idx)].sum(0))
+    return np.trace(G_POSE @ Q @ G_POSE.T) + arm**2 * np.trace(Q[3:, 3:])
+
+
+def test_feature_blocks_are_the_point_and_line_information_blocks():
+    """rows^T rows of a feature = information_blocks / line_information_blocks of its left
+    observation plus (with a stereo match) of its right one, tangent state."""
+    P, S, w_p, w_l, rows = _problem()
+    kw = dict(parameterization="tangent")
+    ref_p = np.zeros((len(P), 6, 6))
+    ref_l = np.zeros((len(S), 6, 6))
+    for col, shift in ((0, 0.0), (1, SHIFT)):
+        on_p, on_l = w_p[:, col] > 0, w_l[:, col] > 0
+        sp = 1 / np.where(on_p, w_p[:, col], 1.0)
+        sl = 1 / np.where(on_l, w_l[:, col], 1.0)
+        ref_p += np.asarray(information_blocks(P + shift, POSE, CAM, sigma=sp, mask=on_p, **kw))
+        ref_l += np.asarray(
+            line_information_blocks(S + shift, POSE, CAM, sigma=sl, mask=on_l, **kw)
+        )
+    got = np.einsum("nki,nkj->nij", rows, rows)
+    np.testing.assert_allclose(got, np.r_[ref_p, ref_l], rtol=1e-9, atol=1e-9 * np.abs(got).max())
+
+
+def test_exact_path_equals_brute_force():
+    P, S, w_p, w_l, rows = _problem(n_p=7, n_l=3, seed=1)
+    blocks = np.einsum("nki,nkj->nij", rows, rows)
+    arm = 0.3
+    n = len(blocks)
+    best = min(itertools.combinations(range(n), 6), key=lambda s: _criterion(blocks, s, arm))
+    got = B.select_dop(rows, np.ones(n, bool), 6, B.criterion_weight(arm, POSE.t))
+    assert tuple(got) == best
+
+
+def test_greedy_selection_near_brute_force_and_better_than_random(monkeypatch):
+    """Forced greedy (no enumeration): N distinct valid indices, a criterion within 10 % of the
+    brute-force optimum and no worse than the best of 200 random subsets; padding never picked."""
+    monkeypatch.setattr(B, "EXACT_SUBSETS", 0)
+    P, S, w_p, w_l, rows = _problem(n_p=10, n_l=5, seed=2)
+    rows = np.concatenate([rows, np.ones((3, 4, 6))])  # three padded rows, marked invalid
+    valid = np.r_[np.ones(15, bool), np.zeros(3, bool)]
+    blocks = np.einsum("nki,nkj->nij", rows, rows)
+    arm, N = 0.25, 7
+    W = B.criterion_weight(arm, POSE.t)
+    got = B.select_dop(rows, valid, N, W)
+    assert len(got) == N and len(set(got.tolist())) == N and np.all(got < 15)
+    crit = _criterion(blocks, got, arm)
+    opt = min(_criterion(blocks, s, arm) for s in itertools.combinations(range(15), N))
+    assert crit <= 1.1 * opt
+    rng = np.random.default_rng(0)
+    rand = [_criterion(blocks, rng.choice(15, N, replace=False), arm) for _ in range(200)]
+    assert crit <= min(rand)
+    assert B.budget_criterion(blocks[got].sum(0), W) == pytest.approx(crit, rel=1e-5)
+
+
+def test_fewer_candidates_than_the_budget_keeps_all():
+    _, _, _, _, rows = _problem(n_p=4, n_l=2)
+    valid = np.array([True, False, True, True, True, False])
+    W = B.criterion_weight(0.3)
+    np.testing.assert_array_equal(B.select_dop(rows, valid, 10, W), [0, 2, 3, 4])
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        (dict(feature_budget=3), "feature_budget"),
+        (dict(feature_budget=20.0), "feature_budget"),
+        (dict(feature_budget=True), "feature_budget"),
+        (dict(feature_budget="30"), "feature_budget"),
+        (dict(budget_rule="best"), "budget_rule"),
+        (dict(feature_budget=30, budget_rule=None), "budget_rule"),
+    ],
+)
+def test_option_validation(kw, match):
+    with pytest.raises(ValueError, match=match):
+        TrackerOptions(**kw)
+
+
+def _matches(n_p=40, n_l=6, seed=3):
+    """A fake frame: landmarks, features and matches for select_budget."""
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(-0.4, 0.4, (n_p, 3))
+    L = rng.uniform(-0.4, 0.4, (n_l, 2, 3))
+    n_obs = np.full(n_p, 5)
+    n_obs[:5] = 1  # young: never chosen
+    last_seen = np.full(n_p, 3)
+    last_seen[-8:] = 1  # not inliers on the frame before: left out while 2 N others remain
+    landmarks = SimpleNamespace(
+        points=SimpleNamespace(X=X, n_obs=n_obs, last_seen=last_seen), lines=SimpleNamespace(X=L)
+    )
+    seg = rng.uniform(0, 400, (n_l, 2, 2))
+    pixels = np.asarray(CAM.project(POSE.apply(X))) + rng.normal(0, 0.3, (n_p, 2)) + [4.0, -2.0]
+    pixels[[10, 11]] += [[15.0, 0.0], [0.0, -12.0]]  # two wrong matches
+    feats = SimpleNamespace(points=pixels, segments=seg, point_response=rng.uniform(size=n_p))
+    stereo = SimpleNamespace(point_idx=np.arange(0, n_p, 2), line_idx=np.arange(n_l))
+    rig = SimpleNamespace(left=CAM, t_rl=np.array([-0.3, 0.0, 0.0]))
+    matches = (np.arange(n_p), np.arange(n_p), np.arange(n_l), np.arange(n_l))
+    return landmarks, feats, stereo, matches, rig
+
+
+@pytest.mark.parametrize("rule", ["dop", "random", "response"])
+def test_select_budget_rules(rule):
+    landmarks, feats, stereo, matches, rig = _matches()
+    o = TrackerOptions(feature_budget=12, budget_rule=rule)
+    kp, kl = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
+    assert kp.sum() + kl.sum() == 12
+    assert not kp[:5].any()  # young landmarks are left out
+    assert not kp[[10, 11]].any()  # wrong matches (off the frame's motion) are left out
+    assert not kp[-8:].any()  # not inliers on the frame before
+    allowed = np.r_[np.arange(5, 10), np.arange(12, 32)]
+    again = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
+    np.testing.assert_array_equal(np.r_[kp, kl], np.r_[again])  # deterministic
+    if rule == "response":
+        # points and lines in proportion (25 allowed points : 6), the strongest of each kind
+        assert (kp.sum(), kl.sum()) == (10, 2)
+        resp = feats.point_response
+        assert resp[kp].min() >= np.sort(resp[allowed])[-10]
+        length = np.linalg.norm(feats.segments[:, 1] - feats.segments[:, 0], axis=1)
+        assert length[kl].min() >= np.sort(length)[-2]
+    none = TrackerOptions()
+    kp, kl = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, none, 1.0)
+    assert kp.all() and kl.all()
+
+
+@pytest.fixture(scope="module")
+def frames():
+    scene = StereoScene(frames=4, size_m=1.0, range_m=2.0)
+    return list(render_sequence(scene, default_rig(512, 384)))
+
+
+def _track(frames, options):
+    tracker = StereoTracker(default_rig(512, 384), frames[0].pose, options=options)
+    return [tracker.process(fr.left, fr.right) for fr in frames]
+
+
+def test_budget_none_leaves_the_tracker_unchanged(frames, monkeypatch):
+    """With no budget the tracker's results are those of the plain pose solve, exactly."""
+    import jaxpose.pipelines.stereo.tracker as T
+    from jaxpose.pipelines.stereo.frame_pose import fit_pose
+
+    got = _track(frames, TrackerOptions(feature_budget=None))
+    monkeypatch.setattr(T, "fit_pose_budgeted", lambda *a, frame, timings: fit_pose(*a))
+    ref = _track(frames, TrackerOptions())
+    for a, b in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(a.R, b.R)
+        np.testing.assert_array_equal(a.t, b.t)
+        assert (a.status, a.inliers, a.n_points, a.n_lines) == (
+            b.status,
+            b.inliers,
+            b.n_points,
+            b.n_lines,
+        )
+        assert a.timings["budget"] == 0.0
+
+
+@pytest.mark.parametrize("rule", ["dop", "random", "response"])
+def test_short_tracking_run_with_a_budget_loses_no_frame(frames, rule):
+    res = _track(frames, TrackerOptions(feature_budget=20, budget_rule=rule))
+    for r, fr in zip(res, frames, strict=True):
+        assert r.status == Status.OK
+        assert np.linalg.norm(r.t - np.asarray(fr.pose.t)) < 0.05
+    assert all(r.timings["budget"] > 0 for r in res[1:])
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["--feature-budget", "3"], ["--feature-budget", "0"], ["--budget-rule", "best"]],
+)
+def test_cli_refuses_a_bad_budget_naming_the_option(argv, capsys, tmp_path):
+    from jaxpose.cli import main
+
+    try:
+        code = main(["stereo-track", *argv, "--out", str(tmp_path)])
+    except SystemExit as done:
+        code = done.code
+    err = capsys.readouterr().err
+    assert code == 2 and argv[0] in err and "Traceback" not in err
+
+
+def test_cli_tracks_with_a_budget(capsys, tmp_path):
+    from jaxpose.cli import main
+
+    argv = ["stereo-track", "--frames", "3", "--image-size", "512x384", "--feature-budget", "20"]
+    code = main(
+        [*argv, "--budget-rule", "random", "--json", "--no-figures", "--out", str(tmp_path)]
+    )
+    out = capsys.readouterr().out
+    assert code == 0
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["frames"] == 3 and summary["lost_frames"] == 0
+    stages = json.loads((tmp_path / "summary.json").read_text())["mean_stage_s"]
+    assert stages["budget"] > 0
