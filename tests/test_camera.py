@@ -86,6 +86,21 @@ def test_behind_camera_is_finite_and_flagged():
     assert np.all(np.isfinite(grad))
 
 
+def test_min_depth_throws_points_behind_far_off_the_image():
+    """With ``min_depth`` a point in front projects as without it (to rounding), a point at or
+    behind the camera as if it sat at that depth: ``fx X / min_depth + cx``, far off the image."""
+    cam, _ = _camera(dist=np.zeros(5))
+    pts = jnp.array([[0.3, -0.2, 5.0], [0.5, 0.4, -2.0], [0.5, 0.4, 0.0]])
+    uv = np.asarray(cam.project(pts, min_depth=1e-6))
+    np.testing.assert_allclose(uv[0], np.asarray(cam.project(pts[:1]))[0], rtol=1e-12)
+    for row, p in zip(uv[1:], np.asarray(pts[1:])):
+        expected = [2988.58 * p[0] / 1e-6 + 960.0, 2988.34 * p[1] / 1e-6 + 600.0]
+        np.testing.assert_allclose(row, expected, rtol=1e-9)
+    assert np.all(np.abs(uv[1:]) > 1e8)
+    g = jax.grad(lambda q: cam.project(q, min_depth=1e-6).sum())(pts)
+    assert np.all(np.isfinite(np.asarray(g)))
+
+
 def test_camera_file_round_trip_and_errors(tmp_path):
     cam, _ = _camera()
     path = tmp_path / "camera.json"

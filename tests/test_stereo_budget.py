@@ -187,7 +187,7 @@ def test_budget_none_leaves_the_tracker_unchanged(frames, monkeypatch):
     from jaxpose.pipelines.stereo.frame_pose import fit_pose
 
     got = _track(frames, TrackerOptions(feature_budget=None))
-    monkeypatch.setattr(T, "fit_pose_budgeted", lambda *a, frame, timings: fit_pose(*a))
+    monkeypatch.setattr(T, "fit_pose_budgeted", lambda *a, frame, stage: fit_pose(*a))
     ref = _track(frames, TrackerOptions())
     for a, b in zip(got, ref, strict=True):
         np.testing.assert_array_equal(a.R, b.R)
@@ -238,3 +238,20 @@ def test_cli_tracks_with_a_budget(capsys, tmp_path):
     assert summary["frames"] == 3 and summary["lost_frames"] == 0
     stages = json.loads((tmp_path / "summary.json").read_text())["mean_stage_s"]
     assert stages["budget"] > 0
+
+
+def test_greedy_keeps_its_picks_apart_in_the_image(monkeypatch):
+    """Two features at one pixel (one corner found at two ORB scales): with a spacing the greedy
+    never keeps both; without one it is free to."""
+    monkeypatch.setattr(B, "EXACT_SUBSETS", 0)
+    _, _, _, _, rows = _problem(n_p=12, n_l=4, seed=5)
+    rows = np.concatenate([rows, rows[:4]])  # features 16..19 repeat 0..3
+    pixels = np.c_[np.arange(16) % 4, np.arange(16) // 4] * 30.0
+    pixels = np.concatenate([pixels, pixels[:4]])
+    W = B.criterion_weight(0.3, POSE.t)
+    got = B.select_dop(rows, np.ones(20, bool), 8, W, pixels=pixels, spacing_px=10.0)
+    assert len(got) == 8
+    d = np.linalg.norm(pixels[got][:, None] - pixels[got][None], axis=-1)
+    assert np.all(d[np.triu_indices(8, 1)] >= 10.0)
+    free = B.select_dop(rows, np.ones(20, bool), 8, W)
+    assert len(free) == 8

@@ -177,16 +177,23 @@ class PinholeCamera(eqx.Module):
         return jax.vmap(one)(flat).reshape(xy_distorted.shape)
 
     # ------------------------------------------------------------------ projection
-    def project(self, points_cam: Float[ArrayLike, "... 3"]) -> Float[Array, "... 2"]:
+    def project(
+        self, points_cam: Float[ArrayLike, "... 3"], *, min_depth: float | None = None
+    ) -> Float[Array, "... 2"]:
         """Pixels of camera-frame points (with distortion).
 
         The one projection of the library: body points seen at a pose are
-        ``camera.project(pose.apply(points_body))``. Points with ``z <= 0`` give finite but
-        meaningless pixels (``z`` is guarded); use
-        :meth:`in_front` to mask them. Gradients are NaN-free everywhere.
+        ``camera.project(pose.apply(points_body))``. By default points with ``z <= 0`` give
+        finite but meaningless pixels (``z`` is guarded); use :meth:`in_front` to mask them.
+        With ``min_depth`` (metres), depths below it are raised to it instead, so points at or
+        behind the camera land far off the image and drop out of any in-image test without a
+        mask (what the monocular scores use). Gradients are NaN-free everywhere.
         """
         z = points_cam[..., 2]
-        z_safe = jnp.where(z > 0, z, 1.0)
+        if min_depth is None:
+            z_safe = jnp.where(z > 0, z, 1.0)
+        else:
+            z_safe = jnp.where(z > min_depth, z, min_depth)
         xy = points_cam[..., :2] / z_safe[..., None]
         xy = self.distort(xy)
         return jnp.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], axis=-1)

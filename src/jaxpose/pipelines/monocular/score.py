@@ -11,25 +11,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpose.core.camera import PinholeCamera
 from jaxpose.pipelines.monocular.scene import _EdgeScene
 from jaxpose.vision.image_maps import SILHOUETTE_GRID
 
 
 def _project(points_cam, cam4):
     """Pixels ``(..., 2)`` of camera-frame points ``(..., 3)`` in the undistorted image,
-    ``cam4 = [fx, fy, cx, cy]``.
-
-    Not :meth:`jaxpose.core.camera.PinholeCamera.project`, on purpose: points at or behind the
-    camera are divided by ``1e-6`` here, so they land far off the image and drop out of every
-    in-image test of the scores, where the core primitive divides them by 1 and can put them on
-    the image; and ``fx X / z`` rounds differently from ``fx (X / z)``, which changes the
-    pipeline's chosen poses in the last bits (the SPEED+ development errors are kept exactly)."""
-    z = points_cam[..., 2]
-    zs = jnp.where(z > 1e-6, z, 1e-6)
-    return jnp.stack(
-        [cam4[0] * points_cam[..., 0] / zs + cam4[2], cam4[1] * points_cam[..., 1] / zs + cam4[3]],
-        -1,
-    )
+    ``cam4 = [fx, fy, cx, cy]``: the core's :meth:`~jaxpose.core.camera.PinholeCamera.project`
+    with ``min_depth=1e-6``, so points at or behind the camera land far off the image and drop
+    out of every in-image test of the scores."""
+    camera = PinholeCamera(cam4[0], cam4[1], cam4[2], cam4[3], jnp.zeros(5, cam4.dtype))
+    return camera.project(points_cam, min_depth=1e-6)
 
 
 def _point_segment_distance(p, a, b):

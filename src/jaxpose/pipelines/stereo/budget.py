@@ -25,11 +25,16 @@ the pose solve (:func:`jaxpose.pipelines.stereo.frame_pose.fit_pose`):
   scored for every candidate at once by rank-one Sherman-Morrison updates of ``Q``, from a small
   prior ``1e-6`` times the mean block so that the first picks are defined) in one compiled call
   per frame at padded sizes; when ``C(n, N)`` is at most :data:`EXACT_SUBSETS`, every subset is
-  scored and the optimum kept.
+  scored and the optimum kept. The greedy keeps its picks ``SPACING sqrt(area / N)`` pixels apart
+  while it can (``area`` the box the candidates span): ORB finds one corner at several scales,
+  and such near-twins share their landmark's error, which the DOP counts as independent.
 * ``"random"``: ``N`` of the matched features at random (seeded by the frame number).
 * ``"response"``: the strongest detector responses: ORB (Harris) response of the points, pixel
   length of the segments, the two kinds in proportion to their matched counts.
 
+For every rule the candidates are the landmarks old enough for the solve (``mature_obs``), the
+point matches that follow the frame's motion (an affine map of the predicted onto the observed
+pixels) and, while at least ``2 N`` remain, the landmarks that were inliers on the frame before.
 The pose is solved on the kept features only; the post-fit checks and the map update use every
 matched feature at the fitted pose (a projection, cheap next to the solve), so that a frame is
 judged and the map maintained as without a budget. The core's backward elimination
@@ -40,6 +45,7 @@ minimise the PDOP or the ADOP alone: hence the forward greedy here.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import time
@@ -65,6 +71,7 @@ __all__ = [
     "fit_pose_budgeted",
     "select_budget",
     "select_dop",
+    "stage_timer",
 ]
 
 #: the ``"dop"`` rule scores every subset when there are at most this many (else forward greedy)
@@ -156,10 +163,23 @@ def _greedy_forward(rows, valid, weight, n_keep, pixels, spacing):
             Q = Q - v[..., :, None] * v[..., None, :] / den[..., None, None]
         return Q
 
+    def scores(Q):
+        """``trace(W Q_i)`` after adding each candidate's rows, without forming ``Q_i``: with
+        ``v_r = Q_(r-1) h_r``, ``trace(W Q_r) = trace(W Q_(r-1)) - v_r^T W v_r / (1 + h_r^T v_r)``,
+        and the later ``Q_r h_j`` follow from ``Q_(r-1) h_j`` by the same rank-one update."""
+        u = list(jnp.moveaxis(jnp.einsum("ij,nkj->nki", Q, h), 1, 0))  # Q h_k, (n, 6) each
+        drop = jnp.zeros(h.shape[0], dtype)
+        for r in range(len(u)):
+            v = u[r]
+            den = 1.0 + jnp.sum(h[:, r] * v, axis=-1)
+            drop = drop + jnp.einsum("ni,ij,nj->n", v, w, v) / den
+            for j in range(r + 1, len(u)):
+                u[j] = u[j] - v * (jnp.sum(v * h[:, j], axis=-1) / den)[:, None]
+        return jnp.trace(w @ Q) - drop
+
     def step(_, carry):
         Q, free, chosen = carry
-        Qs = add(jnp.broadcast_to(Q, (h.shape[0], 6, 6)), h)
-        score = jnp.einsum("nij,ji->n", Qs, w)
+        score = scores(Q)
         score = jnp.where(jnp.isfinite(score), score, jnp.inf)
         spaced = jnp.where(free, score, jnp.inf)
         # no spaced candidate left: any valid one not yet chosen
@@ -170,7 +190,7 @@ def _greedy_forward(rows, valid, weight, n_keep, pixels, spacing):
         take = jnp.isfinite(score[k])
         near = jnp.sum((pixels - pixels[k]) ** 2, axis=1) < spacing**2
         free = jnp.where(take, free & ~near, free).at[k].set(False)
-        return jnp.where(take, Qs[k], Q), free, chosen.at[k].set(chosen[k] | take)
+        return jnp.where(take, add(Q, h[k]), Q), free, chosen.at[k].set(chosen[k] | take)
 
     _, _, chosen = jax.lax.fori_loop(0, n_keep, step, (Q0, valid, jnp.zeros_like(valid)))
     return chosen
@@ -350,6 +370,21 @@ def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, li
     return rows, valid, arm
 
 
+def stage_timer(timings: dict):
+    """A ``stage(name)`` context-manager factory that adds the wall seconds of its block to
+    ``timings[name]``."""
+
+    @contextlib.contextmanager
+    def stage(name: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
+
+    return stage
+
+
 def fit_pose_budgeted(
     landmarks,
     feats,
@@ -361,7 +396,7 @@ def fit_pose_budgeted(
     line_sigma: float,
     *,
     frame: int = 0,
-    timings: dict | None = None,
+    stage=None,
 ) -> PoseFit:
     """:func:`~jaxpose.pipelines.stereo.frame_pose.fit_pose` on the features kept by
     :func:`select_budget` (the same call when ``options.feature_budget`` is ``None``).
@@ -370,16 +405,15 @@ def fit_pose_budgeted(
     room for the left and right residuals of ``N`` features), so its cost follows the budget.
     The returned errors, inlier flags, inlier count and RMS cover every matched feature at the
     fitted pose, as without a budget; ``kept_errors`` are the solve's.
-    The selection's seconds go to ``timings["budget"]``."""
+    The selection runs inside ``stage("budget")`` when ``stage`` is given (a context-manager
+    factory that times a named stage, e.g. :func:`stage_timer`)."""
     o = options
     if o.feature_budget is None:
         return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
-    t0 = time.perf_counter()
-    keep_p, keep_l = select_budget(
-        landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, frame=frame
-    )
-    if timings is not None:
-        timings["budget"] = time.perf_counter() - t0
+    with stage("budget") if stage is not None else contextlib.nullcontext():
+        keep_p, keep_l = select_budget(
+            landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, frame=frame
+        )
     i_m, i_cur, l_m, l_cur = matches
     sub = (i_m[keep_p], i_cur[keep_p], l_m[keep_l], l_cur[keep_l])
     # one padded size for a run (left and right residuals of up to N features): one compilation

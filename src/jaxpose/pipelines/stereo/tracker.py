@@ -455,7 +455,8 @@ class StereoTracker:
             result, update = self._fit_frame(
                 k, feats, stereo, pose_pred, (i_m, i_cur, cand, l_m, l_cur, lcand), clock
             )
-        clock.wall["pose"] -= clock.wall["budget"]  # the budget's selection is its own stage
+        for seconds in (clock.wall, clock.cpu):  # the budget's selection is its own stage
+            seconds["pose"] -= seconds["budget"]
         if update is not None and (
             self._since_kf >= o.keyframe_every or result.inliers < o.keyframe_min
         ):
@@ -500,7 +501,7 @@ class StereoTracker:
                 o,
                 line_sigma,
                 frame=k,
-                timings=clock.wall,  # the selection's wall seconds (taken off "pose" below)
+                stage=clock.stage,  # the selection is its own stage (taken off "pose" below)
             )
             pose = fit.pose
             finite = _finite(pose)
