@@ -22,6 +22,22 @@ REPO = Path(__file__).resolve().parents[1]
 SPEEDPLUS = Path(os.environ.get("JAXPOSE_SPEEDPLUS", REPO.parent / "shared" / "data" / "speedplus"))
 
 
+@pytest.fixture(autouse=True)
+def _typecheck_off(request):
+    """Tests marked ``typecheck_off`` run without jaxtyping's checks (see pyproject.toml)."""
+    if request.node.get_closest_marker("typecheck_off") is None:
+        yield
+        return
+    import jaxtyping
+
+    before = jaxtyping.config.jaxtyping_disable
+    jaxtyping.config.update("jaxtyping_disable", True)
+    try:
+        yield
+    finally:
+        jaxtyping.config.update("jaxtyping_disable", before)
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)

@@ -32,6 +32,10 @@ RIG = StereoCamera.from_baseline(CAM, 0.3)
 PL, PR = (np.asarray(x) for x in RIG.project(POSE.apply(jnp.asarray(BASE))))
 
 SPECIAL = [np.nan, np.inf, -np.inf, 1e300, -1e300, 1e-300, 0.0, 5e-324]
+# Bad shapes and values meet the package's own checks: jaxtyping's hook, on while testing, would
+# meet a badly shaped argument with its own TypeCheckError first (see pyproject.toml).
+pytestmark = pytest.mark.typecheck_off
+
 PROPS = settings(
     max_examples=12,
     deadline=10_000,  # ms per example, after the warm-up compiled each function once

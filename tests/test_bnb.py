@@ -126,6 +126,7 @@ def test_all_subsets_singular_gives_status_and_error():
         branch_and_bound(blocks, 5)
 
 
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 def test_bad_inputs():
     blocks = make_blocks(N, 1)
     with pytest.raises(ValueError, match="cannot select m = "):

@@ -119,11 +119,11 @@ def test_progress_bars_write_to_stderr_only(capsys):
 
 
 def test_annotations_are_checked_while_testing():
-    """pyproject's addopts turn on jaxtyping's import hook with beartype for the command and
-    study packages: a call against an annotation fails here (an int for a float field)."""
+    """pyproject's addopts turn on jaxtyping's import hook with beartype for the whole package: a
+    call against an annotation fails here (a string for a float field; an int is a float)."""
     import jaxtyping
 
     from jaxpose.studies.selection import Scenario
 
     with pytest.raises(jaxtyping.TypeCheckError):
-        Scenario(range_m=5)
+        Scenario(range_m="5")

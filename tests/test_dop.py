@@ -189,6 +189,7 @@ def test_bad_geometry_raises_eagerly_and_gives_status_in_batches(rng, case):
         assert not np.any(np.isnan(np.asarray(grad)))
 
 
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 def test_wrong_shapes_raise_value_error(rng):
     points, pose, cam = scene(rng)
     with pytest.raises(ValueError, match=r"\(n, 3\)"):

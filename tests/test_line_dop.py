@@ -299,6 +299,7 @@ def test_gradients_are_nan_free_for_masked_nan_and_end_on_segments():
     np.testing.assert_array_equal(g[3], 0.0)
 
 
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 def test_bad_input_raises_value_error_naming_the_argument():
     segments, _, pose = scene(9)
     with pytest.raises(ValueError, match="segments_body"):

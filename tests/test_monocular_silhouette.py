@@ -160,6 +160,7 @@ def test_place_on_silhouette_recovers_range_and_position(black_scene):
 
 
 # ----------------------------------------------------------------------------- pipeline
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 def test_options_are_checked():
     img = np.zeros((64, 64), np.uint8)
     cam = PinholeCamera(100.0, 100.0, 31.5, 31.5, width=64, height=64)

@@ -203,6 +203,7 @@ def test_bad_values_give_statuses(rng):
             assert np.all(np.isfinite(np.asarray(res.t)))
 
 
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 def test_shape_errors():
     with pytest.raises(ValueError, match="points_body"):
         epnp(np.zeros((5, 2)), np.zeros((5, 2)), CAM, throw=False)

@@ -205,6 +205,7 @@ def test_bad_lane_gets_a_status_not_nan(rng):
     assert np.isinf(float(out.rms_px[1])) and np.isinf(float(out.rms_px[2]))
 
 
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 def test_bad_inputs_raise_or_report(rng):
     P, pix, _, pose0 = scene(rng, n=6)
     with pytest.raises(ValueError, match="points_body"):

@@ -150,6 +150,7 @@ def test_joint_cost_points_and_lines_with_kernel(rng):
     assert abs(float(c) - float(expected)) < 1e-9
 
 
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 def test_bad_shapes_raise(rng):
     pose = _pose(rng)
     with pytest.raises(ValueError, match="points_body"):

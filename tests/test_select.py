@@ -346,6 +346,7 @@ def test_select_features_bnb_equals_exhaustive():
         )
 
 
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 def test_bad_inputs_raise_clear_errors():
     points, pose, cam = scene(1)
     pc = np.asarray(pose.apply(jnp.asarray(points)))

@@ -256,6 +256,7 @@ def test_two_devices_give_the_same_poses(tmp_path):
 # ----------------------------------------------------------------------------- bad inputs
 
 
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 def test_bad_input_raises_clear_value_errors(rng):
     P, pix, _, _ = scenes(rng, count=1)
     P, pix = P[0], pix[0]

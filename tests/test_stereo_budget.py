@@ -118,6 +118,7 @@ def test_fewer_candidates_than_the_budget_keeps_all():
         (dict(feature_budget=30, budget_rule=None), "budget_rule"),
     ],
 )
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 def test_option_validation(kw, match):
     with pytest.raises(ValueError, match=match):
         TrackerOptions(**kw)

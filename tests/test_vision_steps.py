@@ -401,6 +401,7 @@ def test_detect_rejects_bad_min_support(camera, bad):
         detect(np.zeros((64, 64), np.uint8), camera, 1.0, DetectionOptions(**bad))
 
 
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
 @pytest.mark.parametrize("family", [1, 2, 4.5, -3])
 def test_detect_rejects_bad_texture_family(camera, family):
     with pytest.raises(ValueError, match="texture_family"):

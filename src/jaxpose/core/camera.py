@@ -11,7 +11,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxpose.core._checks import as_float
 from jaxpose.core.geometry import Pose
@@ -149,7 +149,7 @@ class PinholeCamera(eqx.Module):
         )
 
     # ------------------------------------------------------------------ distortion
-    def distort(self, xy: Float[Array, "... 2"]) -> Float[Array, "... 2"]:
+    def distort(self, xy: Float[ArrayLike, "... 2"]) -> Float[Array, "... 2"]:
         """Apply OpenCV distortion to normalised image coordinates ``(x, y) = (X/Z, Y/Z)``."""
         k1, k2, p1, p2, k3 = (self.dist[..., i] for i in range(5))
         x, y = xy[..., 0], xy[..., 1]
@@ -160,7 +160,7 @@ class PinholeCamera(eqx.Module):
         return jnp.stack([xd, yd], axis=-1)
 
     def undistort(
-        self, xy_distorted: Float[Array, "... 2"], iterations: int = 8
+        self, xy_distorted: Float[ArrayLike, "... 2"], iterations: int = 8
     ) -> Float[Array, "... 2"]:
         """Invert :meth:`distort` by Newton's method (fixed iteration count, jit-friendly)."""
 
@@ -178,7 +178,7 @@ class PinholeCamera(eqx.Module):
 
     # ------------------------------------------------------------------ projection
     def project(
-        self, points_cam: Float[Array, "... 3"], *, min_depth: float | None = None
+        self, points_cam: Float[ArrayLike, "... 3"], *, min_depth: float | None = None
     ) -> Float[Array, "... 2"]:
         """Pixels of camera-frame points (with distortion).
 
@@ -199,11 +199,15 @@ class PinholeCamera(eqx.Module):
         return jnp.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], axis=-1)
 
     @staticmethod
-    def in_front(points_cam: Float[Array, "... 3"], min_depth: float = 1e-9) -> Bool[Array, "..."]:
+    def in_front(
+        points_cam: Float[ArrayLike, "... 3"], min_depth: float = 1e-9
+    ) -> Bool[Array, "..."] | Bool[np.ndarray, "..."]:
+        """Whether each point is in front of the camera (depth above ``min_depth``, metres); a
+        NumPy array for NumPy input."""
         return points_cam[..., 2] > min_depth
 
     def normalize(
-        self, pixels: Float[Array, "... 2"], undistort: bool = True
+        self, pixels: Float[ArrayLike, "... 2"], undistort: bool = True
     ) -> Float[Array, "... 2"]:
         """Pixels to normalised coordinates ``(X/Z, Y/Z)`` (undistorted unless told not to)."""
         xy = jnp.stack(
@@ -211,12 +215,12 @@ class PinholeCamera(eqx.Module):
         )
         return self.undistort(xy) if undistort else xy
 
-    def undistort_pixels(self, pixels: Float[Array, "... 2"]) -> Float[Array, "... 2"]:
+    def undistort_pixels(self, pixels: Float[ArrayLike, "... 2"]) -> Float[Array, "... 2"]:
         """Pixels of the same rays in the ideal (distortion-free) camera with the same ``K``."""
         xy = self.normalize(pixels)
         return jnp.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], -1)
 
-    def bearing(self, pixels: Float[Array, "... 2"]) -> Float[Array, "... 3"]:
+    def bearing(self, pixels: Float[ArrayLike, "... 2"]) -> Float[Array, "... 3"]:
         """Unit ray directions in the camera frame."""
         xy = self.normalize(pixels)
         v = jnp.concatenate([xy, jnp.ones_like(xy[..., :1])], -1)
@@ -303,12 +307,12 @@ class StereoCamera(eqx.Module):
         """The right camera's pose of the left camera frame (``x_right = R_rl x_left + t_rl``)."""
         return Pose(self.R_rl, self.t_rl)
 
-    def to_right(self, points_left: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+    def to_right(self, points_left: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
         """Left-camera-frame points expressed in the right camera frame."""
         return jnp.einsum("ij,...j->...i", self.R_rl, points_left) + self.t_rl
 
     def project(
-        self, points_left: Float[Array, "... 3"]
+        self, points_left: Float[ArrayLike, "... 3"]
     ) -> tuple[Float[Array, "... 2"], Float[Array, "... 2"]]:
         """Pixels ``(left, right)`` of points given in the left camera frame (with distortion)."""
         return self.left.project(points_left), self.right.project(self.to_right(points_left))
@@ -323,8 +327,8 @@ class StereoCamera(eqx.Module):
     # ------------------------------------------------------------------ triangulation
     def triangulate(
         self,
-        pixels_left: Float[Array, "... 2"],
-        pixels_right: Float[Array, "... 2"],
+        pixels_left: Float[ArrayLike, "... 2"],
+        pixels_right: Float[ArrayLike, "... 2"],
         *,
         method: str = "linear",
     ) -> Float[Array, "... 3"]:
@@ -354,8 +358,8 @@ class StereoCamera(eqx.Module):
 
     def triangulate_segments(
         self,
-        segments_left: Float[Array, "... 2 2"],
-        segments_right: Float[Array, "... 2 2"],
+        segments_left: Float[ArrayLike, "... 2 2"],
+        segments_right: Float[ArrayLike, "... 2 2"],
         *,
         method: str = "linear",
     ) -> Float[Array, "... 2 3"]:

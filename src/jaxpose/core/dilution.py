@@ -34,7 +34,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxpose.core._checks import check_mask, check_pose, check_positive, check_rows, is_rotation
 from jaxpose.core._compile import eager_jit
@@ -113,9 +113,9 @@ def _state_to_pixels(pose: Pose, camera: PinholeCamera, sequence: str, parameter
 
 
 def point_jacobians(
-    points_body: Float[Array, "n 3"],
+    points_body: Float[ArrayLike, "n 3"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
@@ -128,13 +128,13 @@ def point_jacobians(
 
 
 def observation_jacobian(
-    points_body: Float[Array, "n 3"],
+    points_body: Float[ArrayLike, "n 3"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
-) -> Float[Array, "2n 6"]:
+) -> Float[Array, "2*n 6"]:
     """The ``2n x 6`` observation matrix ``H`` of Ning et al. eq. 7, rows ``(u_1, v_1, ...)``."""
     H = point_jacobians(
         points_body, pose, camera, sequence=sequence, parameterization=parameterization
@@ -143,12 +143,12 @@ def observation_jacobian(
 
 
 def information_blocks(
-    points_body: Float[Array, "n 3"],
+    points_body: Float[ArrayLike, "n 3"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    sigma: Float[Array, " n"] | float | None = None,
-    mask: Array | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
 ) -> Float[Array, "n 6 6"]:
@@ -195,7 +195,7 @@ def _singular_tolerance(dtype) -> float:
     return 1e3 * float(jnp.finfo(dtype).eps)
 
 
-def dop_from_information(A: Float[Array, "6 6"]) -> DOPResult:
+def dop_from_information(A: Float[ArrayLike, "6 6"]) -> DOPResult:
     """PDOP, ADOP and ``Q`` of an information matrix ``A = H^T W H`` (Ning et al. eqs. 14-15).
 
     Singularity is judged on the Jacobi-scaled matrix ``D^-1/2 A D^-1/2`` (metres and radians have
@@ -234,12 +234,12 @@ def dop_from_information(A: Float[Array, "6 6"]) -> DOPResult:
 
 
 def dop(
-    points_body: Float[Array, "n 3"],
+    points_body: Float[ArrayLike, "n 3"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    sigma: Float[Array, " n"] | float | None = None,
-    mask: Array | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
     throw: bool = True,

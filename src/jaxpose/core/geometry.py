@@ -35,7 +35,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxpose.core._checks import check_last, check_matrix
 
@@ -97,7 +97,7 @@ def parse_euler_sequence(sequence: str) -> tuple[tuple[int, int, int], bool]:
 # ----------------------------------------------------------------------------- so(3) helpers
 
 
-def hat(omega: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
+def hat(omega: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
     """Skew-symmetric matrix ``[omega]_x`` with ``hat(a) @ b == cross(a, b)``."""
     omega = check_last(omega, 3, "omega")
     x, y, z = omega[..., 0], omega[..., 1], omega[..., 2]
@@ -112,7 +112,7 @@ def hat(omega: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
     )
 
 
-def vee(omega_hat: Float[Array, "... 3 3"]) -> Float[Array, "... 3"]:
+def vee(omega_hat: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3"]:
     """Inverse of :func:`hat` (uses the antisymmetric part)."""
     W = check_matrix(omega_hat, "omega_hat")
     return 0.5 * jnp.stack(
@@ -121,7 +121,7 @@ def vee(omega_hat: Float[Array, "... 3 3"]) -> Float[Array, "... 3"]:
     )
 
 
-def so3_exp(omega: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
+def so3_exp(omega: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
     """Rodrigues' formula ``exp([omega]_x)`` (rotation vector in radians to rotation matrix).
 
     NaN-safe in value and gradient at ``omega = 0`` (Taylor branch).
@@ -140,7 +140,7 @@ def so3_exp(omega: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
     return eye + a[..., None, None] * W + b[..., None, None] * (W @ W)
 
 
-def so3_log(R: Float[Array, "... 3 3"]) -> Float[Array, "... 3"]:
+def so3_log(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3"]:
     """Rotation vector (radians) of a rotation matrix; the inverse of :func:`so3_exp`.
 
     Goes through the quaternion (Shepperd's method) and ``2 atan2(|v|, w) v / |v|``, which stays
@@ -167,7 +167,7 @@ def _quat_log(q: Float[Array, "... 4"]) -> Float[Array, "... 3"]:
     return scale[..., None] * v
 
 
-def se3_exp(xi: Float[Array, "... 6"]) -> tuple[Float[Array, "... 3 3"], Float[Array, "... 3"]]:
+def se3_exp(xi: Float[ArrayLike, "... 6"]) -> tuple[Float[Array, "... 3 3"], Float[Array, "... 3"]]:
     """Exponential of a twist ``xi = (rho, omega)`` (translation part first) as ``(R, t)``.
 
     ``t = V(omega) rho`` with the left Jacobian ``V``; NaN-safe at ``omega = 0``.
@@ -195,7 +195,7 @@ def se3_exp(xi: Float[Array, "... 6"]) -> tuple[Float[Array, "... 3 3"], Float[A
 # ----------------------------------------------------------------------------- quaternions
 
 
-def quat_normalize(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
+def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """Unit quaternion with the same direction (scalar-first)."""
     q = check_last(q, 4, "q")
     # A tiny quaternion is a direction too: rescale it first so that its squares do not underflow
@@ -209,7 +209,7 @@ def quat_normalize(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     return q / norm
 
 
-def quat_to_dcm(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
+def quat_to_dcm(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
     """Active rotation matrix of a scalar-first quaternion ``(w, x, y, z)`` (normalised first).
 
     For SPEED/SPEED+ labels, ``R_cam_body = quat_to_dcm(q_vbs2tango)`` (see :mod:`jaxpose.io`).
@@ -226,7 +226,7 @@ def quat_to_dcm(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
     )
 
 
-def dcm_to_quat(R: Float[Array, "... 3 3"]) -> Float[Array, "... 4"]:
+def dcm_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     """Scalar-first unit quaternion with ``w >= 0`` of a rotation matrix (Shepperd's method).
 
     All four candidate formulas are evaluated and the best-conditioned one is selected with
@@ -256,7 +256,9 @@ def dcm_to_quat(R: Float[Array, "... 3 3"]) -> Float[Array, "... 4"]:
     return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
 
 
-def quat_multiply(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
+def quat_multiply(
+    p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]
+) -> Float[Array, "... 4"]:
     """Hamilton product ``p * q`` (scalar-first).
 
     ``quat_to_dcm(p * q) == quat_to_dcm(p) @ quat_to_dcm(q)``."""
@@ -269,7 +271,7 @@ def quat_multiply(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[A
     return jnp.concatenate([w, v], axis=-1)
 
 
-def quat_conjugate(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
+def quat_conjugate(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """Conjugate (the inverse rotation of a unit quaternion)."""
     q = check_last(q, 4, "q")
     return q * jnp.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
@@ -278,7 +280,7 @@ def quat_conjugate(q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
 # ----------------------------------------------------------------------------- Euler angles
 
 
-def elementary_rotation(axis: int, angle: Float[Array, "..."]) -> Float[Array, "... 3 3"]:
+def elementary_rotation(axis: int, angle: Float[ArrayLike, "..."]) -> Float[Array, "... 3 3"]:
     """Active rotation by ``angle`` (radians) about coordinate axis ``axis`` (0=x, 1=y, 2=z)."""
     angle = jnp.asarray(angle)
     c, s = jnp.cos(angle), jnp.sin(angle)
@@ -295,7 +297,7 @@ def elementary_rotation(axis: int, angle: Float[Array, "..."]) -> Float[Array, "
 
 
 def euler_to_dcm(
-    angles: Float[Array, "... 3"], sequence: str = DEFAULT_EULER_SEQUENCE
+    angles: Float[ArrayLike, "... 3"], sequence: str = DEFAULT_EULER_SEQUENCE
 ) -> Float[Array, "... 3 3"]:
     """Rotation matrix of Euler angles (radians), ``Rotation.from_euler(sequence, angles)``.
 
@@ -345,7 +347,7 @@ def _intrinsic_angles(R: Array, i: int, j: int, k: int) -> Array:
 
 
 def dcm_to_euler(
-    R: Float[Array, "... 3 3"], sequence: str = DEFAULT_EULER_SEQUENCE
+    R: Float[ArrayLike, "... 3 3"], sequence: str = DEFAULT_EULER_SEQUENCE
 ) -> Float[Array, "... 3"]:
     """Inverse of :func:`euler_to_dcm` (SciPy's ``Rotation.as_euler(sequence)``).
 
@@ -362,7 +364,7 @@ def dcm_to_euler(
 
 
 def rotation_angle(
-    R_a: Float[Array, "... 3 3"], R_b: Float[Array, "... 3 3"]
+    R_a: Float[ArrayLike, "... 3 3"], R_b: Float[ArrayLike, "... 3 3"]
 ) -> Float[Array, "..."]:
     """Geodesic angle (radians, in ``[0, pi]``) of ``R_a @ R_b.T``."""
     R_a = check_matrix(R_a, "R_a")
@@ -404,8 +406,8 @@ class Pose(eqx.Module):
         t: ``(..., 3)`` body origin in the camera frame, metres.
     """
 
-    R: Float[Array, "... 3 3"]
-    t: Float[Array, "... 3"]
+    R: Float[Array, "... 3 3"] | Float[np.ndarray, "... 3 3"]
+    t: Float[Array, "... 3"] | Float[np.ndarray, "... 3"]
 
     def __check_init__(self):
         if jnp.shape(self.R)[-2:] != (3, 3) or jnp.shape(self.t)[-1:] != (3,):
@@ -420,20 +422,20 @@ class Pose(eqx.Module):
         return cls(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype=dtype))
 
     @classmethod
-    def from_quat(cls, q_wxyz: Float[Array, "... 4"], t: Float[Array, "... 3"]) -> Pose:
+    def from_quat(cls, q_wxyz: Float[ArrayLike, "... 4"], t: Float[ArrayLike, "... 3"]) -> Pose:
         return cls(quat_to_dcm(q_wxyz), jnp.asarray(t))
 
     @classmethod
     def from_euler(
         cls,
-        angles: Float[Array, "... 3"],
-        t: Float[Array, "... 3"],
+        angles: Float[ArrayLike, "... 3"],
+        t: Float[ArrayLike, "... 3"],
         sequence: str = DEFAULT_EULER_SEQUENCE,
     ) -> Pose:
         return cls(euler_to_dcm(angles, sequence), jnp.asarray(t))
 
     @classmethod
-    def from_rotvec(cls, rotvec: Float[Array, "... 3"], t: Float[Array, "... 3"]) -> Pose:
+    def from_rotvec(cls, rotvec: Float[ArrayLike, "... 3"], t: Float[ArrayLike, "... 3"]) -> Pose:
         """From an OpenCV-style ``(rvec, tvec)`` pair."""
         return cls(so3_exp(rotvec), jnp.asarray(t))
 
@@ -451,7 +453,7 @@ class Pose(eqx.Module):
         """Euler angles (radians) in SciPy's ``sequence`` naming (default ``"XYZ"``)."""
         return dcm_to_euler(self.R, sequence)
 
-    def apply(self, points_body: Float[Array, "... n 3"]) -> Float[Array, "... n 3"]:
+    def apply(self, points_body: Float[ArrayLike, "... n 3"]) -> Float[Array, "... n 3"]:
         """Body points to camera frame: ``R @ p + t`` for each point."""
         points_body = check_last(points_body, 3, "points_body")
         return jnp.einsum("...ij,...nj->...ni", self.R, points_body) + self.t[..., None, :]
@@ -467,7 +469,7 @@ class Pose(eqx.Module):
     def __matmul__(self, other: Pose) -> Pose:
         return self.compose(other)
 
-    def retract(self, xi: Float[Array, "... 6"]) -> Pose:
+    def retract(self, xi: Float[ArrayLike, "... 6"]) -> Pose:
         """The library's tangent convention: ``xi = (rho, omega)`` in the camera frame acts on the
         left, ``R <- exp([omega]_x) R`` and ``t <- t + rho`` (metres, radians).
 

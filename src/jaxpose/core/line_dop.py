@@ -35,7 +35,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxpose.core._checks import check_mask, check_pose, check_rows
 from jaxpose.core.camera import PinholeCamera, as_camera
@@ -63,9 +63,9 @@ def _segment_jacobian(x0, pixels, segment: Float[Array, "2 3"]) -> Float[Array, 
 
 
 def line_jacobians(
-    segments_body: Float[Array, "n 2 3"],
+    segments_body: Float[ArrayLike, "n 2 3"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
@@ -106,12 +106,12 @@ def _jacobians(segments_body, pose, camera, sequence, parameterization):
 
 
 def line_information_blocks(
-    segments_body: Float[Array, "n 2 3"],
+    segments_body: Float[ArrayLike, "n 2 3"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    sigma: Float[Array, " n"] | float | None = None,
-    mask: Array | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
 ) -> Float[Array, "n 6 6"]:

@@ -12,7 +12,7 @@ ESA / Kelvins score of SPEED+ (Park et al. 2022; the SPEED+ challenge rules):
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.geometry import (
@@ -41,15 +41,15 @@ SUCCESS_ROTATION_DEG = 10.0
 
 
 def translation_error(
-    t_est: Float[Array, "... 3"], t_true: Float[Array, "... 3"]
+    t_est: Float[ArrayLike, "... 3"], t_true: Float[ArrayLike, "... 3"]
 ) -> Float[Array, "... 3"]:
     """``E_T`` (eq. 30): element-wise ``|t_true - t_est|``, metres."""
     return jnp.abs(jnp.asarray(t_true) - jnp.asarray(t_est))
 
 
 def rotation_error_euler(
-    R_est: Float[Array, "... 3 3"],
-    R_true: Float[Array, "... 3 3"],
+    R_est: Float[ArrayLike, "... 3 3"],
+    R_true: Float[ArrayLike, "... 3 3"],
     sequence: str = DEFAULT_EULER_SEQUENCE,
 ) -> Float[Array, "... 3"]:
     """``E_R`` (eqs. 31-32): Euler angles (radians) of ``R_est @ R_true.T`` (camera axes)."""
@@ -58,7 +58,7 @@ def rotation_error_euler(
 
 
 def rotation_error(
-    R_est: Float[Array, "... 3 3"], R_true: Float[Array, "... 3 3"]
+    R_est: Float[ArrayLike, "... 3 3"], R_true: Float[ArrayLike, "... 3 3"]
 ) -> Float[Array, ...]:
     """Geodesic angle (radians) between the two attitudes."""
     return rotation_angle(jnp.asarray(R_est), jnp.asarray(R_true))
@@ -93,10 +93,10 @@ def esa_score(
 
 def reprojection_error_2d(
     pose: Pose,
-    points_body: Float[Array, "... n 3"],
-    pixels: Float[Array, "... n 2"],
+    points_body: Float[ArrayLike, "... n 3"],
+    pixels: Float[ArrayLike, "... n 2"],
     camera: PinholeCamera,
-    mask: Bool[Array, "... n"] | None = None,
+    mask: Bool[ArrayLike, "... n"] | None = None,
 ) -> Float[Array, ...]:
     """``E_2D`` (eq. 22): mean pixel distance between image points and projected model points
     over the valid points (``inf`` when none is valid)."""
@@ -110,7 +110,7 @@ def reprojection_error_2d(
 
 
 def endpoint_rates(
-    detected: Float[Array, "m 2"], truth: Float[Array, "k 2"], radius_px: float = 5.0
+    detected: Float[ArrayLike, "m 2"], truth: Float[ArrayLike, "k 2"], radius_px: float = 5.0
 ) -> tuple[Float[Array, ""], Float[Array, ""]]:
     """Endpoint ``(TPR, PPV)`` (eqs. 33-34): a true endpoint is found when a detected one lies
     within ``radius_px``; a detection is a true positive when a true endpoint lies that close.
@@ -127,7 +127,7 @@ def endpoint_rates(
 
 
 def roi_rates(
-    roi_est: Float[Array, "... 4"], roi_true: Float[Array, "... 4"]
+    roi_est: Float[ArrayLike, "... 4"], roi_true: Float[ArrayLike, "... 4"]
 ) -> tuple[Float[Array, ...], Float[Array, ...]]:
     """ROI ``(TPR, PPV)`` by area: ``|est & true| / |true|`` and ``|est & true| / |est|`` of boxes
     ``[u0, v0, u1, v1]``."""

@@ -39,7 +39,7 @@ gradient, also at zero residuals.
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxpose.core._checks import as_float, check_mask, check_pose, check_rows, check_same_length
 from jaxpose.core.camera import PinholeCamera, as_camera
@@ -71,10 +71,10 @@ whitened residual (ORB-SLAM's choice); Tukey at 4.6851 (95% efficiency in 1-D).
 
 
 def point_residuals(
-    points_body: Float[Array, "n 3"],
-    pixels: Float[Array, "n 2"],
+    points_body: Float[ArrayLike, "n 3"],
+    pixels: Float[ArrayLike, "n 2"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
 ) -> Float[Array, "n 2"]:
     """Reprojection errors ``proj(R p_i + t) - pixels_i`` in pixels.
 
@@ -93,7 +93,9 @@ def point_residuals(
     return as_camera(camera).project(pose.apply(points_body)) - pixels
 
 
-def line_from_segment(s: Float[Array, "... 2"], e: Float[Array, "... 2"]) -> Float[Array, "... 3"]:
+def line_from_segment(
+    s: Float[ArrayLike, "... 2"], e: Float[ArrayLike, "... 2"]
+) -> Float[Array, "... 3"]:
     """Homogeneous image line ``l = (s, 1) x (e, 1)`` through two pixels (Yang et al. 2024 eq. 7).
 
     Not normalised; ``l . (u, v, 1) / sqrt(l1^2 + l2^2)`` is the signed distance in pixels of
@@ -117,10 +119,10 @@ def _line_distance(lines_img: Array, pix: Array) -> Array:
 
 
 def line_residuals(
-    segments_body: Float[Array, "k 2 3"],
-    lines_img: Float[Array, "k 3"],
+    segments_body: Float[ArrayLike, "k 2 3"],
+    lines_img: Float[ArrayLike, "k 3"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
 ) -> Float[Array, "k 2"]:
     """Signed pixel distances of the projected 3-D segment endpoints to the observed lines.
 
@@ -172,7 +174,7 @@ def _scale(kind, scale):
 
 
 def robust_rho(
-    kind: str | None, s: Float[Array, ...], scale: float | None = None
+    kind: str | None, s: Float[ArrayLike, ...], scale: float | None = None
 ) -> Float[Array, ...]:
     """Kernel ``rho(s)`` of a squared Mahalanobis norm ``s >= 0`` (g2o convention, eq. 10).
 
@@ -197,7 +199,7 @@ def robust_rho(
 
 
 def robust_weight(
-    kind: str | None, r: Float[Array, ...], scale: float | None = None
+    kind: str | None, r: Float[ArrayLike, ...], scale: float | None = None
 ) -> Float[Array, ...]:
     """IRLS weight ``rho'(r^2) = psi(r) / r`` of a residual norm ``r`` (in units of ``sigma``).
 
@@ -237,17 +239,17 @@ def _mahalanobis2(residuals: Array, information: Array | None) -> Array:
 
 
 def joint_cost(
-    points_body: Float[Array, "n 3"],
-    pixels: Float[Array, "n 2"],
+    points_body: Float[ArrayLike, "n 3"],
+    pixels: Float[ArrayLike, "n 2"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    point_information: Float[Array, "n 2 2"] | None = None,
-    mask: Array | None = None,
-    segments_body: Float[Array, "k 2 3"] | None = None,
-    lines_img: Float[Array, "k 3"] | None = None,
-    line_information: Float[Array, "k 2 2"] | None = None,
-    line_mask: Array | None = None,
+    point_information: Float[ArrayLike, "n 2 2"] | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
+    segments_body: Float[ArrayLike, "k 2 3"] | None = None,
+    lines_img: Float[ArrayLike, "k 3"] | None = None,
+    line_information: Float[ArrayLike, "k 2 2"] | None = None,
+    line_mask: Bool[ArrayLike, " k"] | None = None,
     robust: str | None = None,
     robust_scale: float | None = None,
 ) -> Float[Array, ""]:

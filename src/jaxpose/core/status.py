@@ -15,6 +15,7 @@ import enum
 import equinox as eqx
 import jax
 import numpy as np
+from jaxtyping import ArrayLike, Int
 
 __all__ = ["MESSAGES", "Status", "raise_for_status", "status_message", "throw_for_status"]
 
@@ -66,7 +67,7 @@ MESSAGES: dict[int, str] = {int(s): s.message for s in Status}
 """Context-free message of every code (see :meth:`Status.describe` for the exact one)."""
 
 
-def status_message(code: int, min_points: int | None = None) -> str:
+def status_message(code: int | Int[ArrayLike, ""], min_points: int | None = None) -> str:
     """Human-readable text of a status code (exact when ``min_points`` is given)."""
     try:
         return Status(int(code)).describe(min_points)

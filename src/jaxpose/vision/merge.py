@@ -33,7 +33,7 @@ def _line_distance(seg_a, point):
     return abs(u[0] * r[1] - u[1] * r[0])
 
 
-def similar(a, b, theta_thresh_deg: float, rho_thresh: float) -> bool:
+def similar(a, b, theta_thresh_deg: float, rho_thresh: float) -> bool | np.bool_:
     """Same line within the angle and offset thresholds (polar-form test, eqs. 11-12)."""
     ua, _ = _unit(a)
     ub, _ = _unit(b)

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import numpy.typing as npt
 
 __all__ = [
     "FeatureOptions",
@@ -280,8 +281,8 @@ def _pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance) -> np.ndar
 def knn_ratio_match_pairs(
     desc_ref: np.ndarray,
     desc_cur: np.ndarray,
-    i_ref: np.ndarray,
-    i_cur: np.ndarray,
+    i_ref: npt.ArrayLike,
+    i_cur: npt.ArrayLike,
     *,
     ratio: float,
     max_distance: int,

@@ -48,7 +48,11 @@ class WGEResult:
 
 
 def weak_gradient_elimination(
-    image: np.ndarray, *, cdf: float = 0.99, bins: int = 100, magnitude: np.ndarray | None = None
+    image: np.ndarray | None,
+    *,
+    cdf: float = 0.99,
+    bins: int = 100,
+    magnitude: np.ndarray | None = None,
 ) -> WGEResult:
     """Zero the weak gradients of ``image`` (grayscale, already smoothed by the caller)."""
     if not 0 < cdf < 1:

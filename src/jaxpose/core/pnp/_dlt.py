@@ -7,7 +7,7 @@ The ``3 x 4`` projection matrix from ``>= 6`` non-coplanar points (Hartley norma
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import ArrayLike, Bool, Float
 
 from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
@@ -58,11 +58,11 @@ def _dlt_core(points_body, xy, weights, fxy, planar_tol) -> _EPnPOut:
 
 
 def dlt(
-    points_body: Float[Array, "n 3"],
-    pixels: Float[Array, "n 2"],
-    camera: PinholeCamera | Float[Array, "3 3"],
+    points_body: Float[ArrayLike, "n 3"],
+    pixels: Float[ArrayLike, "n 2"],
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    mask: Bool[Array, " n"] | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
     planar_tol: float = PLANAR_TOL,
     throw: bool = True,
 ) -> PnPResult:

@@ -32,7 +32,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from jax import lax
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
@@ -217,11 +217,11 @@ def _betas_approx_3(b):
 
 
 def epnp(
-    points_body: Float[Array, "n 3"],
-    pixels: Float[Array, "n 2"],
-    camera: PinholeCamera | Float[Array, "3 3"],
+    points_body: Float[ArrayLike, "n 3"],
+    pixels: Float[ArrayLike, "n 2"],
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    mask: Bool[Array, " n"] | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
     planar_tol: float = PLANAR_TOL,
     throw: bool = True,
 ) -> PnPResult:

@@ -12,7 +12,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax import lax
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
@@ -66,12 +66,12 @@ def _ransac_core(prob: _Problem, key, *, threshold_px, sample_size, num_hypothes
 
 
 def ransac_pnp(
-    points_body: Float[Array, "n 3"],
-    pixels: Float[Array, "n 2"],
-    camera: PinholeCamera | Float[Array, "3 3"],
+    points_body: Float[ArrayLike, "n 3"],
+    pixels: Float[ArrayLike, "n 2"],
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
     key: Array,
-    mask: Bool[Array, " n"] | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
     options: RansacOptions = RansacOptions(),
     planar_tol: float = PLANAR_TOL,
     throw: bool = True,

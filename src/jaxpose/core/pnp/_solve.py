@@ -28,7 +28,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxpose.core._checks import float_dtype
 from jaxpose.core.camera import PinholeCamera
@@ -361,11 +361,11 @@ batches of non-planar problems are refined once."""
 
 
 def solve_pnp(
-    points_body: Float[Array, "... n 3"],
-    pixels: Float[Array, "... n 2"],
-    camera: PinholeCamera | Float[Array, "3 3"],
+    points_body: Float[ArrayLike, "... n 3"],
+    pixels: Float[ArrayLike, "... n 2"],
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    mask: Bool[Array, "... n"] | None = None,
+    mask: Bool[ArrayLike, "... n"] | None = None,
     key: Array | None = None,
     options: PnPOptions = PnPOptions(),
     throw: bool = True,
@@ -474,7 +474,7 @@ def _solve_eager(args, intrinsics, cfg: _Static, two: bool, devices: int, size: 
     return res
 
 
-def _intrinsics(camera) -> tuple[Array, bool]:
+def _intrinsics(camera) -> tuple[Float[Array, "9"] | Float[np.ndarray, "9"], bool]:
     """``(fx, fy, cx, cy, k1, k2, p1, p2, k3)`` of a camera or ``K``, and whether to undistort."""
     if isinstance(camera, PinholeCamera):
         leaves = (camera.fx, camera.fy, camera.cx, camera.cy)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import ArrayLike, Bool, Float
 
 from jaxpose.core._checks import check_positive, is_rotation
 from jaxpose.core.camera import PinholeCamera
@@ -82,17 +82,17 @@ def _refine(pose0, prob, valid, lvalid, finite_input, cfg: RefineOptions):
 
 
 def refine_pose(
-    points_body: Float[Array, "n 3"],
-    pixels: Float[Array, "n 2"],
+    points_body: Float[ArrayLike, "n 3"],
+    pixels: Float[ArrayLike, "n 2"],
     pose0: Pose,
-    camera: PinholeCamera | Float[Array, "3 3"],
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    mask: Bool[Array, " n"] | None = None,
-    sigma: Float[Array, " n"] | float | None = None,
-    segments_body: Float[Array, "k 2 3"] | None = None,
-    lines_img: Float[Array, "k 3"] | None = None,
-    line_mask: Bool[Array, " k"] | None = None,
-    line_sigma: Float[Array, " k"] | float | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float | None = None,
+    segments_body: Float[ArrayLike, "k 2 3"] | None = None,
+    lines_img: Float[ArrayLike, "k 3"] | None = None,
+    line_mask: Bool[ArrayLike, " k"] | None = None,
+    line_sigma: Float[ArrayLike, " k"] | Float[ArrayLike, ""] | float | None = None,
     options: RefineOptions = RefineOptions(),
     throw: bool = True,
 ) -> RefineResult:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxpose.core._checks import as_float
 from jaxpose.core.camera import PinholeCamera, as_camera
@@ -24,16 +24,16 @@ from jaxpose.core.status import Status, throw_for_status
 
 
 def pose_covariance(
-    points_body: Float[Array, "n 3"],
+    points_body: Float[ArrayLike, "n 3"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    sigma: Float[Array, " n"] | float = 1.0,
-    mask: Array | None = None,
-    segments_body: Float[Array, "k 2 3"] | None = None,
-    lines_img: Float[Array, "k 3"] | None = None,
-    line_sigma: Float[Array, " k"] | float | None = None,
-    line_mask: Array | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float = 1.0,
+    mask: Bool[ArrayLike, " n"] | None = None,
+    segments_body: Float[ArrayLike, "k 2 3"] | None = None,
+    lines_img: Float[ArrayLike, "k 3"] | None = None,
+    line_sigma: Float[ArrayLike, " k"] | Float[ArrayLike, ""] | float | None = None,
+    line_mask: Bool[ArrayLike, " k"] | None = None,
 ) -> Float[Array, "6 6"]:
     """First-order pose covariance ``(J^T W J)^-1 = sigma^2 (J^T J)^-1`` (metres, radians).
 
@@ -108,17 +108,17 @@ class PoseSensitivity(eqx.Module):
 
 
 def sensitivity(
-    points_body: Float[Array, "n 3"],
-    pixels: Float[Array, "n 2"],
+    points_body: Float[ArrayLike, "n 3"],
+    pixels: Float[ArrayLike, "n 2"],
     pose: Pose | RefineResult,
-    camera: PinholeCamera | Float[Array, "3 3"],
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     *,
-    mask: Bool[Array, " n"] | None = None,
-    sigma: Float[Array, " n"] | float | None = None,
-    segments_body: Float[Array, "k 2 3"] | None = None,
-    lines_img: Float[Array, "k 3"] | None = None,
-    line_mask: Bool[Array, " k"] | None = None,
-    line_sigma: Float[Array, " k"] | float | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float | None = None,
+    segments_body: Float[ArrayLike, "k 2 3"] | None = None,
+    lines_img: Float[ArrayLike, "k 3"] | None = None,
+    line_mask: Bool[ArrayLike, " k"] | None = None,
+    line_sigma: Float[ArrayLike, " k"] | Float[ArrayLike, ""] | float | None = None,
     options: RefineOptions = RefineOptions(),
     throw: bool = True,
 ) -> PoseSensitivity:

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.custom_batching import custom_vmap
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxpose.core.select._kernel import (
     block_scales,
@@ -114,7 +114,7 @@ def _rank_dtype():
     return jnp.int64 if jax.config.jax_enable_x64 else jnp.int32
 
 
-def unrank_combinations(ranks: Int[Array, " ..."], n: int, m: int) -> Int[Array, "... m"]:
+def unrank_combinations(ranks: Int[ArrayLike, " ..."], n: int, m: int) -> Int[Array, "... m"]:
     """The ``m``-subsets of ``range(n)`` of the given lexicographic ranks (ascending indices).
 
     Rank ``r`` is the position of the subset in ``itertools.combinations(range(n), m)``. Uses the
@@ -275,10 +275,10 @@ def _search(blocks, valid, invalid, n, m, K, chunk_size, kdt):
 
 
 def exhaustive_batch(
-    blocks: Float[Array, "C n 6 6"],
+    blocks: Float[ArrayLike, "C n 6 6"],
     m: int,
     *,
-    mask: Bool[Array, "C n"] | None = None,
+    mask: Bool[ArrayLike, "C n"] | None = None,
     chunk_size: int | None = None,
     kernel_dtype=None,
     max_subsets: int | None = MAX_SUBSETS,
@@ -394,10 +394,10 @@ def _single(m: int, use_mask: bool, chunk_size, kernel_dtype):
 
 
 def exhaustive(
-    blocks: Float[Array, "n 6 6"],
+    blocks: Float[ArrayLike, "n 6 6"],
     m: int,
     *,
-    mask: Bool[Array, " n"] | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
     chunk_size: int | None = None,
     kernel_dtype=None,
     max_subsets: int | None = MAX_SUBSETS,

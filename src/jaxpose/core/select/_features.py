@@ -6,7 +6,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxpose.core._checks import is_rotation
 from jaxpose.core.camera import PinholeCamera, as_camera
@@ -24,17 +24,17 @@ METHODS = ("quasi", "one-step", "greedy", "exhaustive", "bnb")
 
 
 def select_features(
-    points_body: Float[Array, "n 3"],
+    points_body: Float[ArrayLike, "n 3"],
     pose: Pose,
-    camera: PinholeCamera | Array,
+    camera: PinholeCamera | Float[ArrayLike, "3 3"],
     m: int,
     *,
     method: str = "quasi",
     criterion: str = "pdop",
     sequence: str = DEFAULT_EULER_SEQUENCE,
     parameterization: str = "euler",
-    sigma: Float[Array, " n"] | float | None = None,
-    mask: Bool[Array, " n"] | None = None,
+    sigma: Float[ArrayLike, " n"] | Float[ArrayLike, ""] | float | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
 ) -> Int[Array, " m"]:
     """Indices (ascending) of the ``m`` feature points to use, by the chosen method.
 

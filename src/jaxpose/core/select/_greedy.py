@@ -13,7 +13,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxpose.core.select._kernel import (
     block_scales,
@@ -38,11 +38,11 @@ def check_criterion(criterion: str) -> int:
 
 
 def greedy(
-    blocks: Float[Array, "n 6 6"],
+    blocks: Float[ArrayLike, "n 6 6"],
     m: int,
     *,
     criterion: str = "pdop",
-    mask: Bool[Array, " n"] | None = None,
+    mask: Bool[ArrayLike, " n"] | None = None,
 ) -> Int[Array, " m"]:
     """Backward elimination: ``m`` of ``n`` points, removing the least useful one at a time.
 

@@ -25,7 +25,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from jaxpose.core.dilution import MIN_POINTS, dop_from_information
 
@@ -186,7 +186,7 @@ def traces(
     return t_pp, t_aa, ok
 
 
-def subset_dop(blocks: Float[Array, "n 6 6"], idx) -> tuple[Array, Array]:
+def subset_dop(blocks: Float[ArrayLike, "n 6 6"], idx) -> tuple[Array, Array]:
     """PDOP and ADOP of the subset ``idx`` of points (``inf`` when singular).
 
     Args:

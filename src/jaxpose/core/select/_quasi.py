@@ -28,7 +28,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxpose.core.select._kernel import check_m, check_mask
 from jaxpose.core.status import Status, raise_for_status
@@ -71,7 +71,7 @@ def _status(points_cam, valid, m: int) -> Array:
 
 
 def selection_status(
-    points_cam: Float[Array, "n 3"], m: int, *, mask: Bool[Array, " n"] | None = None
+    points_cam: Float[ArrayLike, "n 3"], m: int, *, mask: Bool[ArrayLike, " n"] | None = None
 ) -> Int[Array, ""]:
     """``int32`` :class:`~jaxpose.core.status.Status` of a selection problem (0 when fine).
 
@@ -94,7 +94,7 @@ def _costs(points_cam: Array, valid: Array) -> Array:
 
 
 def redundancies(
-    points_cam: Float[Array, "n 3"], mask: Bool[Array, " n"] | None = None
+    points_cam: Float[ArrayLike, "n 3"], mask: Bool[ArrayLike, " n"] | None = None
 ) -> Float[Array, " n"]:
     """Initial redundancies ``r_i = sum_j cos^2(theta_ij)`` over the valid points (``j = i``
     included); 0 for masked-out points."""
@@ -113,7 +113,7 @@ def _keep_to_indices(keep: Array, m: int) -> Array:
 
 
 def quasi_optimal(
-    points_cam: Float[Array, "n 3"], m: int, *, mask: Bool[Array, " n"] | None = None
+    points_cam: Float[ArrayLike, "n 3"], m: int, *, mask: Bool[ArrayLike, " n"] | None = None
 ) -> Int[Array, " m"]:
     """Quasi-optimal ``m`` of ``n`` points (iterative removal with the incremental update).
 
@@ -153,7 +153,7 @@ def _quasi(points_cam, valid, m: int):
 
 
 def one_step(
-    points_cam: Float[Array, "n 3"], m: int, *, mask: Bool[Array, " n"] | None = None
+    points_cam: Float[ArrayLike, "n 3"], m: int, *, mask: Bool[ArrayLike, " n"] | None = None
 ) -> Int[Array, " m"]:
     """One-step selection: drop the ``n - m`` points of largest *initial* redundancy at once.
 

@@ -122,7 +122,7 @@ import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from jaxpose.core.dilution import dop_from_information
 from jaxpose.core.select._kernel import check_m
@@ -403,7 +403,7 @@ def _search(blocks, m, sel, rtol, relax_iters, max_nodes, bound, use_heuristic):
 
 
 def branch_and_bound(
-    blocks: Float[Array, "n 6 6"],
+    blocks: Float[ArrayLike, "n 6 6"],
     m: int,
     *,
     criterion: str = "pdop",
