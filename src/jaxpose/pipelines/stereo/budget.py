@@ -48,7 +48,6 @@ from __future__ import annotations
 import contextlib
 import itertools
 import math
-import time
 from dataclasses import replace
 
 import jax
@@ -61,7 +60,7 @@ from jaxpose.core.geometry import Pose
 from jaxpose.core.line_dop import line_jacobians
 from jaxpose.pipelines.stereo._arrays import find, lines_from_segments, project
 from jaxpose.pipelines.stereo.frame_pose import PoseFit, fit_pose
-from jaxpose.pipelines.stereo.options import BUDGET_RULES, TrackerOptions
+from jaxpose.pipelines.stereo.options import TrackerOptions
 
 __all__ = [
     "EXACT_SUBSETS",
@@ -71,7 +70,6 @@ __all__ = [
     "fit_pose_budgeted",
     "select_budget",
     "select_dop",
-    "stage_timer",
 ]
 
 #: the ``"dop"`` rule scores every subset when there are at most this many (else forward greedy)
@@ -274,8 +272,6 @@ def select_budget(
     N = o.feature_budget
     if N is None or n_p + n_l <= N:
         return keep_p, keep_l
-    if o.budget_rule not in BUDGET_RULES:
-        raise ValueError(f"budget_rule must be one of {BUDGET_RULES}; got {o.budget_rule!r}")
     ok_p = np.ones(n_p, bool)
     if o.mature_obs > 1:
         ok_p = landmarks.points.n_obs[i_m] >= o.mature_obs
@@ -312,15 +308,14 @@ def select_budget(
     # image positions (point pixels, segment midpoints) and the spacing of N features spread
     # over the box the candidates span: features a few pixels apart (one corner found at
     # several ORB scales) share their landmark's error, which the DOP takes as independent
+    B_p = _bucket(n_p, 64)  # the padded point count of _dop_inputs' rows
     pix = np.zeros((len(valid), 2))
-    pix[: len(i_m)] = feats.points[i_cur]
-    b_p = _bucket(len(i_m), 64)
-    pix[b_p : b_p + len(l_m)] = feats.segments[l_cur].mean(axis=1)
+    pix[:n_p] = feats.points[i_cur]
+    pix[B_p : B_p + n_l] = feats.segments[l_cur].mean(axis=1)
     span = np.ptp(pix[valid], axis=0)
     spacing = SPACING * float(np.sqrt(span[0] * span[1] / N))
     W = criterion_weight(arm, np.asarray(pose_pred.t, float))
     chosen = select_dop(rows, valid, N, W, pixels=pix, spacing_px=spacing)
-    B_p = _bucket(n_p, 64)
     keep_p[chosen[chosen < B_p]] = True
     keep_l[chosen[chosen >= B_p] - B_p] = True
     return keep_p, keep_l
@@ -370,21 +365,6 @@ def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, li
     return rows, valid, arm
 
 
-def stage_timer(timings: dict):
-    """A ``stage(name)`` context-manager factory that adds the wall seconds of its block to
-    ``timings[name]``."""
-
-    @contextlib.contextmanager
-    def stage(name: str):
-        t0 = time.perf_counter()
-        try:
-            yield
-        finally:
-            timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
-
-    return stage
-
-
 def fit_pose_budgeted(
     landmarks,
     feats,
@@ -406,7 +386,7 @@ def fit_pose_budgeted(
     The returned errors, inlier flags, inlier count and RMS cover every matched feature at the
     fitted pose, as without a budget; ``kept_errors`` are the solve's.
     The selection runs inside ``stage("budget")`` when ``stage`` is given (a context-manager
-    factory that times a named stage, e.g. :func:`stage_timer`)."""
+    factory that times a named stage, e.g. ``StageClock.stage`` of the tracker)."""
     o = options
     if o.feature_budget is None:
         return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
