@@ -58,8 +58,13 @@ from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.dilution import point_jacobians
 from jaxpose.core.geometry import Pose
 from jaxpose.core.line_dop import line_jacobians
-from jaxpose.pipelines.stereo._arrays import find, lines_from_segments, project
-from jaxpose.pipelines.stereo.frame_pose import PoseFit, fit_pose
+from jaxpose.pipelines.stereo._arrays import find, project
+from jaxpose.pipelines.stereo.frame_pose import (
+    PoseFit,
+    fit_pose,
+    postfit_errors,
+    postfit_summary,
+)
 from jaxpose.pipelines.stereo.options import TrackerOptions
 
 __all__ = [
@@ -400,27 +405,7 @@ def fit_pose_budgeted(
     size = _bucket(2 * o.feature_budget, 16)
     o_sub = replace(o, max_points=min(o.max_points, size), max_lines=min(o.max_lines, size))
     fit = fit_pose(landmarks, feats, stereo, sub, pose_pred, rig, o_sub, line_sigma)
-    pose = fit.pose
-    cam = rig.left
-    e_p = np.linalg.norm(project(cam, pose, landmarks.points.X[i_m]) - feats.points[i_cur], axis=1)
-    e_l = np.zeros(len(l_m))
-    if len(l_m):
-        pix = project(cam, pose, landmarks.lines.X[l_m])  # (n_l, 2, 2)
-        L = lines_from_segments(feats.segments[l_cur])
-        nrm = np.linalg.norm(L[:, :2], axis=1, keepdims=True)
-        d = (np.einsum("ki,kmi->km", L[:, :2], pix) + L[:, 2:3]) / np.where(nrm > 0, nrm, 1.0)
-        e_l = np.max(np.abs(d), axis=1)
-    in_p, in_l = e_p < o.inlier_px, e_l < o.inlier_px
+    e_p, e_l = postfit_errors(landmarks, feats, matches, fit.pose, rig.left)
     kept = e_p < o.reject_px
     kept[keep_p] = fit.kept_points
-    inl = np.concatenate([e_p[in_p], e_l[in_l]])
-    return replace(
-        fit,
-        e_points=e_p,
-        e_lines=e_l,
-        in_points=in_p,
-        in_lines=in_l,
-        kept_points=kept,
-        inliers=int(in_p.sum() + in_l.sum()),
-        rms_px=float(np.sqrt(np.mean(inl**2))) if len(inl) else float("inf"),
-    )
+    return replace(fit, kept_points=kept, **postfit_summary(e_p, e_l, o.inlier_px))

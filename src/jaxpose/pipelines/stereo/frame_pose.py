@@ -26,7 +26,7 @@ from jaxpose.pipelines.stereo._arrays import (
 from jaxpose.pipelines.stereo.keyframes import FrameStereo
 from jaxpose.pipelines.stereo.options import TrackerOptions
 
-__all__ = ["PoseFit", "fit_pose"]
+__all__ = ["PoseFit", "fit_pose", "postfit_errors", "postfit_summary"]
 
 
 @functools.partial(jax.jit, static_argnames=("robust", "sigma"))
@@ -168,22 +168,49 @@ def fit_pose(
         lmask = lmask & (np.asarray(e_l) < o.reject_px)
     kept_errors = (np.asarray(e_p)[mask], np.asarray(e_l)[lmask])
     e_p, e_l = np.asarray(e_p)[:n_p], np.asarray(e_l)[:n_l]
-    in_p, in_l = e_p < o.inlier_px, e_l < o.inlier_px
-    inl_err = np.concatenate([e_p[in_p], e_l[in_l]])
-    rms = float(np.sqrt(np.mean(inl_err**2))) if len(inl_err) else float("inf")
     # the LM retraction exp(xi) R keeps whatever departure from orthonormality R has, and the
     # constant-velocity prediction R_k R_(k-1)^T R_k compounds it by 1 + sqrt(2) a frame; a
     # quaternion round trip returns the nearest rotation
-    pose = nearest_rotation(res.pose)
     return PoseFit(
-        pose=pose,
+        pose=nearest_rotation(res.pose),
         solver_ok=int(res.status) in (Status.OK, Status.NOT_CONVERGED),
-        e_points=e_p,
-        e_lines=e_l,
-        in_points=in_p,
-        in_lines=in_l,
         kept_points=mask[:n_p] | (young & (e_p < o.reject_px)),
         kept_errors=kept_errors,
+        **postfit_summary(e_p, e_l, o.inlier_px),
+    )
+
+
+def postfit_errors(landmarks, feats, matches, pose: Pose, camera) -> tuple[np.ndarray, np.ndarray]:
+    """Post-fit errors (pixels) of the left-image matches at ``pose``: ``(n_p,)`` distances of
+    the points' projections to their features, ``(n_l,)`` largest distance of a landmark
+    segment's projected endpoints to its feature's image line (Yang et al. 2024, eq. 9). The
+    NumPy counterpart of the errors :func:`fit_pose`'s compiled solve returns, for matches the
+    solve did not see (the feature budget's)."""
+    i_m, i_cur, l_m, l_cur = matches
+    e_p = np.linalg.norm(
+        project(camera, pose, landmarks.points.X[i_m]) - feats.points[i_cur], axis=1
+    )
+    e_l = np.zeros(len(l_m))
+    if len(l_m):
+        pix = project(camera, pose, landmarks.lines.X[l_m])  # (n_l, 2, 2)
+        L = lines_from_segments(feats.segments[l_cur])
+        nrm = np.linalg.norm(L[:, :2], axis=1, keepdims=True)
+        d = (np.einsum("ki,kmi->km", L[:, :2], pix) + L[:, 2:3]) / np.where(nrm > 0, nrm, 1.0)
+        e_l = np.max(np.abs(d), axis=1)
+    return e_p, e_l
+
+
+def postfit_summary(e_points, e_lines, inlier_px: float) -> dict:
+    """The :class:`PoseFit` fields that follow from the post-fit errors: ``e_points``,
+    ``e_lines``, the inlier flags (below ``inlier_px``), the inlier count and the RMS of the
+    inliers' errors (``inf`` without inliers)."""
+    in_p, in_l = e_points < inlier_px, e_lines < inlier_px
+    inl = np.concatenate([e_points[in_p], e_lines[in_l]])
+    return dict(
+        e_points=e_points,
+        e_lines=e_lines,
+        in_points=in_p,
+        in_lines=in_l,
         inliers=int(in_p.sum() + in_l.sum()),
-        rms_px=rms,
+        rms_px=float(np.sqrt(np.mean(inl**2))) if len(inl) else float("inf"),
     )
