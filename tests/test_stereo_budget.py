@@ -255,3 +255,48 @@ def test_greedy_keeps_its_picks_apart_in_the_image(monkeypatch):
     assert np.all(d[np.triu_indices(8, 1)] >= 10.0)
     free = B.select_dop(rows, np.ones(20, bool), 8, W)
     assert len(free) == 8
+
+
+def test_landmark_covariance_closed_forms():
+    """(sigma / f)^2 M^-1 from the ray normal equations; a stereo triangulation's covariance
+    where M is degenerate: (z sigma / f)^2 across the ray, (z^2 sqrt(2) sigma / (f b))^2 along."""
+    cam = PinholeCamera(500.0, 500.0, 320.0, 240.0)
+    ident = Pose(np.eye(3), np.zeros(3))
+    X = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 3.0]])
+    M = np.stack([2.0 * np.eye(3), np.zeros((3, 3))])  # three orthogonal unit rays; none
+    cov = B.landmark_covariance(M, X, ident, cam, 0.1, 0.8)
+    np.testing.assert_allclose(cov[0], (0.8 / 500) ** 2 * np.eye(3) / 2, rtol=1e-12)
+    across, along = (3 * 0.8 / 500) ** 2, (9 * np.sqrt(2) * 0.8 / (500 * 0.1)) ** 2
+    np.testing.assert_allclose(cov[1], np.diag([across, across, along]), rtol=1e-12)
+
+
+def test_effective_whitening_against_a_closed_form():
+    """On the optical axis with an isotropic landmark error s (metres), the left pixels' noise
+    is sqrt(sigma^2 + (f s / z)^2) per axis; with a right image the 4 x 4 whitening gives the
+    information J^T C^-1 J of C = sigma^2 I + J_X s^2 J_X^T (right pixels through t_rl)."""
+    cam = PinholeCamera(500.0, 500.0, 320.0, 240.0)
+    ident = Pose(np.eye(3), np.zeros(3))
+    z, s, sig, b = 2.0, 0.004, 0.7, 0.2
+    X = np.array([[0.0, 0.0, z], [0.0, 0.0, z]])
+    cov = np.broadcast_to(s**2 * np.eye(3), (2, 3, 3))
+    t_rl = np.array([-b, 0.0, 0.0])
+    Wh = B.effective_whitening(cov, X, ident, cam, t_rl, np.full(2, sig), [False, True])
+    np.testing.assert_allclose(Wh[0, :2, :2], np.eye(2) / np.hypot(sig, 500 * s / z), rtol=1e-12)
+    np.testing.assert_allclose(Wh[0, 2:, 2:], np.eye(2) / sig, rtol=1e-12)
+    f = 500.0
+    J = np.array([[f / z, 0, 0], [0, f / z, 0], [f / z, 0, f * b / z**2], [0, f / z, 0]])
+    C = sig**2 * np.eye(4) + s**2 * J @ J.T
+    np.testing.assert_allclose(Wh[1].T @ Wh[1], np.linalg.inv(C), rtol=1e-10)
+
+
+def test_residual_spread_is_the_running_rms():
+    """Within its memory the spread is the RMS of the residuals seen (capped); beyond it, an
+    exponential average; never-matched landmarks get sigma."""
+    sp = B.ResidualSpread(memory=4, cap_px=5.0)
+    errs = [0.5, 1.5, 9.0, 1.0]
+    for e in errs:
+        sp.update([7], [e], 1.0)
+    rms = np.sqrt(np.mean(np.minimum(errs, 5.0) ** 2))
+    np.testing.assert_allclose(sp.sigma([7, 8], 1.0), [rms, 1.0], rtol=1e-12)
+    sp.update([7], [0.0], 1.0)
+    np.testing.assert_allclose(sp.sigma([7], 1.0), [rms * np.sqrt(0.75)], rtol=1e-12)

@@ -48,6 +48,8 @@ from __future__ import annotations
 import contextlib
 import itertools
 import math
+import os
+import weakref
 from dataclasses import replace
 
 import jax
@@ -318,12 +320,138 @@ def select_budget(
     pix[:n_p] = feats.points[i_cur]
     pix[B_p : B_p + n_l] = feats.segments[l_cur].mean(axis=1)
     span = np.ptp(pix[valid], axis=0)
-    spacing = SPACING * float(np.sqrt(span[0] * span[1] / N))
+    spacing = float(os.environ.get("JAXPOSE_BUDGET_SPACING", SPACING)) * float(
+        np.sqrt(span[0] * span[1] / N)
+    )
     W = criterion_weight(arm, np.asarray(pose_pred.t, float))
     chosen = select_dop(rows, valid, N, W, pixels=pix, spacing_px=spacing)
     keep_p[chosen[chosen < B_p]] = True
     keep_l[chosen[chosen >= B_p] - B_p] = True
     return keep_p, keep_l
+
+
+def landmark_covariance(M, X_body, pose: Pose, camera, baseline_m: float, sigma_px: float):
+    """``(n, 3, 3)`` covariance (body frame, m^2) of point landmarks from their multi-view
+    triangulations: ``(sigma / f)^2 M^-1``, ``M = sum w (I - d d^T)`` the normal equations of
+    :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe` with the weights ``w = 1 / z^2`` of
+    :func:`~jaxpose.pipelines.stereo.keyframes.observe_point_rays` (a ray's perpendicular
+    distance to the point is ``z sigma / f`` metres for a ``sigma`` pixel error). Where ``M`` is
+    still degenerate (its rays nearly parallel), the covariance of one stereo triangulation at
+    ``pose``: ``(z sigma / f)^2`` across the ray and ``(z^2 sqrt(2) sigma / (f b))^2`` along it
+    (the depth error of a disparity error ``sqrt(2) sigma``), ``b`` the baseline."""
+    M = np.asarray(M, float).reshape(-1, 3, 3)
+    X = np.asarray(X_body, float).reshape(-1, 3)
+    f = float(camera.focal_px)
+    R, t = np.asarray(pose.R, float), np.asarray(pose.t, float)
+    x = X @ R.T + t
+    z = np.maximum(x[:, 2], 1e-3)
+    u = x / np.linalg.norm(x, axis=1, keepdims=True)
+    across, along = (
+        (z * sigma_px / f) ** 2,
+        (z**2 * np.sqrt(2.0) * sigma_px / (f * baseline_m)) ** 2,
+    )
+    uu = u[:, :, None] * u[:, None, :]
+    cam = across[:, None, None] * (np.eye(3) - uu) + along[:, None, None] * uu
+    cov = np.einsum("ji,njk,kl->nil", R, cam, R)  # R^T C R
+    ev = np.linalg.eigvalsh(M) if len(M) else np.zeros((0, 3))
+    ok = ev[:, 0] > 1e-4 * np.maximum(ev[:, 2], 1e-300)
+    if ok.any():
+        cov[ok] = (sigma_px / f) ** 2 * np.linalg.inv(M[ok])
+    return cov
+
+
+def _projection_jacobian(x_cam, R, camera):
+    """``(n, 2, 3)``: d(pixels)/d(body point) of points at ``x_cam`` (camera frame)."""
+    fx, fy = float(camera.fx), float(camera.fy)
+    z = x_cam[:, 2]
+    D = np.zeros((len(x_cam), 2, 3))
+    D[:, 0, 0], D[:, 0, 2] = fx / z, -fx * x_cam[:, 0] / z**2
+    D[:, 1, 1], D[:, 1, 2] = fy / z, -fy * x_cam[:, 1] / z**2
+    return D @ R
+
+
+def point_sigma_eff(landmarks, i_m, pose: Pose, rig, o: TrackerOptions, mode: str) -> np.ndarray:
+    """``(n,)`` isotropic effective pixel noise of point landmarks ``i_m`` in the left image:
+    ``sqrt(s^2 + trace(J C_X J^T) / 2)``, ``s`` the measured spread (``"measured"``,
+    ``"both"``) or ``sigma_px``, ``C_X`` the landmark covariance (``"landmark"``, ``"both"``)."""
+    i_m = np.asarray(i_m, int)
+    s2 = np.full(len(i_m), float(o.sigma_px) ** 2)
+    if mode in ("measured", "both"):
+        s2 = residual_spread(landmarks).sigma(landmarks.points.ids[i_m], o.sigma_px) ** 2
+    if mode in ("landmark", "both") and len(i_m):
+        X = landmarks.points.X[i_m]
+        t_rl = np.asarray(rig.t_rl, float)
+        cov = landmark_covariance(
+            landmarks.points.M[i_m], X, pose, rig.left, float(np.linalg.norm(t_rl)), o.sigma_px
+        )
+        R, t = np.asarray(pose.R, float), np.asarray(pose.t, float)
+        J = _projection_jacobian(X @ R.T + t, R, rig.left)
+        s2 = s2 + np.einsum("nij,njk,nik->n", J, cov, J) / 2
+    return np.sqrt(s2)
+
+
+def effective_whitening(cov_X, X_body, pose: Pose, camera, t_rl, sigma_px, has_right):
+    """``(n, 4, 4)`` whitening ``L^-1`` (``L L^T = C``) of the left and right pixel residuals of
+    point landmarks whose position error has covariance ``cov_X`` (``(n, 3, 3)``, body frame):
+    ``C = diag(sigma_px^2) + J C_X J^T``, ``J`` (``4 x 3``) the landmark's projection Jacobian
+    into the left and right image at ``pose`` (the right image through ``t_rl``). ``sigma_px``:
+    ``(n,)`` pixel noise; rows of a point without a right match (``has_right`` false) are
+    decoupled (unit block, no cross terms) and its right rows are zero anyway. A feature's
+    information is then ``(L^-1 J_pose)^T (L^-1 J_pose)``: a landmark far from the cameras or
+    seen from few directions counts for less than its pixels alone say."""
+    X = np.asarray(X_body, float).reshape(-1, 3)
+    R, t = np.asarray(pose.R, float), np.asarray(pose.t, float)
+    x = X @ R.T + t
+    J = np.concatenate(
+        [_projection_jacobian(x, R, camera), _projection_jacobian(x + t_rl, R, camera)], axis=1
+    )
+    J[~np.asarray(has_right, bool), 2:] = 0.0
+    C = np.einsum("nij,njk,nlk->nil", J, cov_X, J)
+    s2 = np.asarray(sigma_px, float) ** 2
+    C += s2[:, None, None] * np.eye(4)
+    C[~np.asarray(has_right, bool), 2:, 2:] = (
+        np.eye(2) * s2[~np.asarray(has_right, bool), None, None]
+    )
+    return np.linalg.inv(np.linalg.cholesky(C))
+
+
+class ResidualSpread:
+    """Running RMS of each point landmark's post-fit residual (pixels, left image), keyed by the
+    landmarks' stable ids: ``s^2 <- s^2 + (min(e, cap)^2 - s^2) / min(k, memory)`` at the
+    ``k``-th frame that matched it, from ``s^2 = sigma^2`` before the first. The residual of a
+    landmark at the fitted pose carries its position error and its corner's blur, which the
+    pixel noise alone does not; a bias counts as noise in the pose solve, hence the RMS rather
+    than the variance about the mean."""
+
+    def __init__(self, memory: int = 10, cap_px: float = 6.0):
+        self.memory, self.cap = int(memory), float(cap_px)
+        self._s2: dict[int, float] = {}
+        self._k: dict[int, int] = {}
+
+    def sigma(self, ids, sigma_px: float) -> np.ndarray:
+        """``(n,)`` running RMS of landmarks ``ids`` (``sigma_px`` where never matched)."""
+        return np.sqrt([max(self._s2.get(int(i), sigma_px**2), sigma_px**2 * 0.25) for i in ids])
+
+    def update(self, ids, errors, sigma_px: float) -> None:
+        for i, e in zip(np.asarray(ids).tolist(), np.asarray(errors, float).tolist(), strict=True):
+            k = self._k.get(i, 0) + 1
+            s2 = self._s2.get(i, sigma_px**2)
+            self._s2[i] = s2 + (min(e, self.cap) ** 2 - s2) / min(k, self.memory)
+            self._k[i] = k
+
+
+_SPREADS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def residual_spread(landmarks) -> ResidualSpread:
+    """The :class:`ResidualSpread` of a landmark map (one per map, created on first use)."""
+    if landmarks not in _SPREADS:
+        _SPREADS[landmarks] = ResidualSpread()
+    return _SPREADS[landmarks]
+
+
+#: the feature noise model of the ``"dop"`` rule (set by :func:`select_budget` from the options)
+NOISE_MODELS = ("pixel", "landmark", "measured", "both")
 
 
 def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, line_sigma):
@@ -364,6 +492,26 @@ def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, li
         jnp.asarray(w_p),
         jnp.asarray(w_l),
     )
+    noise = os.environ.get("JAXPOSE_BUDGET_NOISE", "pixel")
+    if noise != "pixel" and len(cand_p):
+        has_right = w_p[cand_p, 1] > 0
+        sig = np.full(len(cand_p), float(o.sigma_px))
+        if noise in ("measured", "both"):
+            sig = residual_spread(landmarks).sigma(landmarks.points.ids[i_m[cand_p]], o.sigma_px)
+        cov = np.zeros((len(cand_p), 3, 3))
+        if noise in ("landmark", "both"):
+            cov = landmark_covariance(
+                landmarks.points.M[i_m[cand_p]],
+                X[cand_p],
+                pose_pred,
+                rig.left,
+                float(np.linalg.norm(t_rl)),
+                o.sigma_px,
+            )
+        Wh = effective_whitening(cov, X[cand_p], pose_pred, rig.left, t_rl, sig, has_right)
+        r = np.asarray(rows, float).copy()
+        r[cand_p] = np.einsum("nij,njk->nik", Wh, r[cand_p] * o.sigma_px)  # unweighted, whitened
+        rows = r
     valid = np.r_[w_p[:, 0] > 0, w_l[:, 0] > 0]
     centres = np.concatenate([X[cand_p], S.mean(axis=1)])
     arm = float(np.sqrt(np.mean(np.sum((centres - centres.mean(0)) ** 2, axis=1))))
@@ -394,7 +542,17 @@ def fit_pose_budgeted(
     factory that times a named stage, e.g. ``StageClock.stage`` of the tracker)."""
     o = options
     if o.feature_budget is None:
-        return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
+        mode = os.environ.get("JAXPOSE_SOLVE_NOISE", "pixel")
+        if mode == "pixel":
+            return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
+        i_m = matches[0]
+        sig = point_sigma_eff(landmarks, i_m, pose_pred, rig, o, mode)
+        fit = fit_pose(
+            landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, point_sigma=sig
+        )
+        if fit.solver_ok and mode in ("measured", "both"):
+            residual_spread(landmarks).update(landmarks.points.ids[i_m], fit.e_points, o.sigma_px)
+        return fit
     with stage("budget") if stage is not None else contextlib.nullcontext():
         keep_p, keep_l = select_budget(
             landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, frame=frame
@@ -406,6 +564,8 @@ def fit_pose_budgeted(
     o_sub = replace(o, max_points=min(o.max_points, size), max_lines=min(o.max_lines, size))
     fit = fit_pose(landmarks, feats, stereo, sub, pose_pred, rig, o_sub, line_sigma)
     e_p, e_l = postfit_errors(landmarks, feats, matches, fit.pose, rig.left)
+    if fit.solver_ok and os.environ.get("JAXPOSE_BUDGET_NOISE", "pixel") in ("measured", "both"):
+        residual_spread(landmarks).update(landmarks.points.ids[i_m], e_p, o.sigma_px)
     kept = e_p < o.reject_px
     kept[keep_p] = fit.kept_points
     return replace(fit, kept_points=kept, **postfit_summary(e_p, e_l, o.inlier_px))

@@ -29,7 +29,7 @@ from jaxpose.pipelines.stereo.options import TrackerOptions
 __all__ = ["PoseFit", "fit_pose", "postfit_errors", "postfit_summary"]
 
 
-@functools.partial(jax.jit, static_argnames=("robust", "sigma"))
+@functools.partial(jax.jit, static_argnames=("robust",))
 def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
     """One LM solve (eq. 10) and the post-fit errors of every point (pixels) and line (largest
     endpoint distance, pixels). Points-only mode passes an all-False ``lmask``: one compiled
@@ -91,6 +91,8 @@ def fit_pose(
     rig: StereoCamera,
     options: TrackerOptions,
     line_sigma: float,
+    *,
+    point_sigma=None,
 ) -> PoseFit:
     """Fit the pose of the frame from ``matches`` (``(i_m, i_cur, l_m, l_cur)``: landmark and
     feature indices of the matched points and lines), starting at ``pose_pred``.
@@ -101,7 +103,8 @@ def fit_pose(
     shift changes by ``|t_rl|`` times the rotation update). The same holds for the right segment
     of a matched segment with a stereo match. Each pass restarts from the last pose without the
     features it left beyond ``reject_px`` (ORB-SLAM's outlier passes): the robust kernel alone
-    still lets mismatches on repetitive texture pull the pose."""
+    still lets mismatches on repetitive texture pull the pose. ``point_sigma``: ``(n_p,)`` pixel
+    noise of each matched point (its left and right residuals; default ``sigma_px``)."""
     o = options
     i_m, i_cur, l_m, l_cur = matches
     n_p, n_l = len(i_m), len(l_m)
@@ -139,13 +142,17 @@ def fit_pose(
         else np.zeros((0, 3))
     )
     X_m = landmarks.points.X[i_m]
+    sigma = np.full(o.max_points, float(o.sigma_px))
+    if point_sigma is not None:
+        ps = np.asarray(point_sigma, float)
+        sigma[:n_p], sigma[n_p : n_p + n_r] = ps, ps[q_r]
     X_l = landmarks.lines.X[l_m]
     uv_all = jnp.asarray(pad(np.concatenate([feats.points[i_cur], uv_r]), o.max_points))
     L_pad = jnp.asarray(pad(L, o.max_lines))
     statics = (
         rig.left,
         o.robust,
-        o.sigma_px,
+        jnp.asarray(sigma),  # arrays: a new value compiles nothing
         jnp.full(o.max_lines, line_sigma),  # an array: a new value compiles nothing
     )
     pose0 = pose_pred
