@@ -48,7 +48,6 @@ from __future__ import annotations
 import contextlib
 import itertools
 import math
-import os
 import weakref
 from dataclasses import replace
 
@@ -312,6 +311,14 @@ def select_budget(
     rows, valid, arm = _dop_inputs(
         landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, line_sigma
     )
+    frac = o.budget_subsample
+    if frac < 1.0:  # stochastic greedy: a fresh random share of the candidates each frame
+        idx = np.nonzero(valid)[0]
+        n_sub = max(2 * N, int(round(frac * len(idx))))
+        if n_sub < len(idx):
+            rng = np.random.default_rng([frame, 2015])
+            valid = np.zeros_like(valid)
+            valid[rng.choice(idx, n_sub, replace=False)] = True
     # image positions (point pixels, segment midpoints) and the spacing of N features spread
     # over the box the candidates span: features a few pixels apart (one corner found at
     # several ORB scales) share their landmark's error, which the DOP takes as independent
@@ -320,9 +327,7 @@ def select_budget(
     pix[:n_p] = feats.points[i_cur]
     pix[B_p : B_p + n_l] = feats.segments[l_cur].mean(axis=1)
     span = np.ptp(pix[valid], axis=0)
-    spacing = float(os.environ.get("JAXPOSE_BUDGET_SPACING", SPACING)) * float(
-        np.sqrt(span[0] * span[1] / N)
-    )
+    spacing = SPACING * float(np.sqrt(span[0] * span[1] / N))
     W = criterion_weight(arm, np.asarray(pose_pred.t, float))
     chosen = select_dop(rows, valid, N, W, pixels=pix, spacing_px=spacing)
     keep_p[chosen[chosen < B_p]] = True
@@ -450,10 +455,6 @@ def residual_spread(landmarks) -> ResidualSpread:
     return _SPREADS[landmarks]
 
 
-#: the feature noise model of the ``"dop"`` rule (set by :func:`select_budget` from the options)
-NOISE_MODELS = ("pixel", "landmark", "measured", "both")
-
-
 def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, line_sigma):
     """Padded inputs of :func:`feature_rows` for the matches, its rows, the valid mask and the
     lever arm ``l`` of the criterion."""
@@ -492,7 +493,7 @@ def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, li
         jnp.asarray(w_p),
         jnp.asarray(w_l),
     )
-    noise = os.environ.get("JAXPOSE_BUDGET_NOISE", "pixel")
+    noise = o.budget_noise
     if noise != "pixel" and len(cand_p):
         has_right = w_p[cand_p, 1] > 0
         sig = np.full(len(cand_p), float(o.sigma_px))
@@ -542,7 +543,7 @@ def fit_pose_budgeted(
     factory that times a named stage, e.g. ``StageClock.stage`` of the tracker)."""
     o = options
     if o.feature_budget is None:
-        mode = os.environ.get("JAXPOSE_SOLVE_NOISE", "pixel")
+        mode = "measured" if o.measured_point_sigma else "pixel"
         if mode == "pixel":
             return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
         i_m = matches[0]
@@ -564,7 +565,7 @@ def fit_pose_budgeted(
     o_sub = replace(o, max_points=min(o.max_points, size), max_lines=min(o.max_lines, size))
     fit = fit_pose(landmarks, feats, stereo, sub, pose_pred, rig, o_sub, line_sigma)
     e_p, e_l = postfit_errors(landmarks, feats, matches, fit.pose, rig.left)
-    if fit.solver_ok and os.environ.get("JAXPOSE_BUDGET_NOISE", "pixel") in ("measured", "both"):
+    if fit.solver_ok and o.budget_noise in ("measured", "both"):
         residual_spread(landmarks).update(landmarks.points.ids[i_m], e_p, o.sigma_px)
     kept = e_p < o.reject_px
     kept[keep_p] = fit.kept_points
