@@ -6,34 +6,35 @@ the budget applies to the matched landmarks of a frame, points and lines togethe
 (``TrackerOptions(feature_budget=N, budget_rule=...)``), after search by projection and before
 the pose solve (:func:`jaxpose.pipelines.stereo.frame_pose.fit_pose`):
 
-* ``"dop"``: the ``N`` features whose summed information gives the lowest dilution of precision
-  at the predicted pose. A feature's information is the ``6 x 6`` block of its left-image
-  observation plus, when it has a stereo match, of its right-image one (the landmark shifted by
-  ``R^T t_rl``, as the pose solve sees it): ``J^T J / sigma^2`` with ``J`` the ``2 x 6`` Jacobian
-  of a point's pixels (Ning et al. eq. 7, :func:`jaxpose.core.dilution.point_jacobians`) or of a
-  segment's two endpoint-to-line distances (Yang et al. 2024 eq. 9,
+* ``"dop"``: the ``N`` features whose summed information gives the lowest dilution of precision at
+  the predicted pose. A feature's information is the ``6 x 6`` block of its left-image observation
+  plus, when it has a stereo match, of its right-image one (the landmark shifted by ``R^T t_rl``,
+  as the pose solve sees it): ``J^T J / sigma^2`` with ``J`` the ``2 x 6`` Jacobian of a point's
+  pixels (Ning et al. eq. 7, :func:`jaxpose.core.dilution.point_jacobians`) or of a segment's two
+  endpoint-to-line distances (Yang et al. 2024 eq. 9,
   :func:`jaxpose.core.line_dop.line_jacobians`), in the tangent attitude state, so point and line
   blocks add (:func:`jaxpose.core.dilution.information_blocks`,
-  :func:`jaxpose.core.line_dop.line_information_blocks`), a point's rows whitened by its
-  effective noise (``budget_noise``): ``"measured"``, the running RMS of its landmark's post-fit
-  residual (:class:`ResidualSpread`), as its pixel noise; ``"landmark"``, the pixel noise plus
-  its landmark's position covariance (:func:`landmark_covariance`) projected into both images
-  (:func:`effective_whitening`); ``"both"``; ``"pixel"``: ``sigma_px``. The criterion is
-  ``trace(W Q)`` with ``Q`` the inverse of the summed information (:func:`criterion_weight`): the variance of the
-  chaser's position in the target frame (the target's translation and, through the range, its
-  attitude: what a rendezvous needs and the tracker's error metric) plus ``l^2`` times the
-  attitude variance, ``l`` the RMS distance of the matched landmarks from their centroid (the
-  displacement an attitude error gives a landmark). Without the range term it is ``PDOP^2 +
-  (l ADOP)^2`` (Ning et al.'s PDOP and ADOP). The subset is
-  chosen by forward greedy selection (each step adds the feature that lowers the criterion most,
-  scored for every candidate at once by rank-one Sherman-Morrison updates of ``Q``, from a small
-  prior ``1e-6`` times the mean block so that the first picks are defined) in one compiled call
-  per frame at padded sizes, on a random share ``budget_subsample`` of the candidates drawn
-  afresh each frame (the "stochastic greedy" of Mirzasoleiman et al. 2015: the picks vary from
-  frame to frame, so that one set of landmarks' errors is not carried frame after frame); when
-  ``C(n, N)`` is at most :data:`EXACT_SUBSETS`, every subset is scored and the optimum kept. The greedy keeps its picks ``SPACING sqrt(area / N)`` pixels apart
-  while it can (``area`` the box the candidates span): ORB finds one corner at several scales,
-  and such near-twins share their landmark's error, which the DOP counts as independent.
+  :func:`jaxpose.core.line_dop.line_information_blocks`), a point's rows whitened by its effective
+  noise (``budget_noise``): ``"measured"``, the running RMS of its landmark's post-fit residual
+  (:class:`ResidualSpread`), as its pixel noise; ``"landmark"``, the pixel noise plus its
+  landmark's position covariance (:func:`landmark_covariance`) projected into both images
+  (:func:`effective_whitening`); ``"both"``; ``"pixel"``: ``sigma_px``. The criterion is ``trace(W
+  Q)`` with ``Q`` the inverse of the summed information (:func:`criterion_weight`): the variance of
+  the chaser's position in the target frame (the target's translation and, through the range, its
+  attitude: what a rendezvous needs and the tracker's error metric) plus ``l^2`` times the attitude
+  variance, ``l`` the RMS distance of the matched landmarks from their centroid (the displacement
+  an attitude error gives a landmark). Without the range term it is ``PDOP^2 + (l ADOP)^2`` (Ning
+  et al.'s PDOP and ADOP). The subset is chosen by forward greedy selection (each step adds the
+  feature that lowers the criterion most, scored for every candidate at once by rank-one
+  Sherman-Morrison updates of ``Q``, from a small prior ``1e-6`` times the mean block so that the
+  first picks are defined) in one compiled call per frame at padded sizes, on a random share
+  ``budget_subsample`` of the candidates drawn afresh each frame (the "stochastic greedy" of
+  Mirzasoleiman et al. 2015: the picks vary from frame to frame, so that one set of landmarks'
+  errors is not carried frame after frame); when ``C(n, N)`` is at most :data:`EXACT_SUBSETS`,
+  every subset is scored and the optimum kept. The greedy keeps its picks ``SPACING sqrt(area /
+  N)`` pixels apart while it can (``area`` the box the candidates span): ORB finds one corner at
+  several scales, and such near-twins share their landmark's error, which the DOP counts as
+  independent.
 * ``"random"``: ``N`` of the matched features at random (seeded by the frame number).
 * ``"response"``: the strongest detector responses: ORB (Harris) response of the points, pixel
   length of the segments, the two kinds in proportion to their matched counts.
