@@ -77,10 +77,15 @@ from jaxpose.pipelines.stereo.options import TrackerOptions
 
 __all__ = [
     "EXACT_SUBSETS",
+    "ResidualSpread",
     "budget_criterion",
     "criterion_weight",
+    "effective_whitening",
     "feature_rows",
     "fit_pose_budgeted",
+    "landmark_covariance",
+    "point_sigma_eff",
+    "residual_spread",
     "select_budget",
     "select_dop",
 ]
