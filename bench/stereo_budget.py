@@ -349,8 +349,8 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=None, help="frames per scene (default: one turn)")
     p.add_argument("--budgets", type=int, nargs="+", default=list(BUDGETS))
     p.add_argument("--rules", nargs="+", choices=RULES, default=list(RULES))
-    p.add_argument("--budget-noise", choices=BUDGET_NOISE, default="measured")
-    p.add_argument("--budget-subsample", type=float, default=0.5)
+    p.add_argument("--budget-noise", choices=BUDGET_NOISE, default="pixel")
+    p.add_argument("--budget-subsample", type=float, default=1.0)
     p.add_argument(
         "--measured-point-sigma",
         action="store_true",

@@ -154,10 +154,12 @@ def _matches(n_p=40, n_l=6, seed=3):
     return landmarks, feats, stereo, matches, rig
 
 
-@pytest.mark.parametrize("rule", ["dop", "random", "response"])
+@pytest.mark.parametrize("rule", ["dop", "random", "response", "dop-both"])
 def test_select_budget_rules(rule):
     landmarks, feats, stereo, matches, rig = _matches()
-    o = TrackerOptions(feature_budget=12, budget_rule=rule)
+    noise = dict(budget_noise="both", budget_subsample=0.5) if rule == "dop-both" else {}
+    rule = rule.split("-")[0]
+    o = TrackerOptions(feature_budget=12, budget_rule=rule, **noise)
     kp, kl = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
     assert kp.sum() + kl.sum() == 12
     assert not kp[:5].any()  # young landmarks are left out

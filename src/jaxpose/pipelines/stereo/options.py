@@ -166,8 +166,8 @@ class TrackerOptions:
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
     budget_rule: str = "dop"
-    budget_noise: str = "measured"
-    budget_subsample: float = 0.5
+    budget_noise: str = "pixel"
+    budget_subsample: float = 1.0
     measured_point_sigma: bool = False
 
     def __post_init__(self):
