@@ -93,7 +93,7 @@ def test_min_depth_throws_points_behind_far_off_the_image():
     pts = jnp.array([[0.3, -0.2, 5.0], [0.5, 0.4, -2.0], [0.5, 0.4, 0.0]])
     uv = np.asarray(cam.project(pts, min_depth=1e-6))
     np.testing.assert_allclose(uv[0], np.asarray(cam.project(pts[:1]))[0], rtol=1e-12)
-    for row, p in zip(uv[1:], np.asarray(pts[1:])):
+    for row, p in zip(uv[1:], np.asarray(pts[1:]), strict=True):
         expected = [2988.58 * p[0] / 1e-6 + 960.0, 2988.34 * p[1] / 1e-6 + 600.0]
         np.testing.assert_allclose(row, expected, rtol=1e-9)
     assert np.all(np.abs(uv[1:]) > 1e8)

@@ -237,7 +237,9 @@ def test_two_devices_give_the_same_poses(tmp_path):
         f"np.savez({str(tmp_path / 'out.npz')!r}, R=r.R, t=r.t, status=r.status)"
     )
     env = dict(
-        os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu"
+        os.environ,
+        XLA_FLAGS=os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2",
+        JAX_PLATFORMS="cpu",
     )
     proc = subprocess.run(
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600

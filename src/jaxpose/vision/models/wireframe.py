@@ -134,7 +134,8 @@ class WireframeModel:
 
     @cached_property
     def groups(self):
-        """Model feature groups (:func:`jaxpose.vision.models.groups.model_groups`, default thresholds)."""
+        """Model feature groups (:func:`jaxpose.vision.models.groups.model_groups`, default
+        thresholds)."""
         from jaxpose.vision.models.groups import model_groups
 
         return model_groups(self)
@@ -240,7 +241,8 @@ _TANGO_CACHE: list[WireframeModel] = []
 
 
 def tango() -> WireframeModel:
-    """The built-in Tango model (``jaxpose/vision/models/data/tango.json``, see :func:`build_tango`)."""
+    """The built-in Tango model (``jaxpose/vision/models/data/tango.json``, see
+    :func:`build_tango`)."""
     if not _TANGO_CACHE:
         text = resources.files("jaxpose.vision.models").joinpath("data/tango.json").read_text()
         _TANGO_CACHE.append(load_model_json(json.loads(text)))
