@@ -20,6 +20,8 @@ __all__ = [
     "GRID_WITHOUT_SILHOUETTE",
     "ORIENTATION_WEIGHT",
     "PANEL_WEIGHT",
+    "SPREAD_WEIGHT",
+    "SPREAD_QUICK_WEIGHT",
     "InitOptions",
     "InitResult",
 ]
@@ -115,6 +117,14 @@ GRID_WITHOUT_SILHOUETTE = False
 PANEL_WEIGHT = 0.0
 
 
+#: Weight of the face-shading spread (:func:`~jaxpose.pipelines.monocular.score._face_spread`)
+#: in the ranking key of the shortlist and of the final candidates: ``+ SPREAD_WEIGHT x tau x``
+#: the spread (pixels). See the docs' monocular evaluation page for how it was chosen.
+SPREAD_WEIGHT = 0.0
+#: Its weight in the quick score of every hypothesis (on the pooled grid; 0: off).
+SPREAD_QUICK_WEIGHT = 0.0
+
+
 @dataclass(frozen=True)
 class InitOptions:
     """Options of :func:`initialise_pose`."""
@@ -134,6 +144,8 @@ class InitOptions:
     # place the attitude grid on the ROI when the image has no silhouette (an Earth behind)
     grid_without_silhouette: bool = GRID_WITHOUT_SILHOUETTE
     panel_weight: float = PANEL_WEIGHT  # + this x tau x _panel_term (0: off)
+    spread_weight: float = SPREAD_WEIGHT  # + this x tau x _face_spread in the ranking (0: off)
+    spread_quick_weight: float = SPREAD_QUICK_WEIGHT  # the same in the quick score (0: off)
     ransac_iterations: int | None = None
     ransac_seed: int = 0
     confidence: dict = field(default_factory=lambda: dict(CONFIDENCE))
@@ -165,6 +177,8 @@ class InitResult:
     # ranking key of the best candidate with an attitude > 10 deg away minus the chosen one's,
     # over l_ROI (inf: no distinct candidate)
     margin: float | None = None
+    # face-shading spread at the final pose (score._face_spread; lower: faces more uniform)
+    face_spread: float | None = None
     # with InitOptions(trace=True): the poses of each stage (jaxpose.pipelines.monocular.diagnose)
     trace: dict | None = None
 
@@ -192,6 +206,7 @@ class InitResult:
             "silhouette_iou": self.silhouette_iou,
             "orientation_agreement": self.orientation_agreement,
             "margin": _finite_or_none(self.margin),
+            "face_spread": self.face_spread,
             "message": self.message,
         }
 

@@ -15,6 +15,7 @@ from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR, InitOptions, 
 from jaxpose.pipelines.monocular.rematch import _e2d, _rematch_refine
 from jaxpose.pipelines.monocular.scene import _as_jax, _edge_scene
 from jaxpose.pipelines.monocular.score import (
+    _jit_face_spread,
     _jit_orientation_term,
     _jit_silhouette_term,
     _score_poses,
@@ -52,6 +53,8 @@ def initialise_pose(
         "silhouette_weight",
         "orientation_weight",
         "panel_weight",
+        "spread_weight",
+        "spread_quick_weight",
     ):
         w = getattr(options, name)
         if not np.isfinite(w) or w < 0:
@@ -138,9 +141,14 @@ def initialise_pose(
     pose_R, pose_t = jnp.asarray(pose.R), jnp.asarray(pose.t)
     ori = 1.0 - float(_jit_orientation_term()(pose_R, pose_t, sc_ori))
     margin = _margin(poses, np.where(good, key, np.inf), best) / l_roi
+    spread = None
+    if sc.shade_pts is not None:
+        spread = float(_jit_face_spread()(pose_R, pose_t, sc))
     timings["select_s"] = time.perf_counter() - t1
     s_rel = float(score[best]) / l_roi
-    conf = classify(s_rel, coverage, options.confidence, orientation=ori, margin=margin)
+    conf = classify(
+        s_rel, coverage, options.confidence, orientation=ori, margin=margin, spread=spread
+    )
     timings["total_s"] = 0.0
     total = time.perf_counter() - t0
     timings = {k: v for k, v in timings.items() if k != "total_s"}
@@ -166,6 +174,7 @@ def initialise_pose(
         silhouette_iou=sil_iou,
         orientation_agreement=ori,
         margin=margin,
+        face_spread=spread,
     )
 
 
