@@ -80,6 +80,19 @@ def true_pose_score(res, pose, model, opts) -> float:
     return float(_chamfer(Rf, tf, sc)[0]) / roi_diagonal(res.detection.roi)
 
 
+def spread_with_background(res, model) -> float | None:
+    """The face-shading spread at the returned pose with the background as one more label
+    (``_face_spread(..., background=True)``; a diagnostic for the confidence calibration)."""
+    from jaxpose.pipelines.monocular.scene import _edge_scene
+    from jaxpose.pipelines.monocular.score import _jit_face_spread
+
+    if res.pose is None or res.detection is None or res.detection.roi is None:
+        return None
+    sc = _edge_scene(res.detection, model, InitOptions())
+    R, t = jnp.asarray(np.asarray(res.pose.R)), jnp.asarray(np.asarray(res.pose.t))
+    return float(_jit_face_spread()(R, t, sc, False, True))
+
+
 def _mean(values) -> float | None:
     """Mean of a list, ``None`` when empty (a domain without images of that kind)."""
     return float(np.mean(values)) if values else None
@@ -146,6 +159,7 @@ def _speedplus(args, model, opts) -> None:
             row["stages"] = stage_breakdown(result, label.pose, model)
         row["score"], row["coverage"] = result.score, result.coverage
         row["face_spread"] = result.face_spread
+        row["face_spread_bg"] = spread_with_background(result, model)
         row["timings"] = result.timings
 
     out = evaluate_speedplus(args.speedplus, limit=None, model=model, options=opts, on_result=hook)
@@ -358,6 +372,7 @@ def main() -> None:
             "silhouette_iou": res.silhouette_iou,
             "orientation_agreement": res.orientation_agreement,
             "face_spread": res.face_spread,
+            "face_spread_bg": spread_with_background(res, model),
             "margin": res.margin if res.margin is not None and np.isfinite(res.margin) else None,
             "e2d_px": res.reprojection_error_px if np.isfinite(res.reprojection_error_px) else None,
             "runtime_s": wall,

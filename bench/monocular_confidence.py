@@ -9,10 +9,11 @@ edge coverage at least ``high_coverage``, the orientation agreement at least
 ``high_orientation``, the margin to the best distinct candidate at least ``high_margin`` and the
 face-shading spread at most ``high_spread``
 (:func:`jaxpose.pipelines.monocular.classify`). Thresholds are chosen on a training set as the
-rule that gives the most correct ``high`` answers with a training precision of at least
-``--precision`` on the renders and on the SPEED+ images apart (the renders, far more numerous and
-far cleaner, would otherwise set the rule for the photographs), among thresholds at the observed
-values (the most conservative on ties).
+rule that makes ``high`` the largest share of the successes of the renders plus the largest share
+of the successes of the SPEED+ images (each source weighs the same: the renders, far more
+numerous and far cleaner, would otherwise set the rule for the photographs), with a training
+precision of at least ``--precision`` on the renders and on the SPEED+ images apart, among
+thresholds at the quantiles of each source's successes (fewer wrong ``high`` answers on ties).
 
 Reported: the thresholds chosen on everything (renders and SPEED+ images together), and the
 leave-one-out figures on the SPEED+ images: each image classified by thresholds chosen without
@@ -32,7 +33,7 @@ KEYS = ("score", "coverage", "orientation_agreement", "margin", "face_spread")
 SIGNS = (1, -1, -1, -1, 1)
 
 
-def _records(paths, source):
+def _records(paths, source, spread_key="face_spread"):
     out = []
     for p in paths:
         for r in json.load(open(p))["per_image"]:
@@ -48,8 +49,8 @@ def _records(paths, source):
                     "orientation_agreement": float(r["orientation_agreement"]),
                     "margin": np.inf if r.get("margin") is None else float(r["margin"]),
                     "face_spread": -np.inf
-                    if r.get("face_spread") is None
-                    else float(r["face_spread"]),
+                    if r.get(spread_key) is None
+                    else float(r[spread_key]),
                 }
             )
     return out
@@ -61,11 +62,11 @@ def _high(rec, th):
     )
 
 
-def _choose(records, precision, grid=12, keys=KEYS):
+def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None):
     """Thresholds (one per quantity of ``KEYS``: at most for score and spread, at least for the
-    others): the most correct ``high`` answers with training precision >= ``precision`` on the
-    renders and on the SPEED+ images apart; ties to fewer wrong ones, then the first found
-    (the strictest). Quantities not in ``keys`` are left open."""
+    others): the largest sum of the shares of each source's successes made ``high``, with
+    training precision >= ``precision`` on the renders and on the SPEED+ images apart; ties to
+    fewer wrong ones, then the first found. Quantities not in ``keys`` are left open."""
     ok = [r for r in records if r["success"]]
     open_th = tuple(np.inf if sg > 0 else -np.inf for sg in SIGNS)
     if not ok:
@@ -75,9 +76,13 @@ def _choose(records, precision, grid=12, keys=KEYS):
         if k not in keys:
             cands.append(np.array([np.inf if sg > 0 else -np.inf]))
             continue
-        v = np.array([r[k] for r in ok])
-        v = v[np.isfinite(v)]
-        qs = np.unique(np.quantile(v, np.linspace(0, 1, grid))) if len(v) else np.array([])
+        qs = []  # quantiles of the successes of each source apart (the photographs' own values)
+        for s in ("render", "speedplus"):
+            v = np.array([r[k] for r in ok if r["source"] == s])
+            v = v[np.isfinite(v)]
+            if len(v):
+                qs.append(np.quantile(v, np.linspace(0, 1, grid)))
+        qs = np.unique(np.concatenate(qs)) if qs else np.array([])
         cands.append(np.concatenate([qs, [np.inf if sg > 0 else -np.inf]]))
     X = np.array([[r[k] for k in KEYS] for r in records])  # (N, K)
     succ = np.array([r["success"] for r in records])
@@ -87,27 +92,31 @@ def _choose(records, precision, grid=12, keys=KEYS):
         (X[None, :, k] <= c[:, None]) if sg > 0 else (X[None, :, k] >= c[:, None])
         for k, (c, sg) in enumerate(zip(cands, SIGNS, strict=True))
     ]
-    best, best_key = tuple(-v for v in open_th), (0, 0)
+    best, best_key = tuple(-v for v in open_th), (0.0, 0)
     sources = [src == s for s in ("render", "speedplus")]
-    for i0, i1, i2 in itertools.product(*(range(len(c)) for c in cands[:3])):
-        base = passes[0][i0] & passes[1][i1] & passes[2][i2]
+    for i0, i1 in itertools.product(*(range(len(c)) for c in cands[:2])):
+        base = passes[0][i0] & passes[1][i1]
         if not base.any():
             continue
-        sel = base[None, None] & passes[3][:, None] & passes[4][None]  # (J3, J4, N)
+        # (J2, J3, J4, N): every threshold of the last three quantities at once
+        sel = base & passes[2][:, None, None] & passes[3][None, :, None] & passes[4][None, None]
         n_sel = sel.sum(-1)
         good = (sel & succ).sum(-1)
         okp = n_sel > 0
-        for m in sources:
+        for m, p in zip(sources, (precision, precision_speedplus or precision), strict=True):
             ns = (sel & m).sum(-1)
             gs = (sel & m & succ).sum(-1)
-            okp &= gs >= precision * ns
+            okp &= gs >= p * ns
         if not okp.any():
             continue
-        score = np.where(okp, good * 10000 - (n_sel - good), -1)
-        j3, j4 = np.unravel_index(np.argmax(score), score.shape)
-        key = (int(good[j3, j4]), -int(n_sel[j3, j4] - good[j3, j4]))
+        # the share of each source's successes made high, summed (a photograph weighs as much
+        # as the renders together: they are what the rule is for), then fewer wrong highs
+        recall = sum((sel & m & succ).sum(-1) / max((m & succ).sum(), 1) for m in sources)
+        score = np.where(okp, np.round(recall, 9) * 1e4 - (n_sel - good), -1)
+        j = np.unravel_index(np.argmax(score), score.shape)
+        key = (float(np.round(recall[j], 9)), -int(n_sel[j] - good[j]))
         if key > best_key:
-            best = (cands[0][i0], cands[1][i1], cands[2][i2], cands[3][j3], cands[4][j4])
+            best = (cands[0][i0], cands[1][i1], cands[2][j[0]], cands[3][j[1]], cands[4][j[2]])
             best_key = key
     return best
 
@@ -120,17 +129,30 @@ def main() -> None:
     ap.add_argument("--speedplus", nargs="*", default=[])
     ap.add_argument("--precision", type=float, default=0.95)
     ap.add_argument(
+        "--precision-speedplus",
+        type=float,
+        default=None,
+        help="the training precision asked on the SPEED+ images (default: --precision)",
+    )
+    ap.add_argument(
         "--keys",
         nargs="*",
         default=list(KEYS),
         help=f"the quantities the rule may use (default: all of {', '.join(KEYS)})",
     )
+    ap.add_argument(
+        "--spread-key",
+        default="face_spread",
+        help="the record field read as the spread (face_spread_bg: with the background label)",
+    )
     args = ap.parse_args()
-    renders = _records(args.renders, "render")
-    dev = _records(args.speedplus, "speedplus")
+    renders = _records(args.renders, "render", args.spread_key)
+    dev = _records(args.speedplus, "speedplus", args.spread_key)
 
     def choose(records, precision):  # noqa: F811 (the quantities asked for)
-        return _choose(records, precision, keys=tuple(args.keys))
+        return _choose(
+            records, precision, keys=tuple(args.keys), precision_speedplus=args.precision_speedplus
+        )
 
     th_all = choose(renders + dev, args.precision)
     print(

@@ -115,7 +115,7 @@ def _shading_cells(sc: _EdgeScene, coarse: bool):
     return sc.shade_coarse
 
 
-def _face_spread(R, t, sc: _EdgeScene, coarse: bool = False):
+def _face_spread(R, t, sc: _EdgeScene, coarse: bool = False, background: bool = False):
     """Face-shading spread of the pose (about ``[0, 1.5]``; lower is better): the root mean
     square deviation of the grey levels inside the projected front faces from their own face's
     mean, over the root mean square deviation of the whole grid from its mean.
@@ -129,7 +129,9 @@ def _face_spread(R, t, sc: _EdgeScene, coarse: bool = False):
     target's outline. On the 23 SPEED+ development images with a pose, the spread at the
     returned pose separated right from wrong answers better than the chamfer distance (docs:
     monocular evaluation). ``1`` when fewer than 8 cells lie inside the faces. ``coarse``: on the
-    pooled grid (:func:`_shading_cells`)."""
+    pooled grid (:func:`_shading_cells`). ``background``: the cells farther than the band from
+    every projected face count too, as one more label (a pose whose faces lie on a uniform
+    background then pays for the target it leaves in the background)."""
     pts, val, sq = _shading_cells(sc, coarse)
     poly = sc.face_poly
     F = poly.shape[0]
@@ -138,7 +140,13 @@ def _face_spread(R, t, sc: _EdgeScene, coarse: bool = False):
     depth = jnp.where(inside, depth_f[:, None], jnp.inf)
     label = jnp.argmin(depth, axis=0)  # (P,)
     use = jnp.any(inside, 0) & jnp.take_along_axis(deep, label[None], axis=0)[0]
-    onehot = jax.nn.one_hot(label, F, dtype=val.dtype) * use[:, None].astype(val.dtype)
+    n_faces = jnp.sum(use)
+    if background:
+        grown, _ = _face_cover(R, t, pts, poly, sc.geom, sc.cam4, band=-SPREAD_BAND * sc.tau)
+        away = ~jnp.any(grown, 0)
+        label = jnp.where(away, F, label)
+        use = use | away
+    onehot = jax.nn.one_hot(label, F + 1, dtype=val.dtype) * use[:, None].astype(val.dtype)
     cnt = jnp.sum(onehot, 0)
     mean = (onehot.T @ val) / jnp.maximum(cnt, 1.0)
     m = onehot @ mean
@@ -146,12 +154,12 @@ def _face_spread(R, t, sc: _EdgeScene, coarse: bool = False):
     n = jnp.sum(cnt)
     total = jnp.maximum(jnp.mean(sq) - jnp.mean(val) ** 2, 1e-12)
     spread = jnp.sqrt(jnp.maximum(dev / jnp.maximum(n, 1.0), 0.0) / total)
-    return jnp.where(n >= 8, spread, 1.0)
+    return jnp.where(n_faces >= 8, spread, 1.0)
 
 
 @functools.lru_cache(maxsize=4)
 def _jit_face_spread():
-    return jax.jit(_face_spread, static_argnames="coarse")
+    return jax.jit(_face_spread, static_argnames=("coarse", "background"))
 
 
 def _silhouette_cells(sc: _EdgeScene, coarse: bool):
