@@ -21,7 +21,7 @@ from jaxpose.pipelines.monocular.score import (
     _score_poses,
 )
 from jaxpose.vision.features import detect
-from jaxpose.vision.image_maps import orientation_maps
+from jaxpose.vision.image_maps import orientation_maps, shading_grid
 from jaxpose.vision.models import WireframeModel, tango
 from jaxpose.vision.render import visible_edges
 from jaxpose.vision.roi import roi_diagonal
@@ -141,9 +141,13 @@ def initialise_pose(
     pose_R, pose_t = jnp.asarray(pose.R), jnp.asarray(pose.t)
     ori = 1.0 - float(_jit_orientation_term()(pose_R, pose_t, sc_ori))
     margin = _margin(poses, np.where(good, key, np.inf), best) / l_roi
-    spread = None
-    if sc.shade_pts is not None:
-        spread = float(_jit_face_spread()(pose_R, pose_t, sc))
+    spread = None  # evidence for the class whatever its ranking weight (None: no faces)
+    if sc.face_poly is not None and len(model.faces):
+        sc_sh = sc
+        if sc.shade_pts is None:
+            cells = _as_jax(shading_grid(det.image, det.roi))
+            sc_sh = sc._replace(shade_pts=cells[0], shade_val=cells[1], shade_sq=cells[2])
+        spread = float(_jit_face_spread()(pose_R, pose_t, sc_sh))
     timings["select_s"] = time.perf_counter() - t1
     s_rel = float(score[best]) / l_roi
     conf = classify(

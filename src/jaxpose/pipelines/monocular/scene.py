@@ -38,7 +38,7 @@ class _EdgeScene(NamedTuple):
     model's solar panel followed by its corner and two sides (:func:`_panel_geometry`), for the
     panel term (``None`` when its weight is 0 or the model has no panel); ``shade_pts (P, 2)``,
     ``shade_val (P,)``, ``shade_sq (P,)``: :func:`jaxpose.vision.image_maps.shading_grid`, for
-    the face-shading term (``None`` when the model has no faces), and ``shade_coarse``: their
+    the face-shading term (``None`` when the model has no faces or both its weights are 0), and ``shade_coarse``: their
     2x2 pooling (:func:`_pool_shading`) for the quick score (``None`` when its weight is 0)."""
 
     geom: tuple
@@ -86,7 +86,8 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
     sil = options.silhouette_weight > 0 and det.silhouette is not None and len(model.faces) > 0
     ori = options.orientation_weight > 0
     panel = _panel_geometry(model) if options.panel_weight > 0 else None
-    shade = len(model.faces) > 0
+    # the shading grid only where a ranking reads it (the pipeline makes it for the final pose)
+    shade = len(model.faces) > 0 and (options.spread_weight > 0 or options.spread_quick_weight > 0)
     cells = _as_jax(image_maps.shading_grid(det.image, det.roi)) if shade else (None, None, None)
     coarse = _pool_shading(*cells) if shade and options.spread_quick_weight > 0 else None
     return _EdgeScene(
@@ -97,7 +98,7 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
         0.05 * l_roi,
         _ideal_params(det.camera),
         *(_as_jax(image_maps.region_grid(det.image, det.roi)) if region else (None, None)),
-        _face_polygons(model) if region or sil or shade else None,
+        _face_polygons(model) if len(model.faces) else None,
         float(options.region_weight),
         *(_as_jax(image_maps.rod_map(det.image, det.roi)) if antennas else (None, None)),
         float(options.antenna_weight),
