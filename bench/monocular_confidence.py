@@ -48,9 +48,7 @@ def _records(paths, source, spread_key="face_spread"):
                     "coverage": float(r["coverage"]),
                     "orientation_agreement": float(r["orientation_agreement"]),
                     "margin": np.inf if r.get("margin") is None else float(r["margin"]),
-                    "face_spread": -np.inf
-                    if r.get(spread_key) is None
-                    else float(r[spread_key]),
+                    "face_spread": -np.inf if r.get(spread_key) is None else float(r[spread_key]),
                 }
             )
     return out

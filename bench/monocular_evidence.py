@@ -9,20 +9,21 @@ the shortlist is, measured by the pipeline's own terms and by candidate new ones
 Per candidate (``close``: within 10 deg and 0.30 m of the label) it records:
 
 - the ranking key and its terms (chamfer, region energy, antenna, silhouette, orientation, panel);
-- ``basin`` (with ``--basin``): the share of ``BASIN_STARTS`` perturbed starts (``BASIN_DEG`` about a random axis,
-  ``BASIN_SHIFT`` of the range along each axis) that the shortlist's edge fit brings back within
+- ``basin`` (with ``--basin``): the share of ``BASIN_STARTS`` perturbed starts (``BASIN_DEG``
+  about a random axis, ``BASIN_SHIFT`` of the range along each axis) that the shortlist's edge fit brings back within
   2 deg and 1% of the range of the candidate's own fit;
 - ``contour_contrast``: the grey-level step across the projected outer contour (the border of the
   union of front faces) over the crop's spread; ``inner_contrast``: across the projected inner
   edges (between two front faces); ``face_spread``: the mean within-face spread of grey levels
   over the crop's spread;
 - ``ori_outer``, ``ori_inner``: the LINE-2D agreement at the contour edges and at the inner edges;
-- ``explained``: the share of strong image gradients inside the projected body (grown by 5%)
-  within ``2% l_ROI`` of a projected visible edge.
+- ``explained``: the share of strong image gradients inside the projected body (grown by
+  2% of ``l_ROI``) within ``2% l_ROI`` of a projected visible edge;
+- ``spread``: the package's face-shading spread (``score._face_spread``, 48 x 48 grid).
 
 ``--analyse`` prints, per quantity, how often it prefers the fitted label (when the fit stays
-within 30 deg and 0.5 m of the label) to the answer on the wrong answers, the within-image pairwise AUC (close candidates against the others) and the AUC of
-the answer's value for right against wrong answers (the confidence).
+within 30 deg and 0.5 m of the label) to the answer on the wrong answers, the within-image
+pairwise AUC (close candidates against the others) and the AUC of the answer's value for right against wrong answers (the confidence).
 """
 
 from __future__ import annotations
@@ -125,7 +126,9 @@ def _labels(model, R, t, cam4, crop):
         if np.all(P[:, 2] > 1e-3) and np.dot(n, P.mean(0)) < 0:
             order.append((P[:, 2].mean(), f, P))
     for _, f, P in sorted(order, key=lambda x: -x[0]):
-        uv = np.stack([cam4[0] * P[:, 0] / P[:, 2] + cam4[2], cam4[1] * P[:, 1] / P[:, 2] + cam4[3]], 1)
+        uv = np.stack(
+            [cam4[0] * P[:, 0] / P[:, 2] + cam4[2], cam4[1] * P[:, 1] / P[:, 2] + cam4[3]], 1
+        )
         q = np.round(crop.to_crop(uv) * 4).astype(np.int32)
         cv2.fillConvexPoly(lab, q, int(f), lineType=cv2.LINE_8, shift=2)
     return lab, [f for _, f, _ in order]
@@ -184,7 +187,13 @@ def _image_features(model, R, t, cam4, crop, ori, ori_frame, geom):
             continue
         if np.any(Vc[e, :, 2] <= 1e-3):
             continue
-        uv = np.stack([cam4[0] * Vc[e, :, 0] / Vc[e, :, 2] + cam4[2], cam4[1] * Vc[e, :, 1] / Vc[e, :, 2] + cam4[3]], 1)
+        uv = np.stack(
+            [
+                cam4[0] * Vc[e, :, 0] / Vc[e, :, 2] + cam4[2],
+                cam4[1] * Vc[e, :, 1] / Vc[e, :, 2] + cam4[3],
+            ],
+            1,
+        )
         q = crop.to_crop(uv)
         cv2.line(canvas, tuple(int(x) for x in q[0]), tuple(int(x) for x in q[1]), 0, 1)
         if len(fs):
@@ -222,7 +231,6 @@ def candidate_rows(res, truth: Pose | None, model, rng, args_basin=False):
     sc0 = _edge_scene(det, model, InitOptions())
     l_roi = roi_diagonal(det.roi)
     cands = [(np.asarray(p.R), np.asarray(p.t)) for p in res.trace["refined"]]
-    keys = np.asarray(res.trace["keys"])
     kinds = ["candidate"] * len(cands)
     if truth is not None:
         Rf, tf = _chamfer_fit(jnp.asarray(truth.R), jnp.asarray(truth.t), sc0, steps=12)
@@ -405,9 +413,7 @@ def analyse(paths):
         rs = [r for r in rows if r["source"] == source]
         images = sorted({r["image"] for r in rs})
         print(f"\n== {source}: {len(images)} images")
-        print(
-            f"{'quantity':18s} {'near label preferred':>22s} {'pair AUC':>9s} {'conf AUC':>9s}"
-        )
+        print(f"{'quantity':18s} {'near label preferred':>22s} {'pair AUC':>9s} {'conf AUC':>9s}")
         for q, sign in QUANTITIES.items():
             better = worse = 0
             pa_num = pa_den = 0.0

@@ -38,8 +38,9 @@ class _EdgeScene(NamedTuple):
     model's solar panel followed by its corner and two sides (:func:`_panel_geometry`), for the
     panel term (``None`` when its weight is 0 or the model has no panel); ``shade_pts (P, 2)``,
     ``shade_val (P,)``, ``shade_sq (P,)``: :func:`jaxpose.vision.image_maps.shading_grid`, for
-    the face-shading term (``None`` when the model has no faces or both its weights are 0), and ``shade_coarse``: their
-    2x2 pooling (:func:`_pool_shading`) for the quick score (``None`` when its weight is 0)."""
+    the face-shading term (``None`` when the model has no faces or both its weights are 0), and
+    ``shade_coarse``: their 2x2 pooling (:func:`_pool_shading`) for the quick score (``None``
+    when its weight is 0)."""
 
     geom: tuple
     img_pts: jax.Array
