@@ -10,8 +10,8 @@ Per candidate (``close``: within 10 deg and 0.30 m of the label) it records:
 
 - the ranking key and its terms (chamfer, region energy, antenna, silhouette, orientation, panel);
 - ``basin`` (with ``--basin``): the share of ``BASIN_STARTS`` perturbed starts (``BASIN_DEG``
-  about a random axis, ``BASIN_SHIFT`` of the range along each axis) that the shortlist's edge fit brings back within
-  2 deg and 1% of the range of the candidate's own fit;
+  about a random axis, ``BASIN_SHIFT`` of the range along each axis) that the shortlist's edge
+  fit brings back within 2 deg and 1% of the range of the candidate's own fit;
 - ``contour_contrast``: the grey-level step across the projected outer contour (the border of the
   union of front faces) over the crop's spread; ``inner_contrast``: across the projected inner
   edges (between two front faces); ``face_spread``: the mean within-face spread of grey levels
@@ -23,7 +23,8 @@ Per candidate (``close``: within 10 deg and 0.30 m of the label) it records:
 
 ``--analyse`` prints, per quantity, how often it prefers the fitted label (when the fit stays
 within 30 deg and 0.5 m of the label) to the answer on the wrong answers, the within-image
-pairwise AUC (close candidates against the others) and the AUC of the answer's value for right against wrong answers (the confidence).
+pairwise AUC (close candidates against the others) and the AUC of the answer's value for right
+against wrong answers (the confidence).
 """
 
 from __future__ import annotations
