@@ -38,6 +38,8 @@ from jaxpose.pipelines.monocular import (  # noqa: E402
     PANEL_WEIGHT,
     REGION_WEIGHT,
     SILHOUETTE_WEIGHT,
+    SPREAD_QUICK_WEIGHT,
+    SPREAD_WEIGHT,
     InitOptions,
     initialise_pose,
 )
@@ -76,6 +78,19 @@ def true_pose_score(res, pose, model, opts) -> float:
     R0, t0 = jnp.asarray(np.asarray(pose.R)), jnp.asarray(np.asarray(pose.t))
     Rf, tf = _chamfer_fit(R0, t0, sc, steps=12)
     return float(_chamfer(Rf, tf, sc)[0]) / roi_diagonal(res.detection.roi)
+
+
+def spread_with_background(res, model) -> float | None:
+    """The face-shading spread at the returned pose with the background as one more label
+    (``_face_spread(..., background=True)``; a diagnostic for the confidence calibration)."""
+    from jaxpose.pipelines.monocular.scene import _edge_scene
+    from jaxpose.pipelines.monocular.score import _jit_face_spread
+
+    if res.pose is None or res.detection is None or res.detection.roi is None:
+        return None
+    sc = _edge_scene(res.detection, model, InitOptions())
+    R, t = jnp.asarray(np.asarray(res.pose.R)), jnp.asarray(np.asarray(res.pose.t))
+    return float(_jit_face_spread()(R, t, sc, False, True))
 
 
 def _mean(values) -> float | None:
@@ -143,6 +158,8 @@ def _speedplus(args, model, opts) -> None:
         if args.stages:
             row["stages"] = stage_breakdown(result, label.pose, model)
         row["score"], row["coverage"] = result.score, result.coverage
+        row["face_spread"] = result.face_spread
+        row["face_spread_bg"] = spread_with_background(result, model)
         row["timings"] = result.timings
 
     out = evaluate_speedplus(args.speedplus, limit=None, model=model, options=opts, on_result=hook)
@@ -234,6 +251,18 @@ def main() -> None:
         help="weight of the solar-panel (cell lines) term in the ranking (0: off)",
     )
     ap.add_argument(
+        "--spread-weight",
+        type=float,
+        default=SPREAD_WEIGHT,
+        help="weight of the face-shading spread in the ranking (0: off)",
+    )
+    ap.add_argument(
+        "--spread-quick-weight",
+        type=float,
+        default=SPREAD_QUICK_WEIGHT,
+        help="weight of the face-shading spread in the quick score (0: off)",
+    )
+    ap.add_argument(
         "--grid-on-roi",
         action="store_true",
         help="place the attitude grid on the ROI when the image has no silhouette "
@@ -289,6 +318,8 @@ def main() -> None:
         attitude_grid=args.attitude_grid,
         orientation_weight=args.orientation_weight,
         panel_weight=args.panel_weight,
+        spread_weight=args.spread_weight,
+        spread_quick_weight=args.spread_quick_weight,
         grid_without_silhouette=args.grid_on_roi,
         confidence=dict(
             CONFIDENCE, **({} if args.low_score is None else {"low_score": args.low_score})
@@ -340,6 +371,8 @@ def main() -> None:
             "coverage": res.coverage,
             "silhouette_iou": res.silhouette_iou,
             "orientation_agreement": res.orientation_agreement,
+            "face_spread": res.face_spread,
+            "face_spread_bg": spread_with_background(res, model),
             "margin": res.margin if res.margin is not None and np.isfinite(res.margin) else None,
             "e2d_px": res.reprojection_error_px if np.isfinite(res.reprojection_error_px) else None,
             "runtime_s": wall,

@@ -67,6 +67,7 @@ def evaluate_image(result, truth: Pose) -> dict:
     row["coverage"] = float(result.coverage)
     row["orientation_agreement"] = result.orientation_agreement
     row["margin"] = _finite_or_none(result.margin)
+    row["face_spread"] = result.face_spread
     guess = result.pose
     if guess is not None:
         row["translation_error_m"] = float(jnp.linalg.norm(guess.t - truth.t))

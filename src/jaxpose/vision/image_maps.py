@@ -22,6 +22,8 @@ __all__ = [
     "roi_cells",
     "rod_map",
     "segment_samples",
+    "SHADING_GRID",
+    "shading_grid",
     "silhouette_grid",
     "texture_maps",
 ]
@@ -84,6 +86,31 @@ def region_grid(image: np.ndarray, roi) -> tuple[np.ndarray, np.ndarray]:
     image edge replicated where the grown ROI leaves the image)."""
     pts, val = roi_cells(image, roi, REGION_GRID, REGION_MARGIN, min_cells=REGION_GRID)
     return pts, val
+
+
+#: Face-shading term (``pipelines.monocular.score._face_spread``): a ``SHADING_GRID x
+#: SHADING_GRID`` grid of cells over the ROI grown by ``REGION_MARGIN`` (finer than the region
+#: grid: a face must keep cells once its border is left out). Chosen, not tuned.
+SHADING_GRID = 48
+
+
+def shading_grid(image: np.ndarray, roi) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cell centres ``(G^2, 2)``, cell mean grey levels ``(G^2,)`` and cell mean *squared* grey
+    levels ``(G^2,)`` over the grown ROI (``G = SHADING_GRID``; grey levels over the crop's
+    99th percentile, so that the two moments keep the spread of the texture inside each cell)."""
+    u0, v0, u1, v1 = (float(x) for x in roi)
+    mu, mv = REGION_MARGIN * (u1 - u0) + 2.0, REGION_MARGIN * (v1 - v0) + 2.0
+    H, W = image.shape
+    a0, b0 = int(min(max(np.floor(u0 - mu), 0), W - 1)), int(min(max(np.floor(v0 - mv), 0), H - 1))
+    a1, b1 = int(max(np.ceil(u1 + mu) + 1, a0 + 1)), int(max(np.ceil(v1 + mv) + 1, b0 + 1))
+    # the crop that roi_cells reads (the replicated border outside the image is the same)
+    crop = image[b0:b1, a0:a1].astype(np.float32)
+    sub = np.asarray(roi, float) - [a0, b0, a0, b0]
+    pts, val = roi_cells(crop, sub, SHADING_GRID, REGION_MARGIN, min_cells=SHADING_GRID)
+    _, sq = roi_cells(crop * crop, sub, SHADING_GRID, REGION_MARGIN, min_cells=SHADING_GRID)
+    pts = pts + [a0, b0]
+    top = max(float(np.percentile(val, 99.0)), 1e-6)
+    return pts, val / top, sq / (top * top)
 
 
 def silhouette_grid(mask: np.ndarray, factor: int, roi) -> tuple[np.ndarray, np.ndarray]:

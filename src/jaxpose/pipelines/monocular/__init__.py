@@ -34,6 +34,8 @@ from jaxpose.pipelines.monocular.options import PANEL_WEIGHT as PANEL_WEIGHT
 from jaxpose.pipelines.monocular.options import REGION_WEIGHT as REGION_WEIGHT
 from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR as ROI_LENGTH_FACTOR
 from jaxpose.pipelines.monocular.options import SILHOUETTE_WEIGHT as SILHOUETTE_WEIGHT
+from jaxpose.pipelines.monocular.options import SPREAD_QUICK_WEIGHT as SPREAD_QUICK_WEIGHT
+from jaxpose.pipelines.monocular.options import SPREAD_WEIGHT as SPREAD_WEIGHT
 from jaxpose.pipelines.monocular.options import InitOptions as InitOptions
 from jaxpose.pipelines.monocular.options import InitResult as InitResult
 from jaxpose.pipelines.monocular.pipeline import initialise_pose as initialise_pose
@@ -49,6 +51,8 @@ __all__ = [
     "REGION_WEIGHT",
     "ROI_LENGTH_FACTOR",
     "SILHOUETTE_WEIGHT",
+    "SPREAD_QUICK_WEIGHT",
+    "SPREAD_WEIGHT",
     "InitOptions",
     "InitResult",
     "classify",

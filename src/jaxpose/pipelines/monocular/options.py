@@ -20,6 +20,8 @@ __all__ = [
     "GRID_WITHOUT_SILHOUETTE",
     "ORIENTATION_WEIGHT",
     "PANEL_WEIGHT",
+    "SPREAD_WEIGHT",
+    "SPREAD_QUICK_WEIGHT",
     "InitOptions",
     "InitResult",
 ]
@@ -29,24 +31,26 @@ __all__ = [
 #: the symmetric truncated chamfer distance at the final pose divided by ``l_ROI``; the coverage
 #: the share of visible model edges with a detected endpoint nearby; the orientation agreement
 #: the mean LINE-2D similarity at the projected edges; the margin the ranking key of the best
-#: candidate with an attitude more than 10 deg away minus the chosen one's, over ``l_ROI``.
+#: candidate with an attitude more than 10 deg away minus the chosen one's, over ``l_ROI``; the
+#: spread the face-shading spread at the pose (``score._face_spread``: the grey-level spread
+#: inside the projected faces over the ROI's).
 #: ``high``: score at most ``high_score``, coverage at least ``high_coverage``, orientation
-#: agreement at least ``high_orientation`` and margin at least ``high_margin`` (chosen by
-#: ``bench/monocular_confidence.py``, leave-one-out, docs: monocular evaluation);
-#: ``low``: any other pose whose score is at most ``low_score`` (a pose that fits the edges at
-#: all); otherwise ``position-only`` (the coarse position from the ROI). The range of the pose is
-#: *not* checked against the ROI's coarse range: an Earth background inflates the ROI.
-#: Chosen by ``python bench/monocular_confidence.py --precision 0.98`` on 60 development renders
-#: (seed 7: 20 each of the space, lightbox and lightbox-over-Earth domains) and the 24 SPEED+
-#: development images, precision >= 98% on each apart, values rounded outwards where that changes
-#: no class: renders 37 high, all right; SPEED+ 1 high, right, and 1 of 23 (right) by
-#: leave-one-out. ``low_score`` (0.1, set before measuring) returns every pose that fits the
-#: edges at all: the correct poses on the lightbox photographs score 0.028-0.046 ``l_ROI``.
+#: agreement at least ``high_orientation``, margin at least ``high_margin`` and spread at most
+#: ``high_spread``; ``low``: any other pose whose score is at most ``low_score`` (a pose that
+#: fits the edges at all); otherwise ``position-only`` (the coarse position from the ROI). The
+#: range of the pose is *not* checked against the ROI's coarse range: an Earth background
+#: inflates the ROI. Chosen by ``python bench/monocular_confidence.py --precision 0.98`` on 60
+#: development renders (seed 7: 20 each of the space, lightbox and lightbox-over-Earth domains)
+#: and the 24 SPEED+ development images, precision >= 98% on each apart, values rounded outwards
+#: where that changes no class: renders 44 high, all right; SPEED+ 3 high, all right, and 2 of
+#: 23 (both right) by leave-one-out (docs: monocular evaluation). ``low_score`` (0.1, set before
+#: measuring) returns every pose that fits the edges at all.
 CONFIDENCE = {
-    "high_score": 0.025,
-    "high_coverage": 0.76,
-    "high_orientation": 0.38,
-    "high_margin": 0.011,
+    "high_score": 0.036,
+    "high_coverage": 0.948,
+    "high_orientation": 0.61,
+    "high_margin": 0.0045,
+    "high_spread": 0.6,
     "low_score": 0.1,
 }
 
@@ -115,6 +119,14 @@ GRID_WITHOUT_SILHOUETTE = False
 PANEL_WEIGHT = 0.0
 
 
+#: Weight of the face-shading spread (:func:`~jaxpose.pipelines.monocular.score._face_spread`)
+#: in the ranking key of the shortlist and of the final candidates: ``+ SPREAD_WEIGHT x tau x``
+#: the spread (pixels). See the docs' monocular evaluation page for how it was chosen.
+SPREAD_WEIGHT = 0.0
+#: Its weight in the quick score of every hypothesis (on the pooled grid; 0: off).
+SPREAD_QUICK_WEIGHT = 0.0
+
+
 @dataclass(frozen=True)
 class InitOptions:
     """Options of :func:`initialise_pose`."""
@@ -134,6 +146,8 @@ class InitOptions:
     # place the attitude grid on the ROI when the image has no silhouette (an Earth behind)
     grid_without_silhouette: bool = GRID_WITHOUT_SILHOUETTE
     panel_weight: float = PANEL_WEIGHT  # + this x tau x _panel_term (0: off)
+    spread_weight: float = SPREAD_WEIGHT  # + this x tau x _face_spread in the ranking (0: off)
+    spread_quick_weight: float = SPREAD_QUICK_WEIGHT  # the same in the quick score (0: off)
     ransac_iterations: int | None = None
     ransac_seed: int = 0
     confidence: dict = field(default_factory=lambda: dict(CONFIDENCE))
@@ -165,6 +179,8 @@ class InitResult:
     # ranking key of the best candidate with an attitude > 10 deg away minus the chosen one's,
     # over l_ROI (inf: no distinct candidate)
     margin: float | None = None
+    # face-shading spread at the final pose (score._face_spread; lower: faces more uniform)
+    face_spread: float | None = None
     # with InitOptions(trace=True): the poses of each stage (jaxpose.pipelines.monocular.diagnose)
     trace: dict | None = None
 
@@ -192,6 +208,7 @@ class InitResult:
             "silhouette_iou": self.silhouette_iou,
             "orientation_agreement": self.orientation_agreement,
             "margin": _finite_or_none(self.margin),
+            "face_spread": self.face_spread,
             "message": self.message,
         }
 

@@ -15,12 +15,13 @@ from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR, InitOptions, 
 from jaxpose.pipelines.monocular.rematch import _e2d, _rematch_refine
 from jaxpose.pipelines.monocular.scene import _as_jax, _edge_scene
 from jaxpose.pipelines.monocular.score import (
+    _jit_face_spread,
     _jit_orientation_term,
     _jit_silhouette_term,
     _score_poses,
 )
 from jaxpose.vision.features import detect
-from jaxpose.vision.image_maps import orientation_maps
+from jaxpose.vision.image_maps import orientation_maps, shading_grid
 from jaxpose.vision.models import WireframeModel, tango
 from jaxpose.vision.render import visible_edges
 from jaxpose.vision.roi import roi_diagonal
@@ -52,6 +53,8 @@ def initialise_pose(
         "silhouette_weight",
         "orientation_weight",
         "panel_weight",
+        "spread_weight",
+        "spread_quick_weight",
     ):
         w = getattr(options, name)
         if not np.isfinite(w) or w < 0:
@@ -138,9 +141,18 @@ def initialise_pose(
     pose_R, pose_t = jnp.asarray(pose.R), jnp.asarray(pose.t)
     ori = 1.0 - float(_jit_orientation_term()(pose_R, pose_t, sc_ori))
     margin = _margin(poses, np.where(good, key, np.inf), best) / l_roi
+    spread = None  # evidence for the class whatever its ranking weight (None: no faces)
+    if sc.face_poly is not None and len(model.faces):
+        sc_sh = sc
+        if sc.shade_pts is None:
+            cells = _as_jax(shading_grid(det.image, det.roi))
+            sc_sh = sc._replace(shade_pts=cells[0], shade_val=cells[1], shade_sq=cells[2])
+        spread = float(_jit_face_spread()(pose_R, pose_t, sc_sh))
     timings["select_s"] = time.perf_counter() - t1
     s_rel = float(score[best]) / l_roi
-    conf = classify(s_rel, coverage, options.confidence, orientation=ori, margin=margin)
+    conf = classify(
+        s_rel, coverage, options.confidence, orientation=ori, margin=margin, spread=spread
+    )
     timings["total_s"] = 0.0
     total = time.perf_counter() - t0
     timings = {k: v for k, v in timings.items() if k != "total_s"}
@@ -166,6 +178,7 @@ def initialise_pose(
         silhouette_iou=sil_iou,
         orientation_agreement=ori,
         margin=margin,
+        face_spread=spread,
     )
 
 

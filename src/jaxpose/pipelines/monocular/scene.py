@@ -36,7 +36,11 @@ class _EdgeScene(NamedTuple):
     (``None`` when its weight is 0); ``tex (B, S, S)``, ``tex_frame (3,)``:
     :func:`jaxpose.vision.image_maps.texture_maps`, and ``panel (N + 3, 3)``: samples inside the
     model's solar panel followed by its corner and two sides (:func:`_panel_geometry`), for the
-    panel term (``None`` when its weight is 0 or the model has no panel)."""
+    panel term (``None`` when its weight is 0 or the model has no panel); ``shade_pts (P, 2)``,
+    ``shade_val (P,)``, ``shade_sq (P,)``: :func:`jaxpose.vision.image_maps.shading_grid`, for
+    the face-shading term (``None`` when the model has no faces or both its weights are 0), and
+    ``shade_coarse``: their 2x2 pooling (:func:`_pool_shading`) for the quick score (``None``
+    when its weight is 0)."""
 
     geom: tuple
     img_pts: jax.Array
@@ -61,6 +65,12 @@ class _EdgeScene(NamedTuple):
     tex_frame: jax.Array | None = None
     panel: jax.Array | None = None
     panel_weight: float = 0.0
+    shade_pts: jax.Array | None = None
+    shade_val: jax.Array | None = None
+    shade_sq: jax.Array | None = None
+    spread_weight: float = 0.0
+    shade_coarse: tuple | None = None
+    spread_quick_weight: float = 0.0
 
     def chamfer_inputs(self):
         """``(geom, img_pts, img_mask, dt, tau, cam4)``: the fields the chamfer terms use."""
@@ -77,6 +87,10 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
     sil = options.silhouette_weight > 0 and det.silhouette is not None and len(model.faces) > 0
     ori = options.orientation_weight > 0
     panel = _panel_geometry(model) if options.panel_weight > 0 else None
+    # the shading grid only where a ranking reads it (the pipeline makes it for the final pose)
+    shade = len(model.faces) > 0 and (options.spread_weight > 0 or options.spread_quick_weight > 0)
+    cells = _as_jax(image_maps.shading_grid(det.image, det.roi)) if shade else (None, None, None)
+    coarse = _pool_shading(*cells) if shade and options.spread_quick_weight > 0 else None
     return _EdgeScene(
         _model_geometry(model),
         img_pts,
@@ -85,7 +99,7 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
         0.05 * l_roi,
         _ideal_params(det.camera),
         *(_as_jax(image_maps.region_grid(det.image, det.roi)) if region else (None, None)),
-        _face_polygons(model) if region or sil else None,
+        _face_polygons(model) if len(model.faces) else None,
         float(options.region_weight),
         *(_as_jax(image_maps.rod_map(det.image, det.roi)) if antennas else (None, None)),
         float(options.antenna_weight),
@@ -104,6 +118,21 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
         ),
         panel,
         float(options.panel_weight),
+        *cells,
+        float(options.spread_weight),
+        coarse,
+        float(options.spread_quick_weight),
+    )
+
+
+def _pool_shading(pts, val, sq):
+    """2x2 pooling of the shading grid's cells (exact: a pooled cell's two moments are the means
+    of its four cells')."""
+    G = image_maps.SHADING_GRID // 2
+    return (
+        pts.reshape(G, 2, G, 2, 2).mean(axis=(1, 3)).reshape(-1, 2),
+        val.reshape(G, 2, G, 2).mean(axis=(1, 3)).reshape(-1),
+        sq.reshape(G, 2, G, 2).mean(axis=(1, 3)).reshape(-1),
     )
 
 

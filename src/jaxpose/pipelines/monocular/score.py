@@ -46,9 +46,10 @@ def _visible_edges(R, t, geom):
     return jnp.where(has_face, jnp.any(edge_faces & front[None], axis=1), True)
 
 
-def _face_cover(R, t, P, poly, geom, cam4):
+def _face_cover(R, t, P, poly, geom, cam4, band=0.0):
     """Which front-facing projected faces contain each pixel: ``(F, P)`` bool for pixels
-    ``P (P, 2)`` of the undistorted image, and each face centre's depth ``(F,)`` (metres).
+    ``P (P, 2)`` of the undistorted image (with ``band > 0``: at least ``band`` pixels inside
+    every projected side), and each face centre's depth ``(F,)`` (metres).
 
     A face is front-facing when its outward normal points at the camera and every vertex is in
     front of it; its projection is convex (a planar convex polygon under a pinhole camera), so a
@@ -62,7 +63,16 @@ def _face_cover(R, t, P, poly, geom, cam4):
     e = jnp.roll(q, -1, axis=1) - q  # (F, K, 2)
     rel = P[None, None] - q[:, :, None]  # (F, K, P, 2)
     cross = e[:, :, None, 0] * rel[..., 1] - e[:, :, None, 1] * rel[..., 0]
-    inside = jnp.all(cross >= 0, axis=1) | jnp.all(cross <= 0, axis=1)  # (F, P)
+    if not (isinstance(band, float | int) and band == 0):
+        # signed distances to the sides (pixels); padded repeated vertices give zero-length sides
+        ln = jnp.sqrt(jnp.sum(e * e, -1))[:, :, None]
+        real = ln > 1e-9
+        dist = cross / jnp.maximum(ln, 1e-9)
+        pos = jnp.all(jnp.where(real, dist >= band, True), axis=1)
+        neg = jnp.all(jnp.where(real, dist <= -band, True), axis=1)
+        inside = pos | neg
+    else:
+        inside = jnp.all(cross >= 0, axis=1) | jnp.all(cross <= 0, axis=1)  # (F, P)
     inside &= front[:, None] & jnp.all(pv[..., 2] > 1e-3, axis=1)[:, None]
     return inside, c_cam[:, 2]
 
@@ -89,6 +99,67 @@ def _region_energy(R, t, sc: _EdgeScene):
     sse = jnp.sum((val - onehot @ mean) ** 2)
     sst = jnp.sum((val - jnp.mean(val)) ** 2)
     return sse / jnp.maximum(sst, 1e-9)
+
+
+#: Share of ``tau`` by which each projected face is shrunk before the face-shading term reads it
+#: (the border of a face straddles the neighbouring face or the background even at the true pose,
+#: a fitted pose is a few pixels off). Chosen, not tuned.
+SPREAD_BAND = 0.4
+
+
+def _shading_cells(sc: _EdgeScene, coarse: bool):
+    """The shading grid's cells ``(pts, val, sq)``, or with ``coarse`` their 2x2 pooling
+    (``sc.shade_coarse``, a quarter of the cost, for the quick score)."""
+    if not coarse:
+        return sc.shade_pts, sc.shade_val, sc.shade_sq
+    return sc.shade_coarse
+
+
+def _face_spread(R, t, sc: _EdgeScene, coarse: bool = False, background: bool = False):
+    """Face-shading spread of the pose (about ``[0, 1.5]``; lower is better): the root mean
+    square deviation of the grey levels inside the projected front faces from their own face's
+    mean, over the root mean square deviation of the whole grid from its mean.
+
+    Each cell of :func:`jaxpose.vision.image_maps.shading_grid` is labelled by the nearest
+    front-facing face that contains it (painter's order), and counts only when it lies at least
+    ``SPREAD_BAND x tau`` inside that face; a cell contributes its mean squared deviation from
+    the face's mean, the texture inside the cell included (both moments of the cell are known).
+    A box face under one light is near-uniform, so at the true pose every label is one face
+    (lit, saturated or in shadow); a wrong pose's faces straddle faces, background and the
+    target's outline. On the 23 SPEED+ development images with a pose, the spread at the
+    returned pose separated right from wrong answers better than the chamfer distance (docs:
+    monocular evaluation). ``1`` when fewer than 8 cells lie inside the faces. ``coarse``: on the
+    pooled grid (:func:`_shading_cells`). ``background``: the cells farther than the band from
+    every projected face count too, as one more label (a pose whose faces lie on a uniform
+    background then pays for the target it leaves in the background)."""
+    pts, val, sq = _shading_cells(sc, coarse)
+    poly = sc.face_poly
+    F = poly.shape[0]
+    inside, depth_f = _face_cover(R, t, pts, poly, sc.geom, sc.cam4)
+    deep, _ = _face_cover(R, t, pts, poly, sc.geom, sc.cam4, band=SPREAD_BAND * sc.tau)
+    depth = jnp.where(inside, depth_f[:, None], jnp.inf)
+    label = jnp.argmin(depth, axis=0)  # (P,)
+    use = jnp.any(inside, 0) & jnp.take_along_axis(deep, label[None], axis=0)[0]
+    n_faces = jnp.sum(use)
+    if background:
+        grown, _ = _face_cover(R, t, pts, poly, sc.geom, sc.cam4, band=-SPREAD_BAND * sc.tau)
+        away = ~jnp.any(grown, 0)
+        label = jnp.where(away, F, label)
+        use = use | away
+    onehot = jax.nn.one_hot(label, F + 1, dtype=val.dtype) * use[:, None].astype(val.dtype)
+    cnt = jnp.sum(onehot, 0)
+    mean = (onehot.T @ val) / jnp.maximum(cnt, 1.0)
+    m = onehot @ mean
+    dev = jnp.sum(jnp.where(use, sq - 2.0 * m * val + m * m, 0.0))
+    n = jnp.sum(cnt)
+    total = jnp.maximum(jnp.mean(sq) - jnp.mean(val) ** 2, 1e-12)
+    spread = jnp.sqrt(jnp.maximum(dev / jnp.maximum(n, 1.0), 0.0) / total)
+    return jnp.where(n_faces >= 8, spread, 1.0)
+
+
+@functools.lru_cache(maxsize=4)
+def _jit_face_spread():
+    return jax.jit(_face_spread, static_argnames=("coarse", "background"))
 
 
 def _silhouette_cells(sc: _EdgeScene, coarse: bool):
@@ -237,7 +308,8 @@ def _quick_score(R, t, sc: _EdgeScene, roi):
     when the projected model's box does not match the ROI in size (a small, far-away projection
     otherwise fits any dense patch of edges), plus the antenna term (:func:`_antenna_term`) and
     the silhouette term (:func:`_silhouette_term`, on the pooled grid) when the scene has
-    them."""
+    them, and the face-shading spread (:func:`_face_spread`, pooled grid) when its quick weight
+    is above 0."""
     geom, dt, tau, cam4 = sc.geom, sc.dt, sc.tau, sc.cam4
     edges, samples, edge_faces, normals, centres = geom
     vis = _visible_edges(R, t, geom)
@@ -264,6 +336,8 @@ def _quick_score(R, t, sc: _EdgeScene, roi):
         out = out + sc.orientation_weight * tau * _orientation_term(R, t, sc)
     if sc.panel is not None:
         out = out + sc.panel_weight * tau * _panel_term(R, t, sc)
+    if sc.shade_coarse is not None:
+        out = out + sc.spread_quick_weight * tau * _face_spread(R, t, sc, coarse=True)
     return out
 
 
@@ -307,7 +381,8 @@ def _rank_key(R, t, sc: _EdgeScene):
     energy (:func:`_region_energy`; the scene has no grid when the weight is 0) plus
     ``antenna_weight x`` the antenna term (:func:`_antenna_term`; no rod map when 0) plus
     ``silhouette_weight x tau x`` the silhouette term (:func:`_silhouette_term`; only with a
-    silhouette). Returns ``(key, chamfer, near)``."""
+    silhouette) plus ``spread_weight x tau x`` the face-shading spread (:func:`_face_spread`).
+    Returns ``(key, chamfer, near)``."""
     ch, near = _chamfer(R, t, sc)
     key = ch
     if sc.grid_pts is not None:
@@ -320,6 +395,8 @@ def _rank_key(R, t, sc: _EdgeScene):
         key = key + sc.orientation_weight * sc.tau * _orientation_term(R, t, sc)
     if sc.panel is not None:
         key = key + sc.panel_weight * sc.tau * _panel_term(R, t, sc)
+    if sc.shade_pts is not None:
+        key = key + sc.spread_weight * sc.tau * _face_spread(R, t, sc)
     return key, ch, near
 
 
