@@ -106,8 +106,17 @@ def _roi_row(r, camera, model, detection, earth, cover) -> dict:
         "roi_over_true_diagonal": None
         if det.roi is None
         else roi_diagonal(det.roi) / roi_diagonal(r.roi),
+        "roi_iou": 0.0 if det.roi is None else _box_iou(det.roi, r.roi),
         "detect_s": wall,
     }
+
+
+def _box_iou(a, b) -> float:
+    """Intersection over union of two boxes ``[u0, v0, u1, v1]``."""
+    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - w * h
+    return float(w * h / union) if union > 0 else 0.0
 
 
 def _roi_summary(rows, args) -> None:
@@ -123,6 +132,7 @@ def _roi_summary(rows, args) -> None:
         "coarse_range_within_20pct_by_background": {
             k: _mean([r["coarse_within_20pct"] for r in v]) for k, v in sorted(by_cover.items())
         },
+        "roi_iou_at_least_half": _mean([r["roi_iou"] >= 0.5 for r in rows]),
         "roi_kinds": {
             str(k): sum(r["roi_kind"] == k for r in rows)
             for k in sorted({str(r["roi_kind"]) for r in rows})

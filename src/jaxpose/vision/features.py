@@ -19,6 +19,7 @@ from jaxpose.vision.roi import (
     roi_from_gradient,
     roi_from_segments,
     roi_from_silhouette,
+    silhouette_box,
     silhouette_mask,
 )
 from jaxpose.vision.synthesis import FeatureGroups, synthesize
@@ -130,6 +131,8 @@ class DetectionOptions:
     cluster_max_ratio: float = 8.0
     silhouette_roi: bool = True
     silhouette_shape: bool = True
+    silhouette_grow: bool = True
+    silhouette_min_gradient: float = 0.01
     cluster_lsd: bool = True
     cluster_lsd_min_px: float = 15.0
     min_support: float = 0.3
@@ -424,10 +427,23 @@ def detect(
     sil = roi_from_silhouette(und) if options.silhouette_roi else None
     tm["wge_roi_s"] += time.perf_counter() - t0  # the ROI stage: gradient and silhouette
     t0 = time.perf_counter()
+    if sil is not None and options.silhouette_min_gradient > 0:
+        # a silhouette holding none of the strong gradients is not the lit target
+        u0, v0, u1, v1 = np.rint(sil).astype(int)
+        if wge.filtered[v0 : v1 + 1, u0 : u1 + 1].sum() < options.silhouette_min_gradient * float(
+            wge.filtered.sum()
+        ):
+            sil = None
     if sil is not None and roi_diagonal(sil) >= options.min_roi_px:
         det.roi = det.roi_silhouette = roi = sil
-        if options.silhouette_shape:
+        if options.silhouette_shape or options.silhouette_grow:
             det.silhouette = silhouette_mask(und, sil, factor=SILHOUETTE_FACTOR)
+        if options.silhouette_grow and det.silhouette is not None:
+            det.roi = det.roi_silhouette = roi = silhouette_box(
+                det.silhouette, sil, SILHOUETTE_FACTOR
+            )
+        if not options.silhouette_shape:
+            det.silhouette = None
     elif options.cluster_roi:
         # Hough lengths and gaps scaled for a target `cluster_scale` times smaller than the
         # gradient ROI: an Earth background inflates the ROI, and the target's edges must not be
