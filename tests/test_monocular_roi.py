@@ -49,3 +49,11 @@ def test_detect_declines_a_silhouette_without_strong_gradients():
     assert off.roi_silhouette[0] > 400  # the blob, far from the target
     assert on.roi_silhouette is None or on.roi_silhouette[0] < 250
     assert on.roi is not None and on.roi[0] < 250 and on.roi[2] < 300
+
+
+def test_roi_cut_names_the_sides_the_roi_reaches():
+    from jaxpose.vision.features import roi_cut
+
+    assert roi_cut([0, 10, 50, 60], (100, 200)) == (True, False, False, False)
+    assert roi_cut([10, 0, 199, 99], (100, 200)) == (False, True, True, True)
+    assert roi_cut([10, 10, 190, 90], (100, 200)) == (False, False, False, False)
