@@ -1,5 +1,6 @@
-"""The silhouette ROI grown to the finer silhouette (faces in shadow), and a silhouette that holds
-none of the strong gradients declined (:mod:`jaxpose.vision.roi`, :func:`jaxpose.vision.features.detect`)."""
+"""The silhouette ROI grown to the finer silhouette (faces in shadow), a silhouette that holds none
+of the strong gradients declined, and the sides a ROI reaches (:mod:`jaxpose.vision.roi`,
+:func:`jaxpose.vision.features.detect`)."""
 
 import numpy as np
 import pytest
