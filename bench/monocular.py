@@ -42,6 +42,7 @@ from jaxpose.pipelines.monocular import (  # noqa: E402
     initialise_pose,
 )
 from jaxpose.pipelines.monocular.diagnose import stage_breakdown, stage_counts  # noqa: E402
+from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR  # noqa: E402
 from jaxpose.vision.features import DetectionOptions  # noqa: E402
 from jaxpose.vision.models import tango  # noqa: E402
 from jaxpose.vision.render import lightbox_scene, random_pose, render  # noqa: E402
@@ -89,7 +90,8 @@ def _roi_row(r, camera, model, detection, earth, cover) -> dict:
     from jaxpose.vision.roi import roi_diagonal
 
     t0 = time.perf_counter()
-    det = detect(r.image, camera, model.characteristic_length, detection)
+    # the pipeline's characteristic length (initialise_pose), so that the range is the pipeline's
+    det = detect(r.image, camera, model.characteristic_length * ROI_LENGTH_FACTOR, detection)
     wall = time.perf_counter() - t0
     rng_true = float(np.linalg.norm(np.asarray(r.pose.t)))
     ratio = None if det.coarse_t_cam is None else float(np.linalg.norm(det.coarse_t_cam)) / rng_true
