@@ -58,3 +58,17 @@ def test_roi_cut_names_the_sides_the_roi_reaches():
     assert roi_cut([0, 10, 50, 60], (100, 200)) == (True, False, False, False)
     assert roi_cut([10, 0, 199, 99], (100, 200)) == (False, True, True, True)
     assert roi_cut([10, 10, 190, 90], (100, 200)) == (False, False, False, False)
+
+
+def test_silhouette_mask_leaves_out_an_earth_touching_two_sides():
+    from jaxpose.vision.roi import silhouette_mask
+
+    rng = np.random.default_rng(5)
+    img = 20.0 + 2.0 * rng.standard_normal((400, 640))
+    img[100:200, 200:300] += 40.0  # the target
+    img[225:, 325:] += 60.0  # an Earth in the corner, within the grown box's reach
+    box = [200, 100, 300, 200]
+    mask = silhouette_mask(np.clip(img, 0, 255).astype(np.uint8), box, factor=4)
+    assert mask is not None
+    assert mask[25:50, 50:75].mean() > 0.9  # the target (quarter resolution)
+    assert mask[60:, 85:].sum() == 0  # not the Earth

@@ -370,8 +370,9 @@ def silhouette_mask(
     foreground when it differs from the sky level (:func:`_sky_level`) by more than ``k_sigma``
     robust standard deviations (at least ``min_noise`` grey levels), either way; a 3x3 opening
     removes isolated noise pixels and a 5x5 closing joins the faces across their edges. The
-    components meeting ``box`` grown by ``grow`` of its size on each side are the target; their
-    holes (a dark solar-cell grid on a face in shadow) are filled.
+    components meeting ``box`` grown by ``grow`` of its size on each side are the target, except
+    those touching two image sides (an Earth); their holes (a dark solar-cell grid on a face in
+    shadow) are filled.
 
     The constants are round values, chosen once by looking at the SPEED+ photographs' contrast
     (shadowed faces 3-10 grey levels off a background with noise of 6-8): they were not tuned on
@@ -406,9 +407,14 @@ def silhouette_mask(
     hs, ws = mask.shape
     a0, b0 = int(max(np.floor(u0 - gu), 0)), int(max(np.floor(v0 - gv), 0))
     a1, b1 = int(min(np.ceil(u1 + gu) + 1, ws)), int(min(np.ceil(v1 + gv) + 1, hs))
-    n, labels = cv2.connectedComponents(mask, connectivity=8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     keep = np.unique(labels[b0:b1, a0:a1])
     keep = keep[keep > 0]
+    # a component touching two image sides is an Earth or a lit wall (merged with the target, or
+    # beside it), as in roi_from_silhouette: not the target's shape
+    x, y, w, h = (stats[keep, i] for i in range(4))
+    sides = (x == 0).astype(int) + (y == 0) + (x + w >= ws) + (y + h >= hs)
+    keep = keep[sides < 2]
     if not len(keep):
         return None
     out = np.isin(labels, keep).astype(np.uint8)
