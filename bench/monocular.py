@@ -44,6 +44,7 @@ from jaxpose.pipelines.monocular import (  # noqa: E402
     initialise_pose,
 )
 from jaxpose.pipelines.monocular.diagnose import stage_breakdown, stage_counts  # noqa: E402
+from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR  # noqa: E402
 from jaxpose.vision.features import DetectionOptions  # noqa: E402
 from jaxpose.vision.models import tango  # noqa: E402
 from jaxpose.vision.render import lightbox_scene, random_pose, render  # noqa: E402
@@ -104,7 +105,8 @@ def _roi_row(r, camera, model, detection, earth, cover) -> dict:
     from jaxpose.vision.roi import roi_diagonal
 
     t0 = time.perf_counter()
-    det = detect(r.image, camera, model.characteristic_length, detection)
+    # the pipeline's characteristic length (initialise_pose), so that the range is the pipeline's
+    det = detect(r.image, camera, model.characteristic_length * ROI_LENGTH_FACTOR, detection)
     wall = time.perf_counter() - t0
     rng_true = float(np.linalg.norm(np.asarray(r.pose.t)))
     ratio = None if det.coarse_t_cam is None else float(np.linalg.norm(det.coarse_t_cam)) / rng_true
@@ -121,8 +123,17 @@ def _roi_row(r, camera, model, detection, earth, cover) -> dict:
         "roi_over_true_diagonal": None
         if det.roi is None
         else roi_diagonal(det.roi) / roi_diagonal(r.roi),
+        "roi_iou": 0.0 if det.roi is None else _box_iou(det.roi, r.roi),
         "detect_s": wall,
     }
+
+
+def _box_iou(a, b) -> float:
+    """Intersection over union of two boxes ``[u0, v0, u1, v1]``."""
+    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - w * h
+    return float(w * h / union) if union > 0 else 0.0
 
 
 def _roi_summary(rows, args) -> None:
@@ -138,6 +149,7 @@ def _roi_summary(rows, args) -> None:
         "coarse_range_within_20pct_by_background": {
             k: _mean([r["coarse_within_20pct"] for r in v]) for k, v in sorted(by_cover.items())
         },
+        "roi_iou_at_least_half": _mean([r["roi_iou"] >= 0.5 for r in rows]),
         "roi_kinds": {
             str(k): sum(r["roi_kind"] == k for r in rows)
             for k in sorted({str(r["roi_kind"]) for r in rows})

@@ -8,6 +8,7 @@
   the box of the target's silhouette, faces in shadow included.
 - :func:`silhouette_mask`: the target's silhouette itself, at a quarter of the resolution, for
   the silhouette term of the monocular ranking.
+- :func:`silhouette_box`: the silhouette ROI grown to that finer silhouette (faces in shadow).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ __all__ = [
     "roi_from_segments",
     "roi_from_silhouette",
     "segment_distances",
+    "silhouette_box",
     "silhouette_mask",
 ]
 
@@ -368,8 +370,9 @@ def silhouette_mask(
     foreground when it differs from the sky level (:func:`_sky_level`) by more than ``k_sigma``
     robust standard deviations (at least ``min_noise`` grey levels), either way; a 3x3 opening
     removes isolated noise pixels and a 5x5 closing joins the faces across their edges. The
-    components meeting ``box`` grown by ``grow`` of its size on each side are the target; their
-    holes (a dark solar-cell grid on a face in shadow) are filled.
+    components meeting ``box`` grown by ``grow`` of its size on each side are the target, except
+    those touching two image sides (an Earth); their holes (a dark solar-cell grid on a face in
+    shadow) are filled.
 
     The constants are round values, chosen once by looking at the SPEED+ photographs' contrast
     (shadowed faces 3-10 grey levels off a background with noise of 6-8): they were not tuned on
@@ -404,9 +407,14 @@ def silhouette_mask(
     hs, ws = mask.shape
     a0, b0 = int(max(np.floor(u0 - gu), 0)), int(max(np.floor(v0 - gv), 0))
     a1, b1 = int(min(np.ceil(u1 + gu) + 1, ws)), int(min(np.ceil(v1 + gv) + 1, hs))
-    n, labels = cv2.connectedComponents(mask, connectivity=8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     keep = np.unique(labels[b0:b1, a0:a1])
     keep = keep[keep > 0]
+    # a component touching two image sides is an Earth or a lit wall (merged with the target, or
+    # beside it), as in roi_from_silhouette: not the target's shape
+    x, y, w, h = (stats[keep, i] for i in range(4))
+    sides = (x == 0).astype(int) + (y == 0) + (x + w >= ws) + (y + h >= hs)
+    keep = keep[sides < 2]
     if not len(keep):
         return None
     out = np.isin(labels, keep).astype(np.uint8)
@@ -414,3 +422,42 @@ def silhouette_mask(
     flood = np.pad(out, 1)
     cv2.floodFill(flood, np.zeros((hs + 4, ws + 4), np.uint8), (0, 0), 1)
     return out | (1 - flood[1:-1, 1:-1])
+
+
+def silhouette_box(
+    mask: np.ndarray, box, factor: int, *, min_share: float = 0.05, slack: float = 2.0
+) -> np.ndarray:
+    """``box`` (a silhouette ROI, full-resolution pixels) grown to the finer silhouette ``mask``
+    (:func:`silhouette_mask`, shrunk by ``factor``): faces in shadow.
+
+    :func:`roi_from_silhouette` thresholds at 4 robust standard deviations on a ~150-pixel image,
+    where faces in shadow a few grey levels off the background drop out; the mask, at 3 on a
+    quarter-resolution image, keeps more of them. Only its components that touch at most one
+    image side (a component touching two is an Earth or a lit wall merged with the target) and
+    hold at least ``min_share`` of the largest such component's area (not isolated noise) count.
+    Each side of ``box`` moves out to their box where that lies more than ``slack`` mask pixels
+    beyond it (the mask's blur and closing widen a silhouette by about one pixel: a side that the
+    mask only reaches by that is kept). ``min_share`` and ``slack`` are round values, chosen
+    before any measurement of them."""
+    import cv2
+
+    m = np.asarray(mask)
+    if m.ndim != 2:
+        raise ValueError(f"mask must be (H, W); got shape {m.shape}")
+    if int(factor) < 1:
+        raise ValueError(f"factor must be an integer >= 1; got {factor}")
+    box = np.asarray(box, dtype=float)
+    n, _, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return box
+    x, y, w, h, area = (stats[1:, i] for i in range(5))
+    hs, ws = m.shape
+    sides = (x == 0).astype(int) + (y == 0) + (x + w >= ws) + (y + h >= hs)
+    ok = sides < 2
+    if not ok.any():
+        return box
+    ok &= area >= min_share * area[ok].max()
+    f = int(factor)
+    reach = np.array([x[ok].min(), y[ok].min(), (x + w)[ok].max(), (y + h)[ok].max()], float) * f
+    beyond = np.r_[box[:2] - reach[:2], reach[2:] - box[2:]] > slack * f
+    return np.where(beyond, reach, box)
