@@ -63,6 +63,7 @@ from jaxpose.pipelines.stereo.keyframes import (
     update_map,
 )
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
+from jaxpose.pipelines.stereo.window import WindowAdjuster
 from jaxpose.pipelines.stereo.options import (
     STAGES,
     FrameResult,
@@ -186,6 +187,12 @@ class StereoTracker:
         self._line_scale = 1.0  # running ratio of line to point residual scales (line_sigma)
         self._radius = float(options.search_radius_px)  # search-by-projection radius
         self._disparity_margin = float(options.disparity_margin_px)  # around predicted disparity
+        self._window = (
+            WindowAdjuster(rig, options.window_frames, options.window_iterations)
+            if options.window_frames
+            else None
+        )
+        self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
         warm_up_projection(rig.left)
 
     # ------------------------------------------------------------------ scene-dependent settings
@@ -383,8 +390,15 @@ class StereoTracker:
                 timings=clock.wall,
                 cpu_timings=clock.cpu,
             )
+        log = None
+        if self._window is not None:
+            R, t = rt(pose)
+            log = self._window.start(R, t, fixed=True)  # the gauge
+            log.index = k
         with clock.stage("map"):
-            update_map(self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k)
+            update_map(
+                self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k, log=log
+            )
         if o.mature_obs > 1:  # the first frame's landmarks sit at the given pose: mature
             self.map.points.n_obs[:] = np.maximum(self.map.points.n_obs, o.mature_obs)
         self._started = True
@@ -474,10 +488,29 @@ class StereoTracker:
                     self._rejected_p,
                     self._rejected_l,
                     k,
+                    log=self._rays,
                 )
             self._since_kf = 0
             result.keyframe = True
+        if self._rays is not None:
+            with clock.stage("map"):
+                self._adjust_window(result)
         return result
+
+    def _adjust_window(self, result: FrameResult) -> None:
+        """Jointly adjust the window's poses and landmarks (``window_frames``); the frame's
+        result, the last pose and the constant-velocity motion become the adjusted ones."""
+        win, self._rays = self._window, None
+        if not win.adjust(self.map):
+            return
+        last = win.frames[-1]
+        pose = Pose(jnp.asarray(last.R), jnp.asarray(last.t))
+        if len(win.frames) >= 2 and win.frames[-2].index == last.index - 1:
+            prev = win.frames[-2]
+            self._delta = relative(pose, Pose(jnp.asarray(prev.R), jnp.asarray(prev.t)))
+        self._pose_prev = pose
+        result.pose = pose
+        self._last_depth = float(last.t[2])
 
     def _fit_frame(self, k, feats, stereo, pose_pred, matches, clock: StageClock):
         """The pose of frame ``k`` from its matches, the tracker's state moved on when it is good;
@@ -528,6 +561,10 @@ class StereoTracker:
                 result.status = int(Status.OK)
                 self._last_depth = float(pose.t[2])
                 in_p, in_l = fit.in_points, fit.in_lines
+                if self._window is not None:
+                    R, t = rt(pose)
+                    self._rays = self._window.start(R, t)
+                    self._rays.index = k
                 self.map.record("points", cand, i_m[in_p], k)
                 if o.frame_rays:
                     kept = fit.kept_points  # left in the last pass: residual below reject_px
@@ -538,6 +575,7 @@ class StereoTracker:
                         feats.points[i_cur[kept]],
                         pose,
                         right=False,
+                        log=self._rays,
                     )
                 self.map.record("lines", lcand, l_m[in_l], k)
                 self._since_kf += 1
