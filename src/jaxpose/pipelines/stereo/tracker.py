@@ -49,6 +49,7 @@ from jaxpose.pipelines.stereo._arrays import (
     compose,
     find,
     fraction,
+    lines_from_segments,
     project,
     relative,
     rt,
@@ -578,6 +579,10 @@ class StereoTracker:
                         log=self._rays,
                     )
                 self.map.record("lines", lcand, l_m[in_l], k)
+                if self._rays is not None and in_l.any():
+                    self._rays.line_ids = self.map.lines.ids[l_m[in_l]]
+                    self._rays.lines = lines_from_segments(feats.segments[l_cur[in_l]])
+                    self._rays.line_weight = 1.0 / line_sigma**2
                 self._since_kf += 1
                 update = (
                     dict(zip(i_cur[in_p].tolist(), i_m[in_p].tolist(), strict=True)),

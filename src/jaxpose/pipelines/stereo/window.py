@@ -49,6 +49,8 @@ class FrameRays:
         weights: ``(n,)`` the rays' weights (``1 / depth^2``).
         fixed: the frame's pose is a gauge anchor (the given first pose).
         index: the frame's number.
+        line_ids, lines: stable ids of the line landmarks matched in the left image and the
+            observed homogeneous image lines ``(k, 3)``; ``line_weight``: ``1 / line_sigma^2``.
     """
 
     R: np.ndarray
@@ -59,6 +61,9 @@ class FrameRays:
     weights: list = field(default_factory=list)
     fixed: bool = False
     index: int = -1
+    line_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    lines: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    line_weight: float = 1.0
 
     def add(self, ids, pixels, right: bool, weights) -> None:
         n = len(ids)
@@ -99,6 +104,8 @@ class WindowAdjuster:
         iterations: Gauss-Newton iterations per adjustment.
         huber_px: Huber threshold of the pixel residuals.
     """
+
+    anchor_oldest = True
 
     def __init__(
         self, rig: StereoCamera, frames: int = 6, iterations: int = 3, huber_px: float = 1.5
@@ -154,10 +161,13 @@ class WindowAdjuster:
         np.subtract.at(M_out, li, P)
         np.subtract.at(b_out, li, np.einsum("nij,nj->ni", P, o_old))
         free = np.array([not fr.fixed for fr in frames])
-        if free.all():
+        if free.all() and self.anchor_oldest:
             free[0] = False  # the oldest frame fixes the gauge
         X = s.X[lm].copy()
-        Rs_new, ts_new, X = self._solve(Rs, ts, X, jj, li, px, right, M_out, b_out, free)
+        lines = self._line_terms(landmarks, frames)
+        Rs_new, ts_new, X = self._solve(
+            Rs, ts, X, jj, li, px, right, M_out, b_out, free, lines
+        )
         if Rs_new is None:
             return False
         # move the window's rays to the adjusted poses and re-solve the landmarks from all rays
@@ -168,6 +178,38 @@ class WindowAdjuster:
             fr.R, fr.t = R, t
         return True
 
+    @staticmethod
+    def _line_terms(landmarks: LandmarkMap, frames):
+        """The window's line observations: frame, the landmark segment's endpoints (fixed in
+        the adjustment), the unit-normal image line and the weight, one row per endpoint."""
+        s = landmarks.lines
+        if len(s) == 0:
+            return None
+        order = np.argsort(s.ids)
+        rows = []
+        for j, fr in enumerate(frames):
+            if len(fr.line_ids) == 0:
+                continue
+            pos = np.minimum(np.searchsorted(s.ids[order], fr.line_ids), len(order) - 1)
+            hit = s.ids[order][pos] == fr.line_ids
+            if not hit.any():
+                continue
+            Xl = s.X[order[pos[hit]]]  # (k, 2, 3)
+            L = fr.lines[hit]
+            L = L / np.linalg.norm(L[:, :2], axis=1, keepdims=True)
+            k = len(L)
+            rows.append(
+                (
+                    np.full(2 * k, j),
+                    Xl.reshape(-1, 3),
+                    np.repeat(L, 2, axis=0),
+                    np.full(2 * k, fr.line_weight),
+                )
+            )
+        if not rows:
+            return None
+        return tuple(np.concatenate(c) for c in zip(*rows, strict=True))
+
     def _rays(self, R, t, px, right):
         fx, fy = self.f
         cx, cy = self.c
@@ -177,83 +219,140 @@ class WindowAdjuster:
         d = np.einsum("nj,nji->ni", d, R)
         return origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
-    def _solve(self, Rs, ts, X, jj, li, px, right, M_out, b_out, free):
+    def _solve(self, Rs, ts, X, jj, li, px, right, M_out, b_out, free, lines=None):
         """Gauss-Newton on the window (module docstring); ``None`` poses when it fails."""
         fx, fy = self.f
         cx, cy = self.c
-        K, N = len(Rs), len(X)
+        N = len(X)
         nf = int(free.sum())
         fidx = np.cumsum(free) - 1  # column block of each free frame
         prior_w = fx * fy  # rays' angular units to pixels^2
         shift = np.where(right[:, None], self.t_rl[None], 0.0)
         Rs, ts, X = Rs.copy(), ts.copy(), X.copy()
+        fo = free[jj]
+        jf, lf = fidx[jj[fo]], li[fo]
+        pair = jf * N + lf  # (free frame, landmark) of each observation of a free frame
         lam = 1e-3
         for _ in range(self.iterations):
-            RX = np.einsum("nij,nj->ni", Rs[jj], X[li])
+            Rj = Rs[jj]
+            RX = np.matmul(Rj, X[li][:, :, None])[:, :, 0]
             p = RX + ts[jj] + shift
             z = p[:, 2]
             if np.any(z <= 1e-6):
                 return None, None, None
-            r = np.stack([fx * p[:, 0] / z + cx - px[:, 0], fy * p[:, 1] / z + cy - px[:, 1]], 1)
-            e = np.linalg.norm(r, axis=1)
+            iz = 1.0 / z
+            r = np.stack([fx * p[:, 0] * iz + cx - px[:, 0], fy * p[:, 1] * iz + cy - px[:, 1]], 1)
+            e = np.sqrt(r[:, 0] ** 2 + r[:, 1] ** 2)
             hw = np.where(e > self.huber_px, self.huber_px / np.maximum(e, 1e-12), 1.0)
             Jp = np.zeros((len(p), 2, 3))
-            Jp[:, 0, 0] = fx / z
-            Jp[:, 0, 2] = -fx * p[:, 0] / z**2
-            Jp[:, 1, 1] = fy / z
-            Jp[:, 1, 2] = -fy * p[:, 1] / z**2
-            JX = Jp @ Rs[jj]  # (n, 2, 3)
-            hatRX = np.zeros((len(p), 3, 3))
-            hatRX[:, 0, 1], hatRX[:, 0, 2] = -RX[:, 2], RX[:, 1]
-            hatRX[:, 1, 0], hatRX[:, 1, 2] = RX[:, 2], -RX[:, 0]
-            hatRX[:, 2, 0], hatRX[:, 2, 1] = -RX[:, 1], RX[:, 0]
-            Jxi = np.concatenate([-Jp @ hatRX, Jp], 2)  # (n, 2, 6): rotation, translation
-            Hll = np.einsum("nki,n,nkj->nij", JX, hw, JX)
-            gl = np.einsum("nki,n,nk->ni", JX, hw, r)
-            H_ll = np.zeros((N, 3, 3))
-            g_l = np.zeros((N, 3))
-            np.add.at(H_ll, li, Hll)
-            np.add.at(g_l, li, gl)
-            H_ll += prior_w * M_out
-            g_l += prior_w * (np.einsum("nij,nj->ni", M_out, X) - b_out)
-            fo = free[jj]
-            H_pp = np.zeros((nf, 6, 6))
-            g_p = np.zeros((nf, 6))
-            np.add.at(H_pp, fidx[jj[fo]], np.einsum("nki,n,nkj->nij", Jxi[fo], hw[fo], Jxi[fo]))
-            np.add.at(g_p, fidx[jj[fo]], np.einsum("nki,n,nk->ni", Jxi[fo], hw[fo], r[fo]))
-            H_pl = np.zeros((nf, N, 6, 3))
-            np.add.at(
-                H_pl,
-                (fidx[jj[fo]], li[fo]),
-                np.einsum("nki,n,nkj->nij", Jxi[fo], hw[fo], JX[fo]),
+            Jp[:, 0, 0] = fx * iz
+            Jp[:, 0, 2] = -fx * p[:, 0] * iz**2
+            Jp[:, 1, 1] = fy * iz
+            Jp[:, 1, 2] = -fy * p[:, 1] * iz**2
+            JX = np.matmul(Jp, Rj)  # (n, 2, 3)
+            # -Jp [RX]x, the rotation part of the pose Jacobian, column by column
+            Jw = np.stack(
+                [
+                    Jp[:, :, 2] * RX[:, 1:2] - Jp[:, :, 1] * RX[:, 2:3],
+                    Jp[:, :, 0] * RX[:, 2:3] - Jp[:, :, 2] * RX[:, 0:1],
+                    Jp[:, :, 1] * RX[:, 0:1] - Jp[:, :, 0] * RX[:, 1:2],
+                ],
+                2,
             )
-            # damping
+            Jxi = np.concatenate([Jw, Jp], 2)  # (n, 2, 6): rotation, translation
+            JXw = JX * hw[:, None, None]
+            H_ll = _sum_by(li, np.matmul(JX.transpose(0, 2, 1), JXw), N)
+            g_l = _sum_by(li, np.matmul(JXw.transpose(0, 2, 1), r[:, :, None])[:, :, 0], N)
+            H_ll += prior_w * M_out
+            g_l += prior_w * (np.matmul(M_out, X[:, :, None])[:, :, 0] - b_out)
+            Jxf = Jxi[fo]
+            Jxw = Jxf * hw[fo][:, None, None]
+            H_pp = _sum_by(jf, np.matmul(Jxf.transpose(0, 2, 1), Jxw), nf)
+            g_p = _sum_by(jf, np.matmul(Jxw.transpose(0, 2, 1), r[fo][:, :, None])[:, :, 0], nf)
+            H_pl = _sum_by(pair, np.matmul(Jxw.transpose(0, 2, 1), JX[fo]), nf * N)
+            H_pl = H_pl.reshape(nf, N, 6, 3)
+            if lines is not None:  # point-to-line distances of the fixed line landmarks
+                Hl, gl_ = _line_blocks(self, Rs, ts, lines, free, fidx, nf)
+                H_pp += Hl
+                g_p += gl_
             H_ll_d = H_ll + lam * np.einsum("nii->ni", H_ll)[:, :, None] * np.eye(3)[None]
-            H_ll_d += 1e-9 * np.eye(3)[None]
-            try:
-                Linv = np.linalg.inv(H_ll_d)
-            except np.linalg.LinAlgError:
+            Linv = _inv3(H_ll_d + 1e-9 * np.eye(3)[None])
+            if Linv is None:
                 return None, None, None
-            A = H_pl.transpose(0, 2, 1, 3).reshape(6 * nf, N * 3)  # (6F, 3N)
-            Y = np.einsum("fnij,njk->fnik", H_pl, Linv)  # (F, N, 6, 3)
+            Y = np.matmul(H_pl, Linv[None])  # (F, N, 6, 3)
+            A = H_pl.transpose(0, 2, 1, 3).reshape(6 * nf, N * 3)
             Yf = Y.transpose(0, 2, 1, 3).reshape(6 * nf, N * 3)
-            S = np.zeros((6 * nf, 6 * nf))
+            S = Yf @ (-A.T)
             for a in range(nf):
-                S[6 * a : 6 * a + 6, 6 * a : 6 * a + 6] = H_pp[a]
-            S -= Yf @ A.T
+                S[6 * a : 6 * a + 6, 6 * a : 6 * a + 6] += H_pp[a]
             S += lam * np.diag(np.diag(S)) + 1e-9 * np.eye(6 * nf)
             rhs = g_p.reshape(-1) - Yf @ g_l.reshape(-1)
             try:
                 dxi = -np.linalg.solve(S, rhs)
             except np.linalg.LinAlgError:
                 return None, None, None
-            dX = -np.einsum("nij,nj->ni", Linv, g_l + np.einsum("fnij,fi->nj", H_pl, dxi.reshape(nf, 6)))
             d = dxi.reshape(nf, 6)
+            back = np.matmul(H_pl.transpose(1, 0, 3, 2), d[None, :, :, None]).sum(1)[:, :, 0]
+            dX = -np.matmul(Linv, (g_l + back)[:, :, None])[:, :, 0]
             dR = Rotation.from_rotvec(d[:, :3]).as_matrix()
             fi = np.nonzero(free)[0]
             Rs[fi] = dR @ Rs[fi]
             ts[fi] = ts[fi] + d[:, 3:]
             X = X + dX
-        if not (np.all(np.isfinite(Rs)) and np.all(np.isfinite(ts))):
+        if not (np.all(np.isfinite(Rs)) and np.all(np.isfinite(ts)) and np.all(np.isfinite(X))):
             return None, None, None
         return Rs, ts, X
+
+
+def _line_blocks(self, Rs, ts, lines, free, fidx, nf):
+    """Pose blocks ``(nf, 6, 6)``, ``(nf, 6)`` of the endpoint-to-line distances (Yang et al.
+    2024, eq. 9) of the window's line observations, landmarks held fixed, Huber-weighted."""
+    fx, fy = self.f
+    cx, cy = self.c
+    jl, Xl, L, wl = lines
+    keep = free[jl]
+    jl, Xl, L, wl = jl[keep], Xl[keep], L[keep], wl[keep]
+    H = np.zeros((nf, 6, 6))
+    g = np.zeros((nf, 6))
+    if len(jl) == 0:
+        return H, g
+    RX = np.matmul(Rs[jl], Xl[:, :, None])[:, :, 0]
+    p = RX + ts[jl]
+    iz = 1.0 / p[:, 2]
+    u = fx * p[:, 0] * iz + cx
+    v = fy * p[:, 1] * iz + cy
+    r = L[:, 0] * u + L[:, 1] * v + L[:, 2]
+    hw = np.where(np.abs(r) > self.huber_px, self.huber_px / np.maximum(np.abs(r), 1e-12), 1.0)
+    # d r / d p: the line normal times the projection Jacobian
+    Jp = np.stack(
+        [L[:, 0] * fx * iz, L[:, 1] * fy * iz, -(L[:, 0] * fx * p[:, 0] + L[:, 1] * fy * p[:, 1]) * iz**2],
+        1,
+    )
+    Jw = np.cross(RX, Jp)  # d r / d w for R <- exp(w) R: -Jp . (RX x .) = (RX x Jp) . w
+    J = np.concatenate([Jw, Jp], 1)  # (n, 6)
+    wt = wl * hw
+    H = _sum_by(fidx[jl], J[:, :, None] * J[:, None, :] * wt[:, None, None], nf)
+    g = _sum_by(fidx[jl], J * (wt * r)[:, None], nf)
+    return H, g
+
+
+
+def _sum_by(keys: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """``(n, ...)`` sums of ``values`` (``(m, ...)``) grouped by ``keys`` (``(m,)`` in
+    ``[0, n)``), one ``np.bincount`` per component."""
+    flat = values.reshape(len(values), -1)
+    out = np.stack(
+        [np.bincount(keys, weights=flat[:, c], minlength=n) for c in range(flat.shape[1])], 1
+    )
+    return out.reshape((n, *values.shape[1:]))
+
+
+def _inv3(A: np.ndarray) -> np.ndarray | None:
+    """Inverses of ``(n, 3, 3)`` matrices by their adjugates; ``None`` when one is singular."""
+    c0 = np.cross(A[:, 1], A[:, 2])
+    c1 = np.cross(A[:, 2], A[:, 0])
+    c2 = np.cross(A[:, 0], A[:, 1])
+    det = np.einsum("ni,ni->n", A[:, 0], c0)
+    if not np.all(np.abs(det) > 0) or not np.all(np.isfinite(det)):
+        return None
+    return np.stack([c0, c1, c2], 2) / det[:, None, None]
