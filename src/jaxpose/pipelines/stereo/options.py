@@ -115,7 +115,10 @@ class TrackerOptions:
             (strongest ORB responses, longest segments); see
             :mod:`jaxpose.pipelines.stereo.budget`.
         stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
-            StereoMatchOptions`).
+            StereoMatchOptions`); ranges of 128 disparities or more (a target within about 2 m
+            on the 0.3 m, 1024-pixel rig) are searched coarse to fine, which takes 40-55% of the
+            full search's CPU time there and returns the same match for 98% of the points
+            (``d3``, ``c5``); on narrower ranges it costs more than it saves.
     """
 
     use_lines: bool = True
@@ -158,7 +161,9 @@ class TrackerOptions:
     disparity_margin_px: float = 6.0
     neighbour_px: float = 40.0
     threads: bool = True
-    stereo: StereoMatchOptions = field(default_factory=StereoMatchOptions)
+    stereo: StereoMatchOptions = field(
+        default_factory=lambda: StereoMatchOptions(coarse_min_range=128)
+    )
     window_frames: int = 0
     window_iterations: int = 2
     # feature budget (jaxpose.pipelines.stereo.budget)
