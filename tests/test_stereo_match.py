@@ -91,10 +91,12 @@ def test_coarse_to_fine_search_equals_the_full_search(pair):
     for m in (full, c2f):
         err = np.abs(pts[m.ok, 0] - m.pixels_right[m.ok, 0] - d)
         assert np.percentile(err, 95) < 0.3
-    far = match_points_stereo(
-        left, right, pts, (30, 200), options=StereoMatchOptions(coarse_min_range=64)
-    )
-    assert far.ok.mean() < 0.05
+    # a range that excludes the truth: no more (false) matches than the full search's
+    far = [
+        match_points_stereo(left, right, pts, (30, 200), options=StereoMatchOptions(**kw)).ok
+        for kw in ({}, {"coarse_min_range": 64})
+    ]
+    assert far[1].mean() <= far[0].mean() + 0.01, (far[0].mean(), far[1].mean())
 
 
 def test_per_point_disparity_ranges(pair):
