@@ -257,9 +257,7 @@ def update_map(
         if not o.frame_rays:
             left_px = feats.points[ip[has][agree]]
             observe_point_rays(landmarks, rig, idx[agree], left_px, pose, right=False, log=log)
-        observe_point_rays(
-            landmarks, rig, idx[agree], pr[has][agree], pose, right=True, log=log
-        )
+        observe_point_rays(landmarks, rig, idx[agree], pr[has][agree], pose, right=True, log=log)
     new = ~has & ~np.isin(ip, list(rejected_p))
     if new.any() and len(m):
         cand = landmarks.candidates("points", pose)
@@ -269,9 +267,7 @@ def update_map(
             d, _ = tree.query(feats.points[ip[new]], distance_upper_bound=o.duplicate_px)
             new[np.nonzero(new)[0][np.isfinite(d)]] = False
     ids = landmarks.add("points", Pb[new], feats.point_desc[ip[new]], pose, frame)
-    observe_point_rays(
-        landmarks, rig, ids, feats.points[ip[new]], pose, right=False, log=log
-    )
+    observe_point_rays(landmarks, rig, ids, feats.points[ip[new]], pose, right=False, log=log)
     observe_point_rays(landmarks, rig, ids, pr[new], pose, right=True, log=log)
     if o.use_lines and len(il):
         Sb = (S - t) @ R

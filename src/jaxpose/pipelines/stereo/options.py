@@ -107,7 +107,8 @@ class TrackerOptions:
             and the point landmarks they observed after every frame
             (:mod:`~jaxpose.pipelines.stereo.window`; each landmark keeps its rays from older
             frames as a prior, the first frame's pose is fixed while it is in the window); the
-            frame's result is its adjusted pose. ``0``: off.
+            frame's result is its adjusted pose. ``0``: off. 8 chosen on the development
+            scenes (6 and 12 tried on ``d2`` and ``d6``).
         window_iterations: Gauss-Newton iterations of each adjustment.
         feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
             points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
@@ -164,7 +165,7 @@ class TrackerOptions:
     stereo: StereoMatchOptions = field(
         default_factory=lambda: StereoMatchOptions(coarse_min_range=128)
     )
-    window_frames: int = 0
+    window_frames: int = 8
     window_iterations: int = 2
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
@@ -187,7 +188,9 @@ class TrackerOptions:
         if self.window_frames != 0 and not (
             isinstance(self.window_frames, int | np.integer) and self.window_frames >= 2
         ):
-            raise ValueError(f"window_frames must be 0 or an integer >= 2; got {self.window_frames!r}")
+            raise ValueError(
+                f"window_frames must be 0 or an integer >= 2; got {self.window_frames!r}"
+            )
         if not 0.0 <= self.line_scale_memory < 1.0:
             raise ValueError(f"line_scale_memory must be in [0, 1); got {self.line_scale_memory}")
 

@@ -64,13 +64,13 @@ from jaxpose.pipelines.stereo.keyframes import (
     update_map,
 )
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
-from jaxpose.pipelines.stereo.window import WindowAdjuster
 from jaxpose.pipelines.stereo.options import (
     STAGES,
     FrameResult,
     TrackerOptions,
     lost_pose,
 )
+from jaxpose.pipelines.stereo.window import WindowAdjuster
 from jaxpose.vision.stereo_features import FeatureOptions, extract
 from jaxpose.vision.stereo_match import disparity_range
 
@@ -397,9 +397,7 @@ class StereoTracker:
             log = self._window.start(R, t, fixed=True)  # the gauge
             log.index = k
         with clock.stage("map"):
-            update_map(
-                self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k, log=log
-            )
+            update_map(self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k, log=log)
         if o.mature_obs > 1:  # the first frame's landmarks sit at the given pose: mature
             self.map.points.n_obs[:] = np.maximum(self.map.points.n_obs, o.mature_obs)
         self._started = True

@@ -88,9 +88,7 @@ def ray_geometry(rig: StereoCamera, R, t, pixels, right):
     """Body-frame origins and directions of the rays of ``pixels`` seen at pose ``(R, t)``."""
     cam = rig.left
     fx, fy, cx, cy = (float(v) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
-    d = np.stack(
-        [(pixels[:, 0] - cx) / fx, (pixels[:, 1] - cy) / fy, np.ones(len(pixels))], 1
-    )
+    d = np.stack([(pixels[:, 0] - cx) / fx, (pixels[:, 1] - cy) / fy, np.ones(len(pixels))], 1)
     centre = np.where(right[:, None], -np.asarray(rig.t_rl, float)[None], 0.0)
     return (centre - t) @ R, d @ R
 
@@ -165,9 +163,7 @@ class WindowAdjuster:
             free[0] = False  # the oldest frame fixes the gauge
         X = s.X[lm].copy()
         lines = self._line_terms(landmarks, frames)
-        Rs_new, ts_new, X = self._solve(
-            Rs, ts, X, jj, li, px, right, M_out, b_out, free, lines
-        )
+        Rs_new, ts_new, X = self._solve(Rs, ts, X, jj, li, px, right, M_out, b_out, free, lines)
         if Rs_new is None:
             return False
         # move the window's rays to the adjusted poses and re-solve the landmarks from all rays
@@ -325,7 +321,11 @@ def _line_blocks(self, Rs, ts, lines, free, fidx, nf):
     hw = np.where(np.abs(r) > self.huber_px, self.huber_px / np.maximum(np.abs(r), 1e-12), 1.0)
     # d r / d p: the line normal times the projection Jacobian
     Jp = np.stack(
-        [L[:, 0] * fx * iz, L[:, 1] * fy * iz, -(L[:, 0] * fx * p[:, 0] + L[:, 1] * fy * p[:, 1]) * iz**2],
+        [
+            L[:, 0] * fx * iz,
+            L[:, 1] * fy * iz,
+            -(L[:, 0] * fx * p[:, 0] + L[:, 1] * fy * p[:, 1]) * iz**2,
+        ],
         1,
     )
     Jw = np.cross(RX, Jp)  # d r / d w for R <- exp(w) R: -Jp . (RX x .) = (RX x Jp) . w
@@ -334,7 +334,6 @@ def _line_blocks(self, Rs, ts, lines, free, fidx, nf):
     H = _sum_by(fidx[jl], J[:, :, None] * J[:, None, :] * wt[:, None, None], nf)
     g = _sum_by(fidx[jl], J * (wt * r)[:, None], nf)
     return H, g
-
 
 
 def _sum_by(keys: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
