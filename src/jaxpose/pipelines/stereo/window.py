@@ -101,12 +101,19 @@ class WindowAdjuster:
         frames: window size ``K`` (poses adjusted; at least 2).
         iterations: Gauss-Newton iterations per adjustment.
         huber_px: Huber threshold of the pixel residuals.
+        max_points: most landmarks in the solve (those with the most observations in the
+            window; the cost grows with the observations: at 1.5 m a window holds thousands).
     """
 
     anchor_oldest = True
 
     def __init__(
-        self, rig: StereoCamera, frames: int = 6, iterations: int = 3, huber_px: float = 1.5
+        self,
+        rig: StereoCamera,
+        frames: int = 6,
+        iterations: int = 3,
+        huber_px: float = 1.5,
+        max_points: int = 600,
     ):
         if frames < 2:
             raise ValueError(f"window frames must be >= 2; got {frames}")
@@ -114,6 +121,7 @@ class WindowAdjuster:
         self.frames: deque[FrameRays] = deque(maxlen=int(frames))
         self.iterations = int(iterations)
         self.huber_px = float(huber_px)
+        self.max_points = int(max_points)
         c = rig.left
         self.f = (float(c.fx), float(c.fy))
         self.c = (float(c.cx), float(c.cy))
@@ -161,9 +169,20 @@ class WindowAdjuster:
         free = np.array([not fr.fixed for fr in frames])
         if free.all() and self.anchor_oldest:
             free[0] = False  # the oldest frame fixes the gauge
+        # at most max_points landmarks in the solve: those observed most often in the window
+        # (the long tracks that tie its frames together); the others' rays move all the same
+        sj, sli, spx, sright = jj, li, px, right
+        if len(lm) > self.max_points:
+            count = np.bincount(li, minlength=len(lm))
+            sel = np.sort(np.lexsort((lm, -count))[: self.max_points])
+            new_index = np.full(len(lm), -1)
+            new_index[sel] = np.arange(len(sel))
+            keep = new_index[li] >= 0
+            sj, sli, spx, sright = jj[keep], new_index[li[keep]], px[keep], right[keep]
+            lm, M_out, b_out = lm[sel], M_out[sel], b_out[sel]
         X = s.X[lm].copy()
         lines = self._line_terms(landmarks, frames)
-        Rs_new, ts_new, X = self._solve(Rs, ts, X, jj, li, px, right, M_out, b_out, free, lines)
+        Rs_new, ts_new, X = self._solve(Rs, ts, X, sj, sli, spx, sright, M_out, b_out, free, lines)
         if Rs_new is None:
             return False
         # move the window's rays to the adjusted poses and re-solve the landmarks from all rays
@@ -231,7 +250,8 @@ class WindowAdjuster:
         lam = 1e-3
         for _ in range(self.iterations):
             Rj = Rs[jj]
-            RX = np.matmul(Rj, X[li][:, :, None])[:, :, 0]
+            Xi = X[li]
+            RX = (Rj * Xi[:, None, :]).sum(2)
             p = RX + ts[jj] + shift
             z = p[:, 2]
             if np.any(z <= 1e-6):
@@ -245,7 +265,14 @@ class WindowAdjuster:
             Jp[:, 0, 2] = -fx * p[:, 0] * iz**2
             Jp[:, 1, 1] = fy * iz
             Jp[:, 1, 2] = -fy * p[:, 1] * iz**2
-            JX = np.matmul(Jp, Rj)  # (n, 2, 3)
+            # Jp R, row by row (Jp has two non-zeros a row)
+            JX = np.stack(
+                [
+                    Jp[:, 0, 0:1] * Rj[:, 0] + Jp[:, 0, 2:3] * Rj[:, 2],
+                    Jp[:, 1, 1:2] * Rj[:, 1] + Jp[:, 1, 2:3] * Rj[:, 2],
+                ],
+                1,
+            )  # (n, 2, 3)
             # -Jp [RX]x, the rotation part of the pose Jacobian, column by column
             Jw = np.stack(
                 [
@@ -257,15 +284,15 @@ class WindowAdjuster:
             )
             Jxi = np.concatenate([Jw, Jp], 2)  # (n, 2, 6): rotation, translation
             JXw = JX * hw[:, None, None]
-            H_ll = _sum_by(li, np.matmul(JX.transpose(0, 2, 1), JXw), N)
-            g_l = _sum_by(li, np.matmul(JXw.transpose(0, 2, 1), r[:, :, None])[:, :, 0], N)
+            H_ll = _sum_by(li, _inner(JX, JXw), N)
+            g_l = _sum_by(li, (JXw * r[:, :, None]).sum(1), N)
             H_ll += prior_w * M_out
-            g_l += prior_w * (np.matmul(M_out, X[:, :, None])[:, :, 0] - b_out)
+            g_l += prior_w * ((M_out * X[:, None, :]).sum(2) - b_out)
             Jxf = Jxi[fo]
             Jxw = Jxf * hw[fo][:, None, None]
-            H_pp = _sum_by(jf, np.matmul(Jxf.transpose(0, 2, 1), Jxw), nf)
-            g_p = _sum_by(jf, np.matmul(Jxw.transpose(0, 2, 1), r[fo][:, :, None])[:, :, 0], nf)
-            H_pl = _sum_by(pair, np.matmul(Jxw.transpose(0, 2, 1), JX[fo]), nf * N)
+            H_pp = _sum_by(jf, _inner(Jxf, Jxw), nf)
+            g_p = _sum_by(jf, (Jxw * r[fo][:, :, None]).sum(1), nf)
+            H_pl = _sum_by(pair, _inner(Jxw, JX[fo]), nf * N)
             H_pl = H_pl.reshape(nf, N, 6, 3)
             if lines is not None:  # point-to-line distances of the fixed line landmarks
                 Hl, gl_ = _line_blocks(self, Rs, ts, lines, free, fidx, nf)
@@ -275,21 +302,21 @@ class WindowAdjuster:
             Linv = _inv3(H_ll_d + 1e-9 * np.eye(3)[None])
             if Linv is None:
                 return None, None, None
-            Y = np.matmul(H_pl, Linv[None])  # (F, N, 6, 3)
-            A = H_pl.transpose(0, 2, 1, 3).reshape(6 * nf, N * 3)
-            Yf = Y.transpose(0, 2, 1, 3).reshape(6 * nf, N * 3)
-            S = Yf @ (-A.T)
+            # the Schur complement without BLAS: its threads would spin on a loaded machine for
+            # products this small (measured: 3x the CPU time of the adjustment)
+            Y = (H_pl[:, :, :, :, None] * Linv[None, :, None, :, :]).sum(3)  # (F, N, 6, 3)
+            S = -np.einsum("fnij,gnkj->figk", Y, H_pl).reshape(6 * nf, 6 * nf)
             for a in range(nf):
                 S[6 * a : 6 * a + 6, 6 * a : 6 * a + 6] += H_pp[a]
             S += lam * np.diag(np.diag(S)) + 1e-9 * np.eye(6 * nf)
-            rhs = g_p.reshape(-1) - Yf @ g_l.reshape(-1)
+            rhs = g_p.reshape(-1) - np.einsum("fnij,nj->fi", Y, g_l).reshape(-1)
             try:
                 dxi = -np.linalg.solve(S, rhs)
             except np.linalg.LinAlgError:
                 return None, None, None
             d = dxi.reshape(nf, 6)
-            back = np.matmul(H_pl.transpose(1, 0, 3, 2), d[None, :, :, None]).sum(1)[:, :, 0]
-            dX = -np.matmul(Linv, (g_l + back)[:, :, None])[:, :, 0]
+            back = np.einsum("fnij,fi->nj", H_pl, d)
+            dX = -(Linv * (g_l + back)[:, None, :]).sum(2)
             dR = Rotation.from_rotvec(d[:, :3]).as_matrix()
             fi = np.nonzero(free)[0]
             Rs[fi] = dR @ Rs[fi]
@@ -334,6 +361,11 @@ def _line_blocks(self, Rs, ts, lines, free, fidx, nf):
     H = _sum_by(fidx[jl], J[:, :, None] * J[:, None, :] * wt[:, None, None], nf)
     g = _sum_by(fidx[jl], J * (wt * r)[:, None], nf)
     return H, g
+
+
+def _inner(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A^T B`` of stacks of ``(n, 2, a)`` and ``(n, 2, b)`` Jacobians: ``(n, a, b)``."""
+    return A[:, 0, :, None] * B[:, 0, None, :] + A[:, 1, :, None] * B[:, 1, None, :]
 
 
 def _sum_by(keys: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
