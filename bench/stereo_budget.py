@@ -45,6 +45,7 @@ import numpy as np  # noqa: E402
 import jaxpose.pipelines.stereo.budget as budget_mod  # noqa: E402
 import jaxpose.pipelines.stereo.tracker as tracker_mod  # noqa: E402
 from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions  # noqa: E402
+from jaxpose.pipelines.stereo.options import BUDGET_NOISE  # noqa: E402
 from jaxpose.studies.stereo_track import summarize  # noqa: E402
 from jaxpose.vision.stereo_render import default_rig, render_sequence  # noqa: E402
 
@@ -136,7 +137,11 @@ def configs(budgets=BUDGETS, rules=RULES) -> list[tuple[str, int | None]]:
     return [(ALL, None)] + [(r, n) for r in rules for n in budgets]
 
 
-def run_scene(name: str, frames: int | None, budgets=BUDGETS, rules=RULES, seed: int = 0) -> dict:
+def run_scene(
+    name: str, frames: int | None, budgets=BUDGETS, rules=RULES, seed: int = 0, extra=None
+) -> dict:
+    """One scene, every configuration; ``extra``: further ``TrackerOptions`` of every tracker
+    (the ``"dop"`` rule's noise model and subsample, the all-features weighting)."""
     scene = scene_of(name, frames, seed)
     rig = default_rig()
     depth = (0.3, max(8.0, 3 * scene.range_m))
@@ -152,6 +157,7 @@ def run_scene(name: str, frames: int | None, budgets=BUDGETS, rules=RULES, seed:
                         depth_range_m=depth,
                         feature_budget=n,
                         budget_rule="dop" if rule == ALL else rule,
+                        **(extra or {}),
                     )
                     trackers[cfg] = StereoTracker(rig, fr.pose, options=opts)
                 results, truths, pose_cpu, sel_cpu, solved, ratio = logs[cfg]
@@ -172,6 +178,7 @@ def run_scene(name: str, frames: int | None, budgets=BUDGETS, rules=RULES, seed:
             "rate_deg_s": scene.rate_deg_s,
             "frames": scene.n_frames(),
             "seed": seed,
+            "options": extra or {},
         },
         "runs": [],
     }
@@ -342,6 +349,13 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=None, help="frames per scene (default: one turn)")
     p.add_argument("--budgets", type=int, nargs="+", default=list(BUDGETS))
     p.add_argument("--rules", nargs="+", choices=RULES, default=list(RULES))
+    p.add_argument("--budget-noise", choices=BUDGET_NOISE, default="pixel")
+    p.add_argument("--budget-subsample", type=float, default=1.0)
+    p.add_argument(
+        "--measured-point-sigma",
+        action="store_true",
+        help="weight the all-features solve by the landmarks' measured residual RMS",
+    )
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
     p.add_argument("--out", type=Path, default=Path("runs/bench-stereo-budget"))
     p.add_argument("--from-results", nargs="+", type=Path, default=None)
@@ -355,7 +369,12 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()
     results = []
     for name in names:
-        r = run_scene(name, args.frames, args.budgets, args.rules, seed=args.seed)
+        extra = dict(
+            budget_noise=args.budget_noise,
+            budget_subsample=args.budget_subsample,
+            measured_point_sigma=args.measured_point_sigma,
+        )
+        r = run_scene(name, args.frames, args.budgets, args.rules, seed=args.seed, extra=extra)
         results.append(r)
         (args.out / "results.json").write_text(json.dumps(results, indent=1))
         print(f"done {name}: {r['target']}", file=sys.stderr, flush=True)

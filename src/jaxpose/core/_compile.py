@@ -20,18 +20,21 @@ point is traced into the caller's program and compiled with the caller's options
 def eager_jit(fn, static_argnums: tuple[int, ...]):
     """``jax.jit(fn)`` with :data:`EAGER_COMPILER_OPTIONS_CPU` on a CPU, built on first use for
     the backend then in use (importing jaxpose picks no backend). Called with traced arguments
-    (inside the caller's ``jit``, ``vmap`` or ``grad``), ``fn`` is traced into the caller's
-    program instead."""
+    (inside the caller's ``jit``, ``vmap`` or ``grad``), a plain ``jax.jit(fn)`` takes them:
+    inlined into the caller's ``jit``, and one compiled program under an eager ``grad`` or
+    ``vmap`` instead of a dispatch per operation."""
 
     @functools.cache
     def compiled(backend: str):
         options = EAGER_COMPILER_OPTIONS_CPU if backend == "cpu" else None
         return jax.jit(fn, static_argnums=static_argnums, compiler_options=options)
 
+    traced = jax.jit(fn, static_argnums=static_argnums)
+
     @functools.wraps(fn)
     def call(*args):
         if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(args)):
-            return fn(*args)  # inside the caller's jit, vmap or grad: traced into it
+            return traced(*args)  # under the caller's jit, vmap or grad
         return compiled(jax.default_backend())(*args)
 
     return call

@@ -6,28 +6,35 @@ the budget applies to the matched landmarks of a frame, points and lines togethe
 (``TrackerOptions(feature_budget=N, budget_rule=...)``), after search by projection and before
 the pose solve (:func:`jaxpose.pipelines.stereo.frame_pose.fit_pose`):
 
-* ``"dop"``: the ``N`` features whose summed information gives the lowest dilution of precision
-  at the predicted pose. A feature's information is the ``6 x 6`` block of its left-image
-  observation plus, when it has a stereo match, of its right-image one (the landmark shifted by
-  ``R^T t_rl``, as the pose solve sees it): ``J^T J / sigma^2`` with ``J`` the ``2 x 6`` Jacobian
-  of a point's pixels (Ning et al. eq. 7, :func:`jaxpose.core.dilution.point_jacobians`) or of a
-  segment's two endpoint-to-line distances (Yang et al. 2024 eq. 9,
+* ``"dop"``: the ``N`` features whose summed information gives the lowest dilution of precision at
+  the predicted pose. A feature's information is the ``6 x 6`` block of its left-image observation
+  plus, when it has a stereo match, of its right-image one (the landmark shifted by ``R^T t_rl``,
+  as the pose solve sees it): ``J^T J / sigma^2`` with ``J`` the ``2 x 6`` Jacobian of a point's
+  pixels (Ning et al. eq. 7, :func:`jaxpose.core.dilution.point_jacobians`) or of a segment's two
+  endpoint-to-line distances (Yang et al. 2024 eq. 9,
   :func:`jaxpose.core.line_dop.line_jacobians`), in the tangent attitude state, so point and line
   blocks add (:func:`jaxpose.core.dilution.information_blocks`,
-  :func:`jaxpose.core.line_dop.line_information_blocks`). The criterion is ``trace(W Q)`` with
-  ``Q`` the inverse of the summed information (:func:`criterion_weight`): the variance of the
-  chaser's position in the target frame (the target's translation and, through the range, its
-  attitude: what a rendezvous needs and the tracker's error metric) plus ``l^2`` times the
-  attitude variance, ``l`` the RMS distance of the matched landmarks from their centroid (the
-  displacement an attitude error gives a landmark). Without the range term it is ``PDOP^2 +
-  (l ADOP)^2`` (Ning et al.'s PDOP and ADOP). The subset is
-  chosen by forward greedy selection (each step adds the feature that lowers the criterion most,
-  scored for every candidate at once by rank-one Sherman-Morrison updates of ``Q``, from a small
-  prior ``1e-6`` times the mean block so that the first picks are defined) in one compiled call
-  per frame at padded sizes; when ``C(n, N)`` is at most :data:`EXACT_SUBSETS`, every subset is
-  scored and the optimum kept. The greedy keeps its picks ``SPACING sqrt(area / N)`` pixels apart
-  while it can (``area`` the box the candidates span): ORB finds one corner at several scales,
-  and such near-twins share their landmark's error, which the DOP counts as independent.
+  :func:`jaxpose.core.line_dop.line_information_blocks`), a point's rows whitened by its effective
+  noise (``budget_noise``): ``"measured"``, the running RMS of its landmark's post-fit residual
+  (:class:`ResidualSpread`), as its pixel noise; ``"landmark"``, the pixel noise plus its
+  landmark's position covariance (:func:`landmark_covariance`) projected into both images
+  (:func:`effective_whitening`); ``"both"``; ``"pixel"``: ``sigma_px``. The criterion is ``trace(W
+  Q)`` with ``Q`` the inverse of the summed information (:func:`criterion_weight`): the variance of
+  the chaser's position in the target frame (the target's translation and, through the range, its
+  attitude: what a rendezvous needs and the tracker's error metric) plus ``l^2`` times the attitude
+  variance, ``l`` the RMS distance of the matched landmarks from their centroid (the displacement
+  an attitude error gives a landmark). Without the range term it is ``PDOP^2 + (l ADOP)^2`` (Ning
+  et al.'s PDOP and ADOP). The subset is chosen by forward greedy selection (each step adds the
+  feature that lowers the criterion most, scored for every candidate at once by rank-one
+  Sherman-Morrison updates of ``Q``, from a small prior ``1e-6`` times the mean block so that the
+  first picks are defined) in one compiled call per frame at padded sizes, on a random share
+  ``budget_subsample`` of the candidates drawn afresh each frame (the "stochastic greedy" of
+  Mirzasoleiman et al. 2015: the picks vary from frame to frame, so that one set of landmarks'
+  errors is not carried frame after frame); when ``C(n, N)`` is at most :data:`EXACT_SUBSETS`,
+  every subset is scored and the optimum kept. The greedy keeps its picks ``SPACING sqrt(area /
+  N)`` pixels apart while it can (``area`` the box the candidates span): ORB finds one corner at
+  several scales, and such near-twins share their landmark's error, which the DOP counts as
+  independent.
 * ``"random"``: ``N`` of the matched features at random (seeded by the frame number).
 * ``"response"``: the strongest detector responses: ORB (Harris) response of the points, pixel
   length of the segments, the two kinds in proportion to their matched counts.
@@ -48,6 +55,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import math
+import weakref
 from dataclasses import replace
 
 import jax
@@ -58,16 +66,26 @@ from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.dilution import point_jacobians
 from jaxpose.core.geometry import Pose
 from jaxpose.core.line_dop import line_jacobians
-from jaxpose.pipelines.stereo._arrays import find, lines_from_segments, project
-from jaxpose.pipelines.stereo.frame_pose import PoseFit, fit_pose
+from jaxpose.pipelines.stereo._arrays import find, project
+from jaxpose.pipelines.stereo.frame_pose import (
+    PoseFit,
+    fit_pose,
+    postfit_errors,
+    postfit_summary,
+)
 from jaxpose.pipelines.stereo.options import TrackerOptions
 
 __all__ = [
     "EXACT_SUBSETS",
+    "ResidualSpread",
     "budget_criterion",
     "criterion_weight",
+    "effective_whitening",
     "feature_rows",
     "fit_pose_budgeted",
+    "landmark_covariance",
+    "point_sigma_eff",
+    "residual_spread",
     "select_budget",
     "select_dop",
 ]
@@ -305,6 +323,14 @@ def select_budget(
     rows, valid, arm = _dop_inputs(
         landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, line_sigma
     )
+    frac = o.budget_subsample
+    if frac < 1.0:  # stochastic greedy: a fresh random share of the candidates each frame
+        idx = np.nonzero(valid)[0]
+        n_sub = max(2 * N, int(round(frac * len(idx))))
+        if n_sub < len(idx):
+            rng = np.random.default_rng([frame, 2015])
+            valid = np.zeros_like(valid)
+            valid[rng.choice(idx, n_sub, replace=False)] = True
     # image positions (point pixels, segment midpoints) and the spacing of N features spread
     # over the box the candidates span: features a few pixels apart (one corner found at
     # several ORB scales) share their landmark's error, which the DOP takes as independent
@@ -319,6 +345,126 @@ def select_budget(
     keep_p[chosen[chosen < B_p]] = True
     keep_l[chosen[chosen >= B_p] - B_p] = True
     return keep_p, keep_l
+
+
+def landmark_covariance(M, X_body, pose: Pose, camera, baseline_m: float, sigma_px: float):
+    """``(n, 3, 3)`` covariance (body frame, m^2) of point landmarks from their multi-view
+    triangulations: ``(sigma / f)^2 M^-1``, ``M = sum w (I - d d^T)`` the normal equations of
+    :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe` with the weights ``w = 1 / z^2`` of
+    :func:`~jaxpose.pipelines.stereo.keyframes.observe_point_rays` (a ray's perpendicular
+    distance to the point is ``z sigma / f`` metres for a ``sigma`` pixel error). Where ``M`` is
+    still degenerate (its rays nearly parallel), the covariance of one stereo triangulation at
+    ``pose``: ``(z sigma / f)^2`` across the ray and ``(z^2 sqrt(2) sigma / (f b))^2`` along it
+    (the depth error of a disparity error ``sqrt(2) sigma``), ``b`` the baseline."""
+    M = np.asarray(M, float).reshape(-1, 3, 3)
+    X = np.asarray(X_body, float).reshape(-1, 3)
+    f = float(camera.focal_px)
+    R, t = np.asarray(pose.R, float), np.asarray(pose.t, float)
+    x = X @ R.T + t
+    z = np.maximum(x[:, 2], 1e-3)
+    u = x / np.linalg.norm(x, axis=1, keepdims=True)
+    across, along = (
+        (z * sigma_px / f) ** 2,
+        (z**2 * np.sqrt(2.0) * sigma_px / (f * baseline_m)) ** 2,
+    )
+    uu = u[:, :, None] * u[:, None, :]
+    cam = across[:, None, None] * (np.eye(3) - uu) + along[:, None, None] * uu
+    cov = np.einsum("ji,njk,kl->nil", R, cam, R)  # R^T C R
+    ev = np.linalg.eigvalsh(M) if len(M) else np.zeros((0, 3))
+    ok = ev[:, 0] > 1e-4 * np.maximum(ev[:, 2], 1e-300)
+    if ok.any():
+        cov[ok] = (sigma_px / f) ** 2 * np.linalg.inv(M[ok])
+    return cov
+
+
+def _projection_jacobian(x_cam, R, camera):
+    """``(n, 2, 3)``: d(pixels)/d(body point) of points at ``x_cam`` (camera frame)."""
+    fx, fy = float(camera.fx), float(camera.fy)
+    z = x_cam[:, 2]
+    D = np.zeros((len(x_cam), 2, 3))
+    D[:, 0, 0], D[:, 0, 2] = fx / z, -fx * x_cam[:, 0] / z**2
+    D[:, 1, 1], D[:, 1, 2] = fy / z, -fy * x_cam[:, 1] / z**2
+    return D @ R
+
+
+def point_sigma_eff(landmarks, i_m, pose: Pose, rig, o: TrackerOptions, mode: str) -> np.ndarray:
+    """``(n,)`` isotropic effective pixel noise of point landmarks ``i_m`` in the left image:
+    ``sqrt(s^2 + trace(J C_X J^T) / 2)``, ``s`` the measured spread (``"measured"``,
+    ``"both"``) or ``sigma_px``, ``C_X`` the landmark covariance (``"landmark"``, ``"both"``)."""
+    i_m = np.asarray(i_m, int)
+    s2 = np.full(len(i_m), float(o.sigma_px) ** 2)
+    if mode in ("measured", "both"):
+        s2 = residual_spread(landmarks).sigma(landmarks.points.ids[i_m], o.sigma_px) ** 2
+    if mode in ("landmark", "both") and len(i_m):
+        X = landmarks.points.X[i_m]
+        t_rl = np.asarray(rig.t_rl, float)
+        cov = landmark_covariance(
+            landmarks.points.M[i_m], X, pose, rig.left, float(np.linalg.norm(t_rl)), o.sigma_px
+        )
+        R, t = np.asarray(pose.R, float), np.asarray(pose.t, float)
+        J = _projection_jacobian(X @ R.T + t, R, rig.left)
+        s2 = s2 + np.einsum("nij,njk,nik->n", J, cov, J) / 2
+    return np.sqrt(s2)
+
+
+def effective_whitening(cov_X, X_body, pose: Pose, camera, t_rl, sigma_px, has_right):
+    """``(n, 4, 4)`` whitening ``L^-1`` (``L L^T = C``) of the left and right pixel residuals of
+    point landmarks whose position error has covariance ``cov_X`` (``(n, 3, 3)``, body frame):
+    ``C = diag(sigma_px^2) + J C_X J^T``, ``J`` (``4 x 3``) the landmark's projection Jacobian
+    into the left and right image at ``pose`` (the right image through ``t_rl``). ``sigma_px``:
+    ``(n,)`` pixel noise; rows of a point without a right match (``has_right`` false) are
+    decoupled (unit block, no cross terms) and its right rows are zero anyway. A feature's
+    information is then ``(L^-1 J_pose)^T (L^-1 J_pose)``: a landmark far from the cameras or
+    seen from few directions counts for less than its pixels alone say."""
+    X = np.asarray(X_body, float).reshape(-1, 3)
+    R, t = np.asarray(pose.R, float), np.asarray(pose.t, float)
+    x = X @ R.T + t
+    J = np.concatenate(
+        [_projection_jacobian(x, R, camera), _projection_jacobian(x + t_rl, R, camera)], axis=1
+    )
+    J[~np.asarray(has_right, bool), 2:] = 0.0
+    C = np.einsum("nij,njk,nlk->nil", J, cov_X, J)
+    s2 = np.asarray(sigma_px, float) ** 2
+    C += s2[:, None, None] * np.eye(4)
+    C[~np.asarray(has_right, bool), 2:, 2:] = (
+        np.eye(2) * s2[~np.asarray(has_right, bool), None, None]
+    )
+    return np.linalg.inv(np.linalg.cholesky(C))
+
+
+class ResidualSpread:
+    """Running RMS of each point landmark's post-fit residual (pixels, left image), keyed by the
+    landmarks' stable ids: ``s^2 <- s^2 + (min(e, cap)^2 - s^2) / min(k, memory)`` at the
+    ``k``-th frame that matched it, from ``s^2 = sigma^2`` before the first. The residual of a
+    landmark at the fitted pose carries its position error and its corner's blur, which the
+    pixel noise alone does not; a bias counts as noise in the pose solve, hence the RMS rather
+    than the variance about the mean."""
+
+    def __init__(self, memory: int = 10, cap_px: float = 6.0):
+        self.memory, self.cap = int(memory), float(cap_px)
+        self._s2: dict[int, float] = {}
+        self._k: dict[int, int] = {}
+
+    def sigma(self, ids, sigma_px: float) -> np.ndarray:
+        """``(n,)`` running RMS of landmarks ``ids`` (``sigma_px`` where never matched)."""
+        return np.sqrt([max(self._s2.get(int(i), sigma_px**2), sigma_px**2 * 0.25) for i in ids])
+
+    def update(self, ids, errors, sigma_px: float) -> None:
+        for i, e in zip(np.asarray(ids).tolist(), np.asarray(errors, float).tolist(), strict=True):
+            k = self._k.get(i, 0) + 1
+            s2 = self._s2.get(i, sigma_px**2)
+            self._s2[i] = s2 + (min(e, self.cap) ** 2 - s2) / min(k, self.memory)
+            self._k[i] = k
+
+
+_SPREADS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def residual_spread(landmarks) -> ResidualSpread:
+    """The :class:`ResidualSpread` of a landmark map (one per map, created on first use)."""
+    if landmarks not in _SPREADS:
+        _SPREADS[landmarks] = ResidualSpread()
+    return _SPREADS[landmarks]
 
 
 def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, line_sigma):
@@ -359,6 +505,26 @@ def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, li
         jnp.asarray(w_p),
         jnp.asarray(w_l),
     )
+    noise = o.budget_noise
+    if noise != "pixel" and len(cand_p):
+        has_right = w_p[cand_p, 1] > 0
+        sig = np.full(len(cand_p), float(o.sigma_px))
+        if noise in ("measured", "both"):
+            sig = residual_spread(landmarks).sigma(landmarks.points.ids[i_m[cand_p]], o.sigma_px)
+        cov = np.zeros((len(cand_p), 3, 3))
+        if noise in ("landmark", "both"):
+            cov = landmark_covariance(
+                landmarks.points.M[i_m[cand_p]],
+                X[cand_p],
+                pose_pred,
+                rig.left,
+                float(np.linalg.norm(t_rl)),
+                o.sigma_px,
+            )
+        Wh = effective_whitening(cov, X[cand_p], pose_pred, rig.left, t_rl, sig, has_right)
+        r = np.asarray(rows, float).copy()
+        r[cand_p] = np.einsum("nij,njk->nik", Wh, r[cand_p] * o.sigma_px)  # unweighted, whitened
+        rows = r
     valid = np.r_[w_p[:, 0] > 0, w_l[:, 0] > 0]
     centres = np.concatenate([X[cand_p], S.mean(axis=1)])
     arm = float(np.sqrt(np.mean(np.sum((centres - centres.mean(0)) ** 2, axis=1))))
@@ -389,7 +555,17 @@ def fit_pose_budgeted(
     factory that times a named stage, e.g. ``StageClock.stage`` of the tracker)."""
     o = options
     if o.feature_budget is None:
-        return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
+        mode = "measured" if o.measured_point_sigma else "pixel"
+        if mode == "pixel":
+            return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
+        i_m = matches[0]
+        sig = point_sigma_eff(landmarks, i_m, pose_pred, rig, o, mode)
+        fit = fit_pose(
+            landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, point_sigma=sig
+        )
+        if fit.solver_ok and mode in ("measured", "both"):
+            residual_spread(landmarks).update(landmarks.points.ids[i_m], fit.e_points, o.sigma_px)
+        return fit
     with stage("budget") if stage is not None else contextlib.nullcontext():
         keep_p, keep_l = select_budget(
             landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, frame=frame
@@ -400,27 +576,9 @@ def fit_pose_budgeted(
     size = _bucket(2 * o.feature_budget, 16)
     o_sub = replace(o, max_points=min(o.max_points, size), max_lines=min(o.max_lines, size))
     fit = fit_pose(landmarks, feats, stereo, sub, pose_pred, rig, o_sub, line_sigma)
-    pose = fit.pose
-    cam = rig.left
-    e_p = np.linalg.norm(project(cam, pose, landmarks.points.X[i_m]) - feats.points[i_cur], axis=1)
-    e_l = np.zeros(len(l_m))
-    if len(l_m):
-        pix = project(cam, pose, landmarks.lines.X[l_m])  # (n_l, 2, 2)
-        L = lines_from_segments(feats.segments[l_cur])
-        nrm = np.linalg.norm(L[:, :2], axis=1, keepdims=True)
-        d = (np.einsum("ki,kmi->km", L[:, :2], pix) + L[:, 2:3]) / np.where(nrm > 0, nrm, 1.0)
-        e_l = np.max(np.abs(d), axis=1)
-    in_p, in_l = e_p < o.inlier_px, e_l < o.inlier_px
+    e_p, e_l = postfit_errors(landmarks, feats, matches, fit.pose, rig.left)
+    if fit.solver_ok and o.budget_noise in ("measured", "both"):
+        residual_spread(landmarks).update(landmarks.points.ids[i_m], e_p, o.sigma_px)
     kept = e_p < o.reject_px
     kept[keep_p] = fit.kept_points
-    inl = np.concatenate([e_p[in_p], e_l[in_l]])
-    return replace(
-        fit,
-        e_points=e_p,
-        e_lines=e_l,
-        in_points=in_p,
-        in_lines=in_l,
-        kept_points=kept,
-        inliers=int(in_p.sum() + in_l.sum()),
-        rms_px=float(np.sqrt(np.mean(inl**2))) if len(inl) else float("inf"),
-    )
+    return replace(fit, kept_points=kept, **postfit_summary(e_p, e_l, o.inlier_px))

@@ -26,10 +26,10 @@ from jaxpose.pipelines.stereo._arrays import (
 from jaxpose.pipelines.stereo.keyframes import FrameStereo
 from jaxpose.pipelines.stereo.options import TrackerOptions
 
-__all__ = ["PoseFit", "fit_pose"]
+__all__ = ["PoseFit", "fit_pose", "postfit_errors", "postfit_summary"]
 
 
-@functools.partial(jax.jit, static_argnames=("robust", "sigma"))
+@functools.partial(jax.jit, static_argnames=("robust",))
 def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
     """One LM solve (eq. 10) and the post-fit errors of every point (pixels) and line (largest
     endpoint distance, pixels). Points-only mode passes an all-False ``lmask``: one compiled
@@ -91,6 +91,8 @@ def fit_pose(
     rig: StereoCamera,
     options: TrackerOptions,
     line_sigma: float,
+    *,
+    point_sigma=None,
 ) -> PoseFit:
     """Fit the pose of the frame from ``matches`` (``(i_m, i_cur, l_m, l_cur)``: landmark and
     feature indices of the matched points and lines), starting at ``pose_pred``.
@@ -101,7 +103,8 @@ def fit_pose(
     shift changes by ``|t_rl|`` times the rotation update). The same holds for the right segment
     of a matched segment with a stereo match. Each pass restarts from the last pose without the
     features it left beyond ``reject_px`` (ORB-SLAM's outlier passes): the robust kernel alone
-    still lets mismatches on repetitive texture pull the pose."""
+    still lets mismatches on repetitive texture pull the pose. ``point_sigma``: ``(n_p,)`` pixel
+    noise of each matched point (its left and right residuals; default ``sigma_px``)."""
     o = options
     i_m, i_cur, l_m, l_cur = matches
     n_p, n_l = len(i_m), len(l_m)
@@ -139,13 +142,17 @@ def fit_pose(
         else np.zeros((0, 3))
     )
     X_m = landmarks.points.X[i_m]
+    sigma = np.full(o.max_points, float(o.sigma_px))
+    if point_sigma is not None:
+        ps = np.asarray(point_sigma, float)
+        sigma[:n_p], sigma[n_p : n_p + n_r] = ps, ps[q_r]
     X_l = landmarks.lines.X[l_m]
     uv_all = jnp.asarray(pad(np.concatenate([feats.points[i_cur], uv_r]), o.max_points))
     L_pad = jnp.asarray(pad(L, o.max_lines))
     statics = (
         rig.left,
         o.robust,
-        o.sigma_px,
+        jnp.asarray(sigma),  # arrays: a new value compiles nothing
         jnp.full(o.max_lines, line_sigma),  # an array: a new value compiles nothing
     )
     pose0 = pose_pred
@@ -168,22 +175,49 @@ def fit_pose(
         lmask = lmask & (np.asarray(e_l) < o.reject_px)
     kept_errors = (np.asarray(e_p)[mask], np.asarray(e_l)[lmask])
     e_p, e_l = np.asarray(e_p)[:n_p], np.asarray(e_l)[:n_l]
-    in_p, in_l = e_p < o.inlier_px, e_l < o.inlier_px
-    inl_err = np.concatenate([e_p[in_p], e_l[in_l]])
-    rms = float(np.sqrt(np.mean(inl_err**2))) if len(inl_err) else float("inf")
     # the LM retraction exp(xi) R keeps whatever departure from orthonormality R has, and the
     # constant-velocity prediction R_k R_(k-1)^T R_k compounds it by 1 + sqrt(2) a frame; a
     # quaternion round trip returns the nearest rotation
-    pose = nearest_rotation(res.pose)
     return PoseFit(
-        pose=pose,
+        pose=nearest_rotation(res.pose),
         solver_ok=int(res.status) in (Status.OK, Status.NOT_CONVERGED),
-        e_points=e_p,
-        e_lines=e_l,
-        in_points=in_p,
-        in_lines=in_l,
         kept_points=mask[:n_p] | (young & (e_p < o.reject_px)),
         kept_errors=kept_errors,
+        **postfit_summary(e_p, e_l, o.inlier_px),
+    )
+
+
+def postfit_errors(landmarks, feats, matches, pose: Pose, camera) -> tuple[np.ndarray, np.ndarray]:
+    """Post-fit errors (pixels) of the left-image matches at ``pose``: ``(n_p,)`` distances of
+    the points' projections to their features, ``(n_l,)`` largest distance of a landmark
+    segment's projected endpoints to its feature's image line (Yang et al. 2024, eq. 9). The
+    NumPy counterpart of the errors :func:`fit_pose`'s compiled solve returns, for matches the
+    solve did not see (the feature budget's)."""
+    i_m, i_cur, l_m, l_cur = matches
+    e_p = np.linalg.norm(
+        project(camera, pose, landmarks.points.X[i_m]) - feats.points[i_cur], axis=1
+    )
+    e_l = np.zeros(len(l_m))
+    if len(l_m):
+        pix = project(camera, pose, landmarks.lines.X[l_m])  # (n_l, 2, 2)
+        L = lines_from_segments(feats.segments[l_cur])
+        nrm = np.linalg.norm(L[:, :2], axis=1, keepdims=True)
+        d = (np.einsum("ki,kmi->km", L[:, :2], pix) + L[:, 2:3]) / np.where(nrm > 0, nrm, 1.0)
+        e_l = np.max(np.abs(d), axis=1)
+    return e_p, e_l
+
+
+def postfit_summary(e_points, e_lines, inlier_px: float) -> dict:
+    """The :class:`PoseFit` fields that follow from the post-fit errors: ``e_points``,
+    ``e_lines``, the inlier flags (below ``inlier_px``), the inlier count and the RMS of the
+    inliers' errors (``inf`` without inliers)."""
+    in_p, in_l = e_points < inlier_px, e_lines < inlier_px
+    inl = np.concatenate([e_points[in_p], e_lines[in_l]])
+    return dict(
+        e_points=e_points,
+        e_lines=e_lines,
+        in_points=in_p,
+        in_lines=in_l,
         inliers=int(in_p.sum() + in_l.sum()),
-        rms_px=rms,
+        rms_px=float(np.sqrt(np.mean(inl**2))) if len(inl) else float("inf"),
     )

@@ -10,13 +10,16 @@ from jaxpose.core.geometry import Pose
 from jaxpose.vision.stereo_features import FeatureOptions
 from jaxpose.vision.stereo_match import StereoMatchOptions
 
-__all__ = ["BUDGET_RULES", "STAGES", "FrameResult", "TrackerOptions"]
+__all__ = ["BUDGET_NOISE", "BUDGET_RULES", "STAGES", "FrameResult", "TrackerOptions"]
 
 #: Stages timed by :meth:`~jaxpose.pipelines.stereo.StereoTracker.process` (seconds each).
 STAGES = ("features", "match", "stereo", "triangulate", "budget", "pose", "map")
 
 #: Rules of ``TrackerOptions.feature_budget`` (:mod:`jaxpose.pipelines.stereo.budget`).
 BUDGET_RULES = ("dop", "random", "response")
+
+#: Feature noise models of the ``"dop"`` budget rule (:mod:`jaxpose.pipelines.stereo.budget`).
+BUDGET_NOISE = ("pixel", "landmark", "measured", "both")
 
 
 @dataclass(frozen=True)
@@ -115,6 +118,13 @@ class TrackerOptions:
             dilution of precision at the predicted pose), ``"random"`` or ``"response"``
             (strongest ORB responses, longest segments); see
             :mod:`jaxpose.pipelines.stereo.budget`.
+        budget_noise: the ``"dop"`` rule's noise of a feature: ``"pixel"`` (``sigma_px``),
+            ``"landmark"`` (plus its landmark's position covariance projected into both images),
+            ``"measured"`` (the running RMS of its landmark's post-fit residual) or ``"both"``.
+        budget_subsample: the ``"dop"`` rule's greedy runs on this random share of the
+            candidates (a new draw each frame; at least ``2 N``).
+        measured_point_sigma: weight each point of the all-features solve by its landmark's
+            running post-fit residual RMS instead of ``sigma_px``.
         stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
             StereoMatchOptions`); ranges of 128 disparities or more (a target within about 2 m
             on the 0.3 m, 1024-pixel rig) are searched coarse to fine, which takes 40-55% of the
@@ -170,6 +180,9 @@ class TrackerOptions:
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
     budget_rule: str = "dop"
+    budget_noise: str = "pixel"
+    budget_subsample: float = 1.0
+    measured_point_sigma: bool = False
 
     def __post_init__(self):
         fb = self.feature_budget
@@ -179,6 +192,12 @@ class TrackerOptions:
             raise ValueError(f"feature_budget must be an integer >= 4 or None; got {fb!r}")
         if self.budget_rule not in BUDGET_RULES:
             raise ValueError(f"budget_rule must be one of {BUDGET_RULES}; got {self.budget_rule!r}")
+        if self.budget_noise not in BUDGET_NOISE:
+            raise ValueError(
+                f"budget_noise must be one of {BUDGET_NOISE}; got {self.budget_noise!r}"
+            )
+        if not 0.0 < self.budget_subsample <= 1.0:
+            raise ValueError(f"budget_subsample must be in (0, 1]; got {self.budget_subsample}")
         if self.keypoint_spacing_px is not None and not self.keypoint_spacing_px > 0:
             raise ValueError(
                 f"keypoint_spacing_px must be positive or None; got {self.keypoint_spacing_px}"
