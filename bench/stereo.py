@@ -28,6 +28,7 @@ is lower than points-only on every axis (asked for the scenes with blur or glint
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import os
 import sys
@@ -284,6 +285,13 @@ def main(argv=None) -> int:
         help="accuracy and pose-stage time against the feature budget N for the dop, random and "
         "response rules (bench/stereo_budget.py) on the selected scenes",
     )
+    p.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a TrackerOptions field for every scene (a Python literal), e.g. window_frames=0",
+    )
     p.add_argument("--out", type=Path, default=Path("runs/bench-stereo"))
     p.add_argument(
         "--from-results",
@@ -311,9 +319,16 @@ def main(argv=None) -> int:
     if args.timing_only:
         names = names[:1]
     load0 = os.getloadavg()
+    options = None
+    if args.option:
+        fields = {}
+        for item in args.option:
+            key, _, value = item.partition("=")
+            fields[key] = ast.literal_eval(value)
+        options = replace(TrackerOptions(), **fields)
     results = []
     for name in names:
-        r = run_scene(name, args.frames, modes, seed=args.seed)
+        r = run_scene(name, args.frames, modes, seed=args.seed, options=options)
         results.append(r)
         (args.out / "results.json").write_text(json.dumps(results, indent=1))
         m = r["points+lines"]

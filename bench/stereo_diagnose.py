@@ -20,6 +20,7 @@ an estimate with geometry the estimate never saw:
 
     python bench/stereo_diagnose.py               # 2 m; --range-m 3 for the far scene
     python bench/stereo_diagnose.py --drift d2-blur-3m-fast --frames 60
+    python bench/stereo_diagnose.py --drift d6-blur-5m-slow --frames 40 --window-frames 0
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 
 import numpy as np
 
@@ -82,6 +84,9 @@ def _errors(results, truths, spin_axis_cam):
         return np.round(np.sqrt(np.mean(np.square(e), axis=0)), 3).tolist()
 
     return {
+        "about_spin_axis_mean_deg": round(float(np.mean(ephase)), 3),
+        # the spin-phase error of every other frame: where it appears and whether it grows
+        "about_spin_axis_every_2nd_frame_deg": np.round(ephase[::2], 2).tolist(),
         "camera_position_mm": rms(et),
         "chaser_position_mm": rms(ec),
         "attitude_rotvec_deg": rms(ea),
@@ -91,7 +96,7 @@ def _errors(results, truths, spin_axis_cam):
     }
 
 
-def drift(name: str, frames: int) -> dict:
+def drift(name: str, frames: int, window_frames: int | None = None) -> dict:
     """Drift of the tracker as it is and with an oracle map (module docstring)."""
     import jax
 
@@ -109,6 +114,8 @@ def drift(name: str, frames: int) -> dict:
     axis_body = np.asarray(scene.spin_axis_body, float)
     spin_axis_cam = R0 @ axis_body / np.linalg.norm(axis_body)
     opts = TrackerOptions(depth_range_m=(0.3, max(8.0, 3 * scene.range_m)))
+    if window_frames is not None:
+        opts = replace(opts, window_frames=window_frames)
     out = {}
     update_map, observe = tracker_module.update_map, tracker_module.observe_point_rays
     truth = [None]
@@ -136,9 +143,15 @@ def main(argv=None) -> int:
     p.add_argument("--range-m", type=float, default=2.0)
     p.add_argument("--drift", default=None, help="a scene of bench/stereo.py: drift diagnosis")
     p.add_argument("--frames", type=int, default=60, help="frames of the drift diagnosis")
+    p.add_argument(
+        "--window-frames",
+        type=int,
+        default=None,
+        help="drift diagnosis with this window_frames (0: no windowed adjustment)",
+    )
     args = p.parse_args(argv)
     if args.drift:
-        drift(args.drift, args.frames)
+        drift(args.drift, args.frames, args.window_frames)
         return 0
     scene = StereoScene(range_m=args.range_m)
     rig, model = default_rig(), tumbler_model()

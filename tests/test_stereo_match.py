@@ -75,6 +75,30 @@ def test_point_epipolar_search_subpixel(pair):
         StereoMatchOptions(window=4)
 
 
+def test_coarse_to_fine_search_equals_the_full_search(pair):
+    """The coarse-to-fine search (coarse_min_range) finds the full search's sub-pixel matches,
+    and a range that excludes the truth still gives no match."""
+    left, right, d = pair
+    pts = extract(left, lines=False).points
+    full = match_points_stereo(left, right, pts, (5, 200))
+    c2f = match_points_stereo(
+        left, right, pts, (5, 200), options=StereoMatchOptions(coarse_min_range=64)
+    )
+    both = full.ok & c2f.ok
+    assert full.ok.mean() > 0.8 and both.sum() >= 0.97 * full.ok.sum()
+    same = np.abs(c2f.pixels_right[both] - full.pixels_right[both]).max(1) < 1e-9
+    assert same.mean() >= 0.99  # where the two differ, a second peak of the texture
+    for m in (full, c2f):
+        err = np.abs(pts[m.ok, 0] - m.pixels_right[m.ok, 0] - d)
+        assert np.percentile(err, 95) < 0.3
+    # a range that excludes the truth: no more (false) matches than the full search's
+    far = [
+        match_points_stereo(left, right, pts, (30, 200), options=StereoMatchOptions(**kw)).ok
+        for kw in ({}, {"coarse_min_range": 64})
+    ]
+    assert far[1].mean() <= far[0].mean() + 0.01, (far[0].mean(), far[1].mean())
+
+
 def test_per_point_disparity_ranges(pair):
     left, right, d = pair
     pts = extract(left, lines=False).points

@@ -26,7 +26,7 @@ feature at ``(u, v)`` the right match is searched on row ``v`` over the integer 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -63,6 +63,14 @@ class StereoMatchOptions:
         eps_delta_px: eq. 5, largest mean distance of the matches to the fitted right line.
         eps_theta_deg: eq. 5, largest angle between the left segment and the fitted right line.
         min_epipolar_angle_deg: segments closer than this to the image rows are not matched.
+        coarse_min_range: search features whose disparity range spans at least this many
+            values coarse to fine (``None``: never): the whole range on the half-resolution
+            images (:func:`cv2.pyrDown`, a ``coarse_window`` window, scores above
+            ``coarse_ncc_threshold``), then the full-resolution search (as above, the same
+            window and tests) within ``coarse_radius_px`` of twice the coarse disparity.
+            Features without a coarse match are searched over their whole range.
+        coarse_window, coarse_window_rows, coarse_ncc_threshold, coarse_radius_px: the
+            coarse level's window, its acceptance score and the fine search's half-width.
     """
 
     window: int = 15
@@ -75,9 +83,14 @@ class StereoMatchOptions:
     eps_delta_px: float = 1.0
     eps_theta_deg: float = 15.0
     min_epipolar_angle_deg: float = 12.0
+    coarse_min_range: int | None = None
+    coarse_window: int = 9
+    coarse_window_rows: int = 5
+    coarse_ncc_threshold: float = 0.7
+    coarse_radius_px: int = 3
 
     def __post_init__(self):
-        for name in ("window", "window_rows"):
+        for name in ("window", "window_rows", "coarse_window", "coarse_window_rows"):
             w = getattr(self, name)
             if w is not None and (w < 3 or w % 2 == 0):
                 raise ValueError(f"{name} must be an odd integer >= 3; got {w}")
@@ -233,8 +246,12 @@ def match_points_stereo(
     d_min, d_max = _per_feature(disparities, N)
     if N == 0:
         return PointMatches(np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool))
-    out = PointMatches(np.zeros((N, 2)), np.full(N, -1.0), np.zeros(N, bool))
     D = d_max - d_min + 1
+    wide = D >= options.coarse_min_range if options.coarse_min_range else np.zeros(N, bool)
+    if wide.any():
+        d_min, d_max = _coarse_ranges(L, Rimg, p, d_min, d_max, wide, options)
+        D = d_max - d_min + 1
+    out = PointMatches(np.zeros((N, 2)), np.full(N, -1.0), np.zeros(N, bool))
     w, hr = options.window, (options.window_rows or options.window) // 2
     c0 = np.floor(p[:, 0]).astype(np.int64) - d_max - w // 2  # first column of each strip
     padded = _padded(Rimg, np.r_[c0, c0 + D.max()], p[:, 1], w, hr)
@@ -245,6 +262,34 @@ def match_points_stereo(
         uv_r, best, ok = _search_rows(L, padded, p[sel], d_max[sel], int(D[sel].max()), options)
         out.pixels_right[sel], out.score[sel], out.ok[sel] = uv_r, best, ok
     return out
+
+
+def _coarse_ranges(L, Rimg, p, d_min, d_max, wide, options: StereoMatchOptions):
+    """The disparity ranges of the fine search (``coarse_min_range``): for the ``wide``
+    features with a match on the half-resolution images, ``coarse_radius_px`` around twice the
+    coarse disparity (within the feature's own range); the others keep their ranges."""
+    L2, R2 = cv2.pyrDown(L), cv2.pyrDown(Rimg)
+    idx = np.nonzero(wide)[0]
+    p2 = (p[idx] + 0.5) / 2.0 - 0.5
+    lo = np.maximum(d_min[idx] // 2 - 1, 0)
+    hi = np.maximum(-(-d_max[idx] // 2) + 1, lo + 2)
+    coarse = replace(
+        options,
+        window=options.coarse_window,
+        window_rows=options.coarse_window_rows,
+        ncc_threshold=options.coarse_ncc_threshold,
+        min_texture=0.0,
+        coarse_min_range=None,
+    )
+    c = match_points_stereo(L2, R2, p2, np.stack([lo, hi], 1), options=coarse)
+    d = 2.0 * (p2[:, 0] - c.pixels_right[:, 0])
+    r = options.coarse_radius_px
+    new_lo = np.maximum(np.floor(d).astype(np.int64) - r, d_min[idx])
+    new_hi = np.minimum(np.ceil(d).astype(np.int64) + r, d_max[idx])
+    good = c.ok & (new_hi - new_lo >= 2)
+    d_min, d_max = d_min.copy(), d_max.copy()
+    d_min[idx[good]], d_max[idx[good]] = new_lo[good], new_hi[good]
+    return d_min, d_max
 
 
 def _search_rows(L, padded, p, d_max, D: int, options: StereoMatchOptions):

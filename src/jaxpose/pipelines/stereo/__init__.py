@@ -5,7 +5,9 @@ result), :mod:`~jaxpose.pipelines.stereo.landmarks` (the body-frame landmark map
 :mod:`~jaxpose.pipelines.stereo.guided` (search by projection),
 :mod:`~jaxpose.pipelines.stereo.frame_pose` (the pose of a frame),
 :mod:`~jaxpose.pipelines.stereo.budget` (the features of a frame's pose solve under a budget),
-:mod:`~jaxpose.pipelines.stereo.keyframes` (stereo correspondences and the map update) and
+:mod:`~jaxpose.pipelines.stereo.keyframes` (stereo correspondences and the map update),
+:mod:`~jaxpose.pipelines.stereo.window` (the joint adjustment of the last frames and their
+landmarks) and
 :mod:`~jaxpose.pipelines.stereo.tracker` (:class:`StereoTracker`, which runs them).
 """
 

@@ -142,11 +142,20 @@ def _triangulate_frame(rig, feats, pm, lm, line_ok, o: TrackerOptions) -> FrameS
 
 
 def observe_point_rays(
-    landmarks: LandmarkMap, rig: StereoCamera, idx, pixels, pose: Pose, *, right: bool
+    landmarks: LandmarkMap,
+    rig: StereoCamera,
+    idx,
+    pixels,
+    pose: Pose,
+    *,
+    right: bool,
+    log=None,
 ) -> None:
     """Observation rays (body frame) of points ``idx`` seen at ``pixels`` of the left (or right)
     image at ``pose``, weighted by ``1 / depth^2`` (pixel-error weighting), into the landmarks'
-    multi-view triangulation (:meth:`LandmarkMap.observe`)."""
+    multi-view triangulation (:meth:`LandmarkMap.observe`). ``log``: a
+    :class:`~jaxpose.pipelines.stereo.window.FrameRays` that records the rays (the windowed
+    adjustment moves them when it moves the frame's pose)."""
     if len(idx) == 0:
         return
     cam = rig.right if right else rig.left
@@ -164,6 +173,8 @@ def observe_point_rays(
     z = landmarks.points.X[idx] @ R[2] + t[2]
     w = 1.0 / np.maximum(z, 1e-3) ** 2
     landmarks.observe(idx, np.broadcast_to((centre - t) @ R, d.shape), d @ R, w)
+    if log is not None:
+        log.add(landmarks.points.ids[np.asarray(idx, int)], pixels, right, w)
 
 
 def observe_line_planes(landmarks: LandmarkMap, rig: StereoCamera, idx, S, pose: Pose) -> None:
@@ -222,12 +233,14 @@ def update_map(
     rejected_p: set,
     rejected_l: set,
     frame: int,
+    *,
+    log=None,
 ) -> None:
     """Keyframe update at ``pose``: the frame's triangulated features matched to a landmark refine
     it (when the new depth agrees with the landmark's to ``refine_disparity_px``); the others are
     added as new landmarks (unless rejected by the frame's fit, ``rejected_*``, or an unmatched
     landmark projects within ``duplicate_px``); then the map is culled. ``assoc_*``: current
-    feature index -> landmark index."""
+    feature index -> landmark index; ``log``: records the point rays (``observe_point_rays``)."""
     o = options
     fb = float(rig.left.fx) * float(rig.baseline)
     R, t = rt(pose)
@@ -243,8 +256,8 @@ def update_map(
         landmarks.refine("points", idx[agree], None, feats.point_desc[ip[has][agree]], pose, frame)
         if not o.frame_rays:
             left_px = feats.points[ip[has][agree]]
-            observe_point_rays(landmarks, rig, idx[agree], left_px, pose, right=False)
-        observe_point_rays(landmarks, rig, idx[agree], pr[has][agree], pose, right=True)
+            observe_point_rays(landmarks, rig, idx[agree], left_px, pose, right=False, log=log)
+        observe_point_rays(landmarks, rig, idx[agree], pr[has][agree], pose, right=True, log=log)
     new = ~has & ~np.isin(ip, list(rejected_p))
     if new.any() and len(m):
         cand = landmarks.candidates("points", pose)
@@ -254,8 +267,8 @@ def update_map(
             d, _ = tree.query(feats.points[ip[new]], distance_upper_bound=o.duplicate_px)
             new[np.nonzero(new)[0][np.isfinite(d)]] = False
     ids = landmarks.add("points", Pb[new], feats.point_desc[ip[new]], pose, frame)
-    observe_point_rays(landmarks, rig, ids, feats.points[ip[new]], pose, right=False)
-    observe_point_rays(landmarks, rig, ids, pr[new], pose, right=True)
+    observe_point_rays(landmarks, rig, ids, feats.points[ip[new]], pose, right=False, log=log)
+    observe_point_rays(landmarks, rig, ids, pr[new], pose, right=True, log=log)
     if o.use_lines and len(il):
         Sb = (S - t) @ R
         has_l = np.array([i in assoc_l for i in il], bool)

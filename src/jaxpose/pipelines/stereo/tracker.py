@@ -20,7 +20,10 @@ Per stereo pair (rectified, see :mod:`jaxpose.vision.stereo_match`):
    weighted by their measured residual scale relative to the points'. When the target turns back
    to a face seen before, the landmarks of that face are found again, so the error stays bounded
    instead of accumulating as a chain of frame-to-keyframe increments does (the paper's scheme);
-5. an explicit :data:`~jaxpose.core.status.Status.LOST` (pose NaN) when too few features match, the
+5. windowed adjustment (:mod:`~jaxpose.pipelines.stereo.window`, ``window_frames``): the last
+   frames' poses and their point landmarks adjusted jointly, each landmark's older rays kept as
+   a prior; the frame's result is its adjusted pose;
+6. an explicit :data:`~jaxpose.core.status.Status.LOST` (pose NaN) when too few features match, the
    solver fails, the fit error is large, or the step from the prediction is implausible; the
    tracker keeps the map and a constant-velocity prediction and tries again on the next frame
    with a doubled search radius.
@@ -49,6 +52,7 @@ from jaxpose.pipelines.stereo._arrays import (
     compose,
     find,
     fraction,
+    lines_from_segments,
     project,
     relative,
     rt,
@@ -69,6 +73,7 @@ from jaxpose.pipelines.stereo.options import (
     TrackerOptions,
     lost_pose,
 )
+from jaxpose.pipelines.stereo.window import WindowAdjuster
 from jaxpose.vision.stereo_features import FeatureOptions, extract
 from jaxpose.vision.stereo_match import disparity_range
 
@@ -186,6 +191,12 @@ class StereoTracker:
         self._line_scale = 1.0  # running ratio of line to point residual scales (line_sigma)
         self._radius = float(options.search_radius_px)  # search-by-projection radius
         self._disparity_margin = float(options.disparity_margin_px)  # around predicted disparity
+        self._window = (
+            WindowAdjuster(rig, options.window_frames, options.window_iterations)
+            if options.window_frames
+            else None
+        )
+        self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
         warm_up_projection(rig.left)
 
     # ------------------------------------------------------------------ scene-dependent settings
@@ -383,8 +394,13 @@ class StereoTracker:
                 timings=clock.wall,
                 cpu_timings=clock.cpu,
             )
+        log = None
+        if self._window is not None:
+            R, t = rt(pose)
+            log = self._window.start(R, t, fixed=True)  # the gauge
+            log.index = k
         with clock.stage("map"):
-            update_map(self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k)
+            update_map(self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k, log=log)
         if o.mature_obs > 1:  # the first frame's landmarks sit at the given pose: mature
             self.map.points.n_obs[:] = np.maximum(self.map.points.n_obs, o.mature_obs)
         self._started = True
@@ -474,10 +490,29 @@ class StereoTracker:
                     self._rejected_p,
                     self._rejected_l,
                     k,
+                    log=self._rays,
                 )
             self._since_kf = 0
             result.keyframe = True
+        if self._rays is not None:
+            with clock.stage("map"):
+                self._adjust_window(result)
         return result
+
+    def _adjust_window(self, result: FrameResult) -> None:
+        """Jointly adjust the window's poses and landmarks (``window_frames``); the frame's
+        result, the last pose and the constant-velocity motion become the adjusted ones."""
+        win, self._rays = self._window, None
+        if not win.adjust(self.map):
+            return
+        last = win.frames[-1]
+        pose = Pose(jnp.asarray(last.R), jnp.asarray(last.t))
+        if len(win.frames) >= 2 and win.frames[-2].index == last.index - 1:
+            prev = win.frames[-2]
+            self._delta = relative(pose, Pose(jnp.asarray(prev.R), jnp.asarray(prev.t)))
+        self._pose_prev = pose
+        result.pose = pose
+        self._last_depth = float(last.t[2])
 
     def _fit_frame(self, k, feats, stereo, pose_pred, matches, clock: StageClock):
         """The pose of frame ``k`` from its matches, the tracker's state moved on when it is good;
@@ -528,6 +563,10 @@ class StereoTracker:
                 result.status = int(Status.OK)
                 self._last_depth = float(pose.t[2])
                 in_p, in_l = fit.in_points, fit.in_lines
+                if self._window is not None:
+                    R, t = rt(pose)
+                    self._rays = self._window.start(R, t)
+                    self._rays.index = k
                 self.map.record("points", cand, i_m[in_p], k)
                 if o.frame_rays:
                     kept = fit.kept_points  # left in the last pass: residual below reject_px
@@ -538,8 +577,13 @@ class StereoTracker:
                         feats.points[i_cur[kept]],
                         pose,
                         right=False,
+                        log=self._rays,
                     )
                 self.map.record("lines", lcand, l_m[in_l], k)
+                if self._rays is not None and in_l.any():
+                    self._rays.line_ids = self.map.lines.ids[l_m[in_l]]
+                    self._rays.lines = lines_from_segments(feats.segments[l_cur[in_l]])
+                    self._rays.line_weight = 1.0 / line_sigma**2
                 self._since_kf += 1
                 update = (
                     dict(zip(i_cur[in_p].tolist(), i_m[in_p].tolist(), strict=True)),

@@ -1,0 +1,107 @@
+"""Windowed joint adjustment of the stereo tracker (jaxpose.pipelines.stereo.window): with
+noise-free pixels and the first pose fixed, the adjustment must return the true poses and
+landmarks (the reference is the geometry the pixels were made from)."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from jaxpose import PinholeCamera, StereoCamera
+from jaxpose.core.geometry import Pose
+from jaxpose.pipelines.stereo import LandmarkMap
+from jaxpose.pipelines.stereo.keyframes import observe_point_rays
+from jaxpose.pipelines.stereo.window import WindowAdjuster
+
+
+def _scene(n_frames=5, seed=0):
+    rng = np.random.default_rng(seed)
+    cam = PinholeCamera(800.0, 800.0, 319.5, 239.5, width=640, height=480)
+    rig = StereoCamera.from_baseline(cam, 0.3)
+    X = rng.uniform(-0.3, 0.3, (60, 3))
+    poses = []
+    for j in range(n_frames):  # the target turning 3 degrees a frame about its y axis, 2.5 m away
+        R = Rotation.from_rotvec([0.1, np.radians(3.0 * j), 0.05]).as_matrix()
+        poses.append((R, np.array([0.05, -0.02, 2.5])))
+    return rig, X, poses
+
+
+def _pixels(rig, R, t, X):
+    """Left and right pixels of body points (NumPy pinhole projection of the rectified rig)."""
+    K = np.asarray(rig.left.K)
+    out = []
+    for shift in (np.zeros(3), np.asarray(rig.t_rl)):
+        x = (X @ R.T + t + shift) @ K.T
+        out.append(x[:, :2] / x[:, 2:])
+    return out
+
+
+def _angle_deg(Ra, Rb):
+    return np.degrees(Rotation.from_matrix(Ra @ Rb.T).magnitude())
+
+
+def test_adjustment_recovers_the_true_poses_and_landmarks():
+    iterations = 8
+    rig, X, poses = _scene()
+    rng = np.random.default_rng(1)
+    m = LandmarkMap()
+    win = WindowAdjuster(rig, frames=5, iterations=iterations)
+    ids = None
+    for j, (R, t) in enumerate(poses):
+        # the frames' poses as a tracker would have them: off by up to 0.5 degree and 1 cm
+        if j == 0:
+            Re, te = R, t
+        else:
+            Re = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R
+            te = t + rng.normal(0, 0.006, 3)
+        pose = Pose(Re, te)
+        if ids is None:
+            ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), pose, 0)
+        rec = win.start(Re, te, fixed=j == 0)
+        left, right = _pixels(rig, R, t, X)
+        observe_point_rays(m, rig, ids, left, pose, right=False, log=rec)
+        observe_point_rays(m, rig, ids, right, pose, right=True, log=rec)
+    before = max(_angle_deg(fr.R, R) for fr, (R, _) in zip(win.frames, poses, strict=True))
+    err_X_before = np.abs(m.points.X - X).max()
+    assert before > 0.2 and err_X_before > 1e-3
+    assert win.adjust(m)
+    for fr, (R, t) in zip(win.frames, poses, strict=True):
+        assert _angle_deg(fr.R, R) < 1e-5
+        np.testing.assert_allclose(fr.t, t, atol=1e-7)
+    # the rays moved to the adjusted poses: the landmarks are the true points
+    np.testing.assert_allclose(m.points.X, X, atol=1e-6)
+
+
+def test_older_rays_are_a_prior_that_holds_the_landmarks():
+    """A landmark's rays from frames that left the window stay in its triangulation: with the
+    older frames at the true poses, a window whose only fixed information is those rays (no
+    fixed frame, the oldest frame not anchored) returns the true poses."""
+    rig, X, poses = _scene(n_frames=6)
+    m = LandmarkMap()
+    win = WindowAdjuster(rig, frames=3, iterations=8)
+    win.anchor_oldest = False
+    ids = m.add("points", X, np.zeros((60, 32)), Pose(*poses[0]), 0)
+    rng = np.random.default_rng(2)
+    for j, (R, t) in enumerate(poses):
+        Re, te = R, t
+        if j >= 3:  # the window's frames: off by up to 0.5 degree
+            Re = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R
+            te = t + rng.normal(0, 0.006, 3)
+        rec = win.start(Re, te)
+        left, right = _pixels(rig, R, t, X)
+        observe_point_rays(m, rig, ids, left, Pose(Re, te), right=False, log=rec)
+        observe_point_rays(m, rig, ids, right, Pose(Re, te), right=True, log=rec)
+    assert [fr.fixed for fr in win.frames] == [False] * 3
+    assert win.adjust(m)
+    for fr, (R, t) in zip(win.frames, poses[3:], strict=True):
+        assert _angle_deg(fr.R, R) < 1e-4
+        np.testing.assert_allclose(fr.t, t, atol=1e-6)
+    np.testing.assert_allclose(m.points.X, X, atol=1e-6)
+
+
+def test_window_frames_option_is_checked():
+    from jaxpose.pipelines.stereo import TrackerOptions
+
+    with pytest.raises(ValueError, match="window_frames"):
+        TrackerOptions(window_frames=1)
+    with pytest.raises(ValueError, match="window frames"):
+        WindowAdjuster(StereoCamera.from_baseline(PinholeCamera(800.0, 800.0, 1.0, 1.0), 0.3), 1)
