@@ -105,3 +105,48 @@ def test_window_frames_option_is_checked():
         TrackerOptions(window_frames=1)
     with pytest.raises(ValueError, match="window frames"):
         WindowAdjuster(StereoCamera.from_baseline(PinholeCamera(800.0, 800.0, 1.0, 1.0), 0.3), 1)
+
+
+def test_landmark_cap_still_recovers_poses_and_moves_every_landmark():
+    """``max_points`` (``TrackerOptions.window_points``): 20 of the 60 landmarks in the solve;
+    the poses are still the true ones and the rays of the other 40 move with them."""
+    rig, X, poses = _scene()
+    rng = np.random.default_rng(3)
+    m = LandmarkMap()
+    win = WindowAdjuster(rig, frames=5, iterations=8, max_points=20)
+    ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), Pose(*poses[0]), 0)
+    for j, (R, t) in enumerate(poses):
+        Re, te = R, t
+        if j:
+            Re = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R
+            te = t + rng.normal(0, 0.006, 3)
+        rec = win.start(Re, te, fixed=j == 0)
+        left, right = _pixels(rig, R, t, X)
+        observe_point_rays(m, rig, ids, left, Pose(Re, te), right=False, log=rec)
+        observe_point_rays(m, rig, ids, right, Pose(Re, te), right=True, log=rec)
+    assert win.adjust(m)
+    for fr, (R, t) in zip(win.frames, poses, strict=True):
+        assert _angle_deg(fr.R, R) < 1e-5
+        np.testing.assert_allclose(fr.t, t, atol=1e-7)
+    np.testing.assert_allclose(m.points.X, X, atol=1e-6)
+
+
+def test_window_every_and_points_options():
+    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
+    from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
+
+    for bad in (dict(window_every=0), dict(window_points=0)):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            TrackerOptions(**bad)
+    with pytest.raises(ValueError, match="at most window_frames"):
+        TrackerOptions(window_frames=4, window_every=5)
+    # behaviour: the adjustment runs on every window_every-th tracked frame (adjust counted)
+    rig = default_rig()
+    frames = list(render_sequence(StereoScene(frames=4), rig))
+    calls = {}
+    for every in (1, 2):
+        tracker = StereoTracker(rig, frames[0].pose, options=TrackerOptions(window_every=every))
+        tracker._window.adjust = lambda m, e=every: calls.__setitem__(e, calls.get(e, 0) + 1)
+        for fr in frames:
+            tracker.process(fr.left, fr.right)
+    assert calls == {1: 3, 2: 1}  # the 3 tracked frames after the first (map start)

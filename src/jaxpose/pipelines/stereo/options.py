@@ -113,6 +113,11 @@ class TrackerOptions:
             frame's result is its adjusted pose. ``0``: off. 8 chosen on the development
             scenes (6 and 12 tried on ``d2`` and ``d6``).
         window_iterations: Gauss-Newton iterations of each adjustment.
+        window_every: run the windowed adjustment on every ``window_every``-th tracked frame
+            only (the frames in between keep their single-frame poses until the next
+            adjustment moves them); at most ``window_frames`` for every frame to be adjusted.
+        window_points: most point landmarks in each adjustment (those observed most often in
+            the window).
         feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
             points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
             dilution of precision at the predicted pose), ``"random"`` or ``"response"``
@@ -177,6 +182,8 @@ class TrackerOptions:
     )
     window_frames: int = 8
     window_iterations: int = 2
+    window_every: int = 1
+    window_points: int = 600
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
     budget_rule: str = "dop"
@@ -209,6 +216,15 @@ class TrackerOptions:
         ):
             raise ValueError(
                 f"window_frames must be 0 or an integer >= 2; got {self.window_frames!r}"
+            )
+        for name in ("window_every", "window_points"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | np.integer) and value >= 1):
+                raise ValueError(f"{name} must be an integer >= 1; got {value!r}")
+        if self.window_frames and self.window_every > self.window_frames:
+            raise ValueError(
+                f"window_every must be at most window_frames ({self.window_frames}); "
+                f"got {self.window_every}"
             )
         if not 0.0 <= self.line_scale_memory < 1.0:
             raise ValueError(f"line_scale_memory must be in [0, 1); got {self.line_scale_memory}")

@@ -192,11 +192,17 @@ class StereoTracker:
         self._radius = float(options.search_radius_px)  # search-by-projection radius
         self._disparity_margin = float(options.disparity_margin_px)  # around predicted disparity
         self._window = (
-            WindowAdjuster(rig, options.window_frames, options.window_iterations)
+            WindowAdjuster(
+                rig,
+                options.window_frames,
+                options.window_iterations,
+                max_points=options.window_points,
+            )
             if options.window_frames
             else None
         )
         self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
+        self._tracked = 0  # frames recorded in the window (window_every)
         warm_up_projection(rig.left)
 
     # ------------------------------------------------------------------ scene-dependent settings
@@ -495,8 +501,11 @@ class StereoTracker:
             self._since_kf = 0
             result.keyframe = True
         if self._rays is not None:
-            with clock.stage("map"):
-                self._adjust_window(result)
+            self._rays = None
+            self._tracked += 1
+            if self._tracked % self.options.window_every == 0:
+                with clock.stage("map"):
+                    self._adjust_window(result)
         return result
 
     def _adjust_window(self, result: FrameResult) -> None:
