@@ -140,13 +140,20 @@ def test_window_every_and_points_options():
             TrackerOptions(**bad)
     with pytest.raises(ValueError, match="at most window_frames"):
         TrackerOptions(window_frames=4, window_every=5)
+    with pytest.raises(ValueError, match="window_depth_m"):
+        TrackerOptions(window_depth_m=0.0)
     # behaviour: the adjustment runs on every window_every-th tracked frame (adjust counted)
     rig = default_rig()
-    frames = list(render_sequence(StereoScene(frames=4), rig))
+    frames = list(render_sequence(StereoScene(frames=3), rig))
     calls = {}
     for every in (1, 2):
-        tracker = StereoTracker(rig, frames[0].pose, options=TrackerOptions(window_every=every))
+        options = TrackerOptions(window_every=every, window_depth_m=None)
+        tracker = StereoTracker(rig, frames[0].pose, options=options)
         tracker._window.adjust = lambda m, e=every: calls.__setitem__(e, calls.get(e, 0) + 1)
         for fr in frames:
             tracker.process(fr.left, fr.right)
-    assert calls == {1: 3, 2: 1}  # the 3 tracked frames after the first (map start)
+    assert calls == {1: 2, 2: 1}  # the 2 tracked frames after the first (map start)
+    # the depth rule: floor(window_depth_m / depth) within [1, window_every]
+    tracker = StereoTracker(rig, None, options=TrackerOptions(window_every=3, window_depth_m=6.0))
+    ks = [tracker._window_every(z) for z in (1.0, 1.5, 2.5, 3.0, 3.5, 5.0)]
+    assert ks == [3, 3, 2, 2, 1, 1]

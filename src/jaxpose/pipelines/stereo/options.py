@@ -113,9 +113,14 @@ class TrackerOptions:
             frame's result is its adjusted pose. ``0``: off. 8 chosen on the development
             scenes (6 and 12 tried on ``d2`` and ``d6``).
         window_iterations: Gauss-Newton iterations of each adjustment.
-        window_every: run the windowed adjustment on every ``window_every``-th tracked frame
-            only (the frames in between keep their single-frame poses until the next
-            adjustment moves them); at most ``window_frames`` for every frame to be adjusted.
+        window_every, window_depth_m: run the windowed adjustment every ``k``-th tracked frame
+            only, ``k = floor(window_depth_m / depth)`` within ``[1, window_every]`` (``depth``:
+            the frame's single-frame pose's ``t_z``; ``window_depth_m=None``: ``k =
+            window_every``). The frames in between keep their single-frame poses (the next
+            adjustment moves them in the window). Near the target the single-frame poses are
+            already good and the adjustment costs the most; at range it is cheap and needed.
+            Chosen on the development scenes (``docs/stereo.md``): ``k = 1`` beyond 3 m, 2 at
+            2-3 m, 3 at 1.5-2 m, 4 at 1.5 m and nearer.
         window_points: most point landmarks in each adjustment (those observed most often in
             the window).
         feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
@@ -182,7 +187,8 @@ class TrackerOptions:
     )
     window_frames: int = 8
     window_iterations: int = 2
-    window_every: int = 1
+    window_every: int = 4
+    window_depth_m: float | None = 6.0
     window_points: int = 600
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
@@ -221,6 +227,8 @@ class TrackerOptions:
             value = getattr(self, name)
             if not (isinstance(value, int | np.integer) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1; got {value!r}")
+        if self.window_depth_m is not None and not self.window_depth_m > 0:
+            raise ValueError(f"window_depth_m must be positive or None; got {self.window_depth_m}")
         if self.window_frames and self.window_every > self.window_frames:
             raise ValueError(
                 f"window_every must be at most window_frames ({self.window_frames}); "

@@ -202,7 +202,7 @@ class StereoTracker:
             else None
         )
         self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
-        self._tracked = 0  # frames recorded in the window (window_every)
+        self._since_adjust = 0  # tracked frames since the last adjustment (window_every)
         warm_up_projection(rig.left)
 
     # ------------------------------------------------------------------ scene-dependent settings
@@ -501,12 +501,23 @@ class StereoTracker:
             self._since_kf = 0
             result.keyframe = True
         if self._rays is not None:
-            self._rays = None
-            self._tracked += 1
-            if self._tracked % self.options.window_every == 0:
+            depth, self._rays = float(self._rays.t[2]), None
+            self._since_adjust += 1
+            if self._since_adjust >= self._window_every(depth):
+                self._since_adjust = 0
                 with clock.stage("map"):
                     self._adjust_window(result)
         return result
+
+    def _window_every(self, depth: float) -> int:
+        """Frames between two adjustments: ``window_depth_m / depth`` (rounded down) within
+        ``[1, window_every]``, or ``window_every`` without ``window_depth_m``. Near the target
+        the single-frame poses are already good (many features, wide apparent size) and the
+        adjustment is at its most expensive (the most landmarks)."""
+        o = self.options
+        if o.window_depth_m is None or not depth > 0:
+            return o.window_every
+        return int(min(o.window_every, max(1, np.floor(o.window_depth_m / depth))))
 
     def _adjust_window(self, result: FrameResult) -> None:
         """Jointly adjust the window's poses and landmarks (``window_frames``); the frame's
