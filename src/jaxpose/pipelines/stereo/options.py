@@ -189,7 +189,7 @@ class TrackerOptions:
     window_iterations: int = 2
     window_every: int = 4
     window_depth_m: float | None = 6.0
-    window_points: int = 600
+    window_points: int = 300
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
     budget_rule: str = "dop"

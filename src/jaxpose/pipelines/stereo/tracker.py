@@ -22,7 +22,8 @@ Per stereo pair (rectified, see :mod:`jaxpose.vision.stereo_match`):
    instead of accumulating as a chain of frame-to-keyframe increments does (the paper's scheme);
 5. windowed adjustment (:mod:`~jaxpose.pipelines.stereo.window`, ``window_frames``): the last
    frames' poses and their point landmarks adjusted jointly, each landmark's older rays kept as
-   a prior; the frame's result is its adjusted pose;
+   a prior, every frame beyond 3 m and every 2nd-4th nearer (``window_every``,
+   ``window_depth_m``); an adjusted frame's result is its adjusted pose;
 6. an explicit :data:`~jaxpose.core.status.Status.LOST` (pose NaN) when too few features match, the
    solver fails, the fit error is large, or the step from the prediction is implausible; the
    tracker keeps the map and a constant-velocity prediction and tries again on the next frame
