@@ -38,6 +38,14 @@ from jaxpose.pipelines.stereo.landmarks import LandmarkMap
 __all__ = ["FrameRays", "WindowAdjuster"]
 
 
+def _rows_of(ids: np.ndarray, order: np.ndarray, wanted: np.ndarray):
+    """Rows of a landmark set holding the stable ids ``wanted`` (those still in the map):
+    ``ids[order]`` is sorted; returns the rows ``(k,)`` and which of ``wanted`` were found."""
+    pos = np.minimum(np.searchsorted(ids[order], wanted), len(order) - 1)
+    hit = ids[order][pos] == wanted
+    return order[pos[hit]], hit
+
+
 @dataclass
 class FrameRays:
     """The point rays one frame added to the map, and the pose they were placed at.
@@ -146,10 +154,8 @@ class WindowAdjuster:
         obs = []
         for j, fr in enumerate(frames):
             ids, px, right, w = fr.arrays()
-            pos = np.searchsorted(s.ids[order], ids)
-            pos = np.minimum(pos, len(order) - 1)
-            hit = s.ids[order][pos] == ids
-            obs.append((j, order[pos[hit]], px[hit], right[hit], w[hit]))
+            at, hit = _rows_of(s.ids, order, ids)
+            obs.append((j, at, px[hit], right[hit], w[hit]))
         jj = np.concatenate([np.full(len(o[1]), o[0]) for o in obs])
         if len(jj) < 20:
             return False
@@ -210,11 +216,10 @@ class WindowAdjuster:
         for j, fr in enumerate(frames):
             if len(fr.line_ids) == 0:
                 continue
-            pos = np.minimum(np.searchsorted(s.ids[order], fr.line_ids), len(order) - 1)
-            hit = s.ids[order][pos] == fr.line_ids
+            at, hit = _rows_of(s.ids, order, np.asarray(fr.line_ids))
             if not hit.any():
                 continue
-            Xl = s.X[order[pos[hit]]]  # (k, 2, 3)
+            Xl = s.X[at]  # (k, 2, 3)
             L = fr.lines[hit]
             L = L / np.linalg.norm(L[:, :2], axis=1, keepdims=True)
             k = len(L)
