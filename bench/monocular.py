@@ -162,7 +162,7 @@ def _roi_summary(rows, args) -> None:
         },
         "median_detect_s": float(np.median([r["detect_s"] for r in rows])),
     }
-    print(json.dumps(summary, indent=1))
+    print(json.dumps(summary))  # the last line: one JSON line
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps({"summary": summary, "per_image": rows}))
@@ -193,7 +193,7 @@ def _speedplus(args, model, opts) -> None:
         s: float(np.median([r["timings"].get(s, 0.0) for r in rows if "timings" in r]))
         for s in stages
     }
-    print(json.dumps({k: v for k, v in out.items() if k != "per_image"}, indent=1))
+    print(json.dumps({k: v for k, v in out.items() if k != "per_image"}))  # one JSON line
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(out, default=_json_default))
@@ -474,7 +474,7 @@ def main() -> None:
             s: float(np.median([r["timings"].get(s, 0.0) for r in rows])) for s in stages
         },
     }
-    print(json.dumps(summary, indent=1))
+    print(json.dumps(summary))  # the last line: one JSON line
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(

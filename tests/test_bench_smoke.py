@@ -1,0 +1,60 @@
+"""The benches run end to end at the smallest size and end with one JSON line of their figures
+(their timings are not checked here: speed is the benches' business, not the tests')."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _last_json_line(args, tmp_path):
+    proc = subprocess.run(
+        [sys.executable, *args],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = [line for line in proc.stdout.splitlines() if line.strip()]
+    assert lines, "the bench printed nothing"
+    return json.loads(lines[-1])
+
+
+@pytest.mark.slow
+def test_monocular_bench_runs_and_ends_with_its_figures(tmp_path):
+    out = _last_json_line(
+        [str(REPO / "bench" / "monocular.py"), "--images", "1", "--out", str(tmp_path / "m.json")],
+        tmp_path,
+    )
+    assert out["images"] == 1
+    assert 0.0 <= out["success_rate"] <= 1.0
+    assert out["median_runtime_s"] > 0
+    assert set(out["confidence_counts"]) >= {"high", "low", "position-only"}
+    per_image = json.loads((tmp_path / "m.json").read_text())["per_image"]
+    assert len(per_image) == 1
+
+
+@pytest.mark.slow
+def test_stereo_bench_runs_and_ends_with_its_figures(tmp_path):
+    out = _last_json_line(
+        [
+            str(REPO / "bench" / "stereo.py"),
+            "--scenes",
+            "d1-clean-2m",
+            "--frames",
+            "3",
+            "--points-lines-only",
+            "--out",
+            str(tmp_path / "st"),
+        ],
+        tmp_path,
+    )
+    assert out["scenes"] == 1 and out["frames_per_scene"] == 3
+    assert out["median_fps"] > 0
+    assert {"features", "stereo", "pose", "map"} <= set(out["median_stage_ms"])
+    assert (tmp_path / "st" / "results.json").is_file()
