@@ -107,11 +107,11 @@ class TrackerOptions:
         threads: run the line detection (LSD + LBD) and the lines' stereo search in a second
             thread, beside the points' (the same results; on two cores the wall times overlap).
         window_frames: jointly adjust the poses of the last ``window_frames`` tracked frames
-            and the point landmarks they observed after every frame
+            and the point landmarks they observed, every ``k``-th frame (``window_every``)
             (:mod:`~jaxpose.pipelines.stereo.window`; each landmark keeps its rays from older
-            frames as a prior, the first frame's pose is fixed while it is in the window); the
-            frame's result is its adjusted pose. ``0``: off. 8 chosen on the development
-            scenes (6 and 12 tried on ``d2`` and ``d6``).
+            frames as a prior, the first frame's pose is fixed while it is in the window); an
+            adjusted frame's result is its adjusted pose. ``0``: off. 8 chosen on the
+            development scenes ``d2`` and ``d6`` against 6 and 12.
         window_iterations: Gauss-Newton iterations of each adjustment.
         window_every, window_depth_m: run the windowed adjustment every ``k``-th tracked frame
             only, ``k = floor(window_depth_m / depth)`` within ``[1, window_every]`` (``depth``:
