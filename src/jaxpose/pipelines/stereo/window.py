@@ -33,17 +33,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from jaxpose.core.camera import StereoCamera
+from jaxpose.pipelines.stereo._arrays import find
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
 
 __all__ = ["FrameRays", "WindowAdjuster"]
-
-
-def _rows_of(ids: np.ndarray, order: np.ndarray, wanted: np.ndarray):
-    """Rows of a landmark set holding the stable ids ``wanted`` (those still in the map):
-    ``ids[order]`` is sorted; returns the rows ``(k,)`` and which of ``wanted`` were found."""
-    pos = np.minimum(np.searchsorted(ids[order], wanted), len(order) - 1)
-    hit = ids[order][pos] == wanted
-    return order[pos[hit]], hit
 
 
 @dataclass
@@ -150,12 +143,11 @@ class WindowAdjuster:
         s = landmarks.points
         if len(s) == 0:
             return False
-        order = np.argsort(s.ids)
         obs = []
         for j, fr in enumerate(frames):
             ids, px, right, w = fr.arrays()
-            at, hit = _rows_of(s.ids, order, ids)
-            obs.append((j, at, px[hit], right[hit], w[hit]))
+            q, at = find(s.ids, ids)  # the rays whose landmark is still in the map
+            obs.append((j, at, px[q], right[q], w[q]))
         jj = np.concatenate([np.full(len(o[1]), o[0]) for o in obs])
         if len(jj) < 20:
             return False
@@ -211,16 +203,15 @@ class WindowAdjuster:
         s = landmarks.lines
         if len(s) == 0:
             return None
-        order = np.argsort(s.ids)
         rows = []
         for j, fr in enumerate(frames):
             if len(fr.line_ids) == 0:
                 continue
-            at, hit = _rows_of(s.ids, order, np.asarray(fr.line_ids))
-            if not hit.any():
+            q, at = find(s.ids, np.asarray(fr.line_ids))
+            if len(q) == 0:
                 continue
             Xl = s.X[at]  # (k, 2, 3)
-            L = fr.lines[hit]
+            L = fr.lines[q]
             L = L / np.linalg.norm(L[:, :2], axis=1, keepdims=True)
             k = len(L)
             rows.append(
