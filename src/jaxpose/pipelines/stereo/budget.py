@@ -392,19 +392,34 @@ def point_sigma_eff(landmarks, i_m, pose: Pose, rig, o: TrackerOptions, mode: st
     ``sqrt(s^2 + trace(J C_X J^T) / 2)``, ``s`` the measured spread (``"measured"``,
     ``"both"``) or ``sigma_px``, ``C_X`` the landmark covariance (``"landmark"``, ``"both"``)."""
     i_m = np.asarray(i_m, int)
-    s2 = np.full(len(i_m), float(o.sigma_px) ** 2)
-    if mode in ("measured", "both"):
-        s2 = residual_spread(landmarks).sigma(landmarks.points.ids[i_m], o.sigma_px) ** 2
-    if mode in ("landmark", "both") and len(i_m):
+    sig, cov = _noise_terms(landmarks, i_m, pose, rig, o, mode)
+    s2 = sig**2
+    if cov is not None:
         X = landmarks.points.X[i_m]
-        t_rl = np.asarray(rig.t_rl, float)
-        cov = landmark_covariance(
-            landmarks.points.M[i_m], X, pose, rig.left, float(np.linalg.norm(t_rl)), o.sigma_px
-        )
         R, t = np.asarray(pose.R, float), np.asarray(pose.t, float)
         J = _projection_jacobian(X @ R.T + t, R, rig.left)
         s2 = s2 + np.einsum("nij,njk,nik->n", J, cov, J) / 2
     return np.sqrt(s2)
+
+
+def _noise_terms(landmarks, i_m, pose: Pose, rig, o: TrackerOptions, mode: str):
+    """The two parts of the effective noise of point landmarks ``i_m`` under ``mode``: ``(n,)``
+    pixel noise (the measured spread for ``"measured"`` and ``"both"``, else ``sigma_px``) and
+    the ``(n, 3, 3)`` landmark covariance for ``"landmark"`` and ``"both"`` (else ``None``)."""
+    sig = np.full(len(i_m), float(o.sigma_px))
+    if mode in ("measured", "both"):
+        sig = residual_spread(landmarks).sigma(landmarks.points.ids[i_m], o.sigma_px)
+    cov = None
+    if mode in ("landmark", "both") and len(i_m):
+        cov = landmark_covariance(
+            landmarks.points.M[i_m],
+            landmarks.points.X[i_m],
+            pose,
+            rig.left,
+            float(np.linalg.norm(np.asarray(rig.t_rl, float))),
+            o.sigma_px,
+        )
+    return sig, cov
 
 
 def effective_whitening(cov_X, X_body, pose: Pose, camera, t_rl, sigma_px, has_right):
@@ -508,19 +523,9 @@ def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, li
     noise = o.budget_noise
     if noise != "pixel" and len(cand_p):
         has_right = w_p[cand_p, 1] > 0
-        sig = np.full(len(cand_p), float(o.sigma_px))
-        if noise in ("measured", "both"):
-            sig = residual_spread(landmarks).sigma(landmarks.points.ids[i_m[cand_p]], o.sigma_px)
-        cov = np.zeros((len(cand_p), 3, 3))
-        if noise in ("landmark", "both"):
-            cov = landmark_covariance(
-                landmarks.points.M[i_m[cand_p]],
-                X[cand_p],
-                pose_pred,
-                rig.left,
-                float(np.linalg.norm(t_rl)),
-                o.sigma_px,
-            )
+        sig, cov = _noise_terms(landmarks, i_m[cand_p], pose_pred, rig, o, noise)
+        if cov is None:
+            cov = np.zeros((len(cand_p), 3, 3))
         Wh = effective_whitening(cov, X[cand_p], pose_pred, rig.left, t_rl, sig, has_right)
         r = np.asarray(rows, float).copy()
         r[cand_p] = np.einsum("nij,njk->nik", Wh, r[cand_p] * o.sigma_px)  # unweighted, whitened
@@ -555,15 +560,14 @@ def fit_pose_budgeted(
     factory that times a named stage, e.g. ``StageClock.stage`` of the tracker)."""
     o = options
     if o.feature_budget is None:
-        mode = "measured" if o.measured_point_sigma else "pixel"
-        if mode == "pixel":
+        if not o.measured_point_sigma:
             return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
         i_m = matches[0]
-        sig = point_sigma_eff(landmarks, i_m, pose_pred, rig, o, mode)
+        sig = point_sigma_eff(landmarks, i_m, pose_pred, rig, o, "measured")
         fit = fit_pose(
             landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, point_sigma=sig
         )
-        if fit.solver_ok and mode in ("measured", "both"):
+        if fit.solver_ok:
             residual_spread(landmarks).update(landmarks.points.ids[i_m], fit.e_points, o.sigma_px)
         return fit
     with stage("budget") if stage is not None else contextlib.nullcontext():
