@@ -1,5 +1,6 @@
 """Array helpers of the stereo tracker: padding, NumPy views of a pose, projection of body points
-through :meth:`PinholeCamera.project` at padded sizes, homogeneous image lines, sorted lookup."""
+through :meth:`PinholeCamera.project` at padded sizes, the pinhole pixel Jacobian, homogeneous
+image lines, sorted lookup."""
 
 from __future__ import annotations
 
@@ -90,6 +91,19 @@ def project(camera: PinholeCamera, pose: Pose | None, points_body: np.ndarray) -
     pose = Pose(jnp.eye(3), jnp.zeros(3)) if pose is None else pose
     uv = np.asarray(_project(camera, pose, jnp.asarray(pad(flat, size, 1.0))))[:n]
     return uv.reshape(*X.shape[:-1], 2)
+
+
+def pixel_jacobian(x_cam: np.ndarray, fx: float, fy: float) -> np.ndarray:
+    """``(n, 2, 3)`` derivatives of the undistorted pixels of camera-frame points ``x_cam``
+    ``(n, 3)`` (metres) with respect to those points: ``[[fx/z, 0, -fx x/z^2], [0, fy/z,
+    -fy y/z^2]]``."""
+    iz = 1.0 / x_cam[:, 2]
+    J = np.zeros((len(x_cam), 2, 3))
+    J[:, 0, 0] = fx * iz
+    J[:, 0, 2] = -fx * x_cam[:, 0] * iz**2
+    J[:, 1, 1] = fy * iz
+    J[:, 1, 2] = -fy * x_cam[:, 1] * iz**2
+    return J
 
 
 def lines_from_segments(segments: np.ndarray) -> np.ndarray:

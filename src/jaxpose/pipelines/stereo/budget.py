@@ -66,7 +66,7 @@ from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.dilution import point_jacobians
 from jaxpose.core.geometry import Pose
 from jaxpose.core.line_dop import line_jacobians
-from jaxpose.pipelines.stereo._arrays import find, project
+from jaxpose.pipelines.stereo._arrays import find, pixel_jacobian, project
 from jaxpose.pipelines.stereo.frame_pose import (
     PoseFit,
     fit_pose,
@@ -379,12 +379,7 @@ def landmark_covariance(M, X_body, pose: Pose, camera, baseline_m: float, sigma_
 
 def _projection_jacobian(x_cam, R, camera):
     """``(n, 2, 3)``: d(pixels)/d(body point) of points at ``x_cam`` (camera frame)."""
-    fx, fy = float(camera.fx), float(camera.fy)
-    z = x_cam[:, 2]
-    D = np.zeros((len(x_cam), 2, 3))
-    D[:, 0, 0], D[:, 0, 2] = fx / z, -fx * x_cam[:, 0] / z**2
-    D[:, 1, 1], D[:, 1, 2] = fy / z, -fy * x_cam[:, 1] / z**2
-    return D @ R
+    return pixel_jacobian(x_cam, float(camera.fx), float(camera.fy)) @ R
 
 
 def point_sigma_eff(landmarks, i_m, pose: Pose, rig, o: TrackerOptions, mode: str) -> np.ndarray:

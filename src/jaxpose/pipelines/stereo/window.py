@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from jaxpose.core.camera import StereoCamera
-from jaxpose.pipelines.stereo._arrays import find
+from jaxpose.pipelines.stereo._arrays import find, pixel_jacobian
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
 
 __all__ = ["FrameRays", "WindowAdjuster"]
@@ -261,11 +261,7 @@ class WindowAdjuster:
             r = np.stack([fx * p[:, 0] * iz + cx - px[:, 0], fy * p[:, 1] * iz + cy - px[:, 1]], 1)
             e = np.sqrt(r[:, 0] ** 2 + r[:, 1] ** 2)
             hw = np.where(e > self.huber_px, self.huber_px / np.maximum(e, 1e-12), 1.0)
-            Jp = np.zeros((len(p), 2, 3))
-            Jp[:, 0, 0] = fx * iz
-            Jp[:, 0, 2] = -fx * p[:, 0] * iz**2
-            Jp[:, 1, 1] = fy * iz
-            Jp[:, 1, 2] = -fy * p[:, 1] * iz**2
+            Jp = pixel_jacobian(p, fx, fy)
             # Jp R, row by row (Jp has two non-zeros a row)
             JX = np.stack(
                 [
