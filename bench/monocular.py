@@ -84,18 +84,15 @@ def true_pose_score(res, pose, model, opts) -> float:
 def spread_with_background(res, model) -> float | None:
     """The face-shading spread at the returned pose with the background as one more label
     (``_face_spread(..., background=True)``; a diagnostic for the confidence calibration)."""
-    from jaxpose.pipelines.monocular.scene import _as_jax, _edge_scene
+    from jaxpose.pipelines.monocular.scene import _edge_scene, _with_shading
     from jaxpose.pipelines.monocular.score import _jit_face_spread
-    from jaxpose.vision.image_maps import shading_grid
 
     if res.pose is None or res.detection is None or res.detection.roi is None:
         return None
     sc = _edge_scene(res.detection, model, InitOptions())
     if sc.face_poly is None:
         return None
-    if sc.shade_pts is None:  # the scene holds the grid only where a ranking weight reads it
-        pts, val, sq = _as_jax(shading_grid(res.detection.image, res.detection.roi))
-        sc = sc._replace(shade_pts=pts, shade_val=val, shade_sq=sq)
+    sc = _with_shading(sc, res.detection)
     R, t = jnp.asarray(np.asarray(res.pose.R)), jnp.asarray(np.asarray(res.pose.t))
     return float(_jit_face_spread()(R, t, sc, False, True))
 

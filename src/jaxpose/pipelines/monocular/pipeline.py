@@ -13,7 +13,7 @@ from jaxpose.pipelines.monocular.classify import classify
 from jaxpose.pipelines.monocular.hypothesise import _ransac_candidates, _svd_candidates
 from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR, InitOptions, InitResult
 from jaxpose.pipelines.monocular.rematch import _e2d, _rematch_refine
-from jaxpose.pipelines.monocular.scene import _as_jax, _edge_scene
+from jaxpose.pipelines.monocular.scene import _as_jax, _edge_scene, _with_shading
 from jaxpose.pipelines.monocular.score import (
     _jit_face_spread,
     _jit_orientation_term,
@@ -21,7 +21,7 @@ from jaxpose.pipelines.monocular.score import (
     _score_poses,
 )
 from jaxpose.vision.features import detect
-from jaxpose.vision.image_maps import orientation_maps, shading_grid
+from jaxpose.vision.image_maps import orientation_maps
 from jaxpose.vision.models import WireframeModel, tango
 from jaxpose.vision.render import visible_edges
 from jaxpose.vision.roi import roi_diagonal
@@ -143,11 +143,7 @@ def initialise_pose(
     margin = _margin(poses, np.where(good, key, np.inf), best) / l_roi
     spread = None  # evidence for the class whatever its ranking weight (None: no faces)
     if sc.face_poly is not None and len(model.faces):
-        sc_sh = sc
-        if sc.shade_pts is None:
-            cells = _as_jax(shading_grid(det.image, det.roi))
-            sc_sh = sc._replace(shade_pts=cells[0], shade_val=cells[1], shade_sq=cells[2])
-        spread = float(_jit_face_spread()(pose_R, pose_t, sc_sh))
+        spread = float(_jit_face_spread()(pose_R, pose_t, _with_shading(sc, det)))
     timings["select_s"] = time.perf_counter() - t1
     s_rel = float(score[best]) / l_roi
     conf = classify(

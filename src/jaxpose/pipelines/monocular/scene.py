@@ -125,15 +125,29 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
     )
 
 
+def _pool_cells(grid: int, pts, *values):
+    """2x2 pooling of the cells of a ``grid x grid`` cell grid (row-major): the centres ``(G^2,
+    2)`` and each per-cell array ``(G^2,)`` averaged over blocks of four, ``G = grid // 2``."""
+    G = grid // 2
+    pooled = [pts.reshape(G, 2, G, 2, 2).mean(axis=(1, 3)).reshape(-1, 2)]
+    pooled += [v.reshape(G, 2, G, 2).mean(axis=(1, 3)).reshape(-1) for v in values]
+    return tuple(pooled)
+
+
 def _pool_shading(pts, val, sq):
     """2x2 pooling of the shading grid's cells (exact: a pooled cell's two moments are the means
     of its four cells')."""
-    G = image_maps.SHADING_GRID // 2
-    return (
-        pts.reshape(G, 2, G, 2, 2).mean(axis=(1, 3)).reshape(-1, 2),
-        val.reshape(G, 2, G, 2).mean(axis=(1, 3)).reshape(-1),
-        sq.reshape(G, 2, G, 2).mean(axis=(1, 3)).reshape(-1),
-    )
+    return _pool_cells(image_maps.SHADING_GRID, pts, val, sq)
+
+
+def _with_shading(sc: _EdgeScene, det: Detection) -> _EdgeScene:
+    """The scene with the shading grid of the detection's image (:func:`_edge_scene` holds it
+    only where a ranking weight reads it; the face-shading spread of the final pose is evidence
+    for the confidence class whatever the weights)."""
+    if sc.shade_pts is not None:
+        return sc
+    pts, val, sq = _as_jax(image_maps.shading_grid(det.image, det.roi))
+    return sc._replace(shade_pts=pts, shade_val=val, shade_sq=sq)
 
 
 def _as_jax(arrays):

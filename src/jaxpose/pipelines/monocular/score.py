@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.core.camera import PinholeCamera
-from jaxpose.pipelines.monocular.scene import _EdgeScene
+from jaxpose.pipelines.monocular.scene import _EdgeScene, _pool_cells
 from jaxpose.vision.image_maps import SILHOUETTE_GRID
 
 
@@ -168,10 +168,7 @@ def _silhouette_cells(sc: _EdgeScene, coarse: bool):
     quick score; the shortlist's ranking key uses the full grid)."""
     if not coarse:
         return sc.sil_pts, sc.sil_val
-    G = SILHOUETTE_GRID // 2
-    pts = sc.sil_pts.reshape(G, 2, G, 2, 2).mean(axis=(1, 3)).reshape(-1, 2)
-    val = sc.sil_val.reshape(G, 2, G, 2).mean(axis=(1, 3)).reshape(-1)
-    return pts, val
+    return _pool_cells(SILHOUETTE_GRID, sc.sil_pts, sc.sil_val)
 
 
 def _silhouette_term(R, t, sc: _EdgeScene, coarse: bool = False):
