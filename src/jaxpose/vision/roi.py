@@ -321,7 +321,7 @@ def roi_from_silhouette(
         return None
     x, y, w, h, area = (stats[1:, i] for i in range(5))
     hs, ws = small.shape
-    sides = (x == 0).astype(int) + (y == 0) + (x + w >= ws) + (y + h >= hs)
+    sides = _sides_touched(stats[1:], small.shape)
     cand = sides < 2
     earth = np.nonzero(~cand)[0]
     if len(earth):
@@ -347,6 +347,15 @@ def roi_from_silhouette(
         return None
     box = np.array([x[best], y[best], x[best] + w[best], y[best] + h[best]], dtype=float) * f
     return np.minimum(box, [W, H, W, H])
+
+
+def _sides_touched(stats: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """How many image sides (0-4) each connected component touches, from the ``(k, 5)`` rows
+    of ``cv2.connectedComponentsWithStats`` (x, y, width, height, area) in an image of ``shape
+    (H, W)``: a component touching two is an Earth or a lit wall, not the target."""
+    x, y, w, h = (stats[:, i] for i in range(4))
+    hs, ws = shape
+    return (x == 0).astype(int) + (y == 0) + (x + w >= ws) + (y + h >= hs)
 
 
 def silhouette_mask(
@@ -412,9 +421,7 @@ def silhouette_mask(
     keep = keep[keep > 0]
     # a component touching two image sides is an Earth or a lit wall (merged with the target, or
     # beside it), as in roi_from_silhouette: not the target's shape
-    x, y, w, h = (stats[keep, i] for i in range(4))
-    sides = (x == 0).astype(int) + (y == 0) + (x + w >= ws) + (y + h >= hs)
-    keep = keep[sides < 2]
+    keep = keep[_sides_touched(stats[keep], (hs, ws)) < 2]
     if not len(keep):
         return None
     out = np.isin(labels, keep).astype(np.uint8)
@@ -451,9 +458,7 @@ def silhouette_box(
     if n <= 1:
         return box
     x, y, w, h, area = (stats[1:, i] for i in range(5))
-    hs, ws = m.shape
-    sides = (x == 0).astype(int) + (y == 0) + (x + w >= ws) + (y + h >= hs)
-    ok = sides < 2
+    ok = _sides_touched(stats[1:], m.shape) < 2
     if not ok.any():
         return box
     ok &= area >= min_share * area[ok].max()
