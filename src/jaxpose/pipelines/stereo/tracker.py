@@ -404,8 +404,7 @@ class StereoTracker:
         log = None
         if self._window is not None:
             R, t = rt(pose)
-            log = self._window.start(R, t, fixed=True)  # the gauge
-            log.index = k
+            log = self._window.start(R, t, fixed=True, index=k)  # the gauge
         with clock.stage("map"):
             update_map(self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k, log=log)
         if o.mature_obs > 1:  # the first frame's landmarks sit at the given pose: mature
@@ -523,7 +522,7 @@ class StereoTracker:
     def _adjust_window(self, result: FrameResult) -> None:
         """Jointly adjust the window's poses and landmarks (``window_frames``); the frame's
         result, the last pose and the constant-velocity motion become the adjusted ones."""
-        win, self._rays = self._window, None
+        win = self._window
         if not win.adjust(self.map):
             return
         last = win.frames[-1]
@@ -586,8 +585,7 @@ class StereoTracker:
                 in_p, in_l = fit.in_points, fit.in_lines
                 if self._window is not None:
                     R, t = rt(pose)
-                    self._rays = self._window.start(R, t)
-                    self._rays.index = k
+                    self._rays = self._window.start(R, t, index=k)
                 self.map.record("points", cand, i_m[in_p], k)
                 if o.frame_rays:
                     kept = fit.kept_points  # left in the last pass: residual below reject_px

@@ -128,9 +128,9 @@ class WindowAdjuster:
         self.c = (float(c.cx), float(c.cy))
         self.t_rl = np.asarray(rig.t_rl, float)
 
-    def start(self, R, t, *, fixed: bool = False) -> FrameRays:
-        """Open a frame's ray record (the oldest leaves the window when it is full)."""
-        fr = FrameRays(np.array(R, float), np.array(t, float), fixed=fixed)
+    def start(self, R, t, *, fixed: bool = False, index: int = -1) -> FrameRays:
+        """Open the ray record of frame ``index`` (the oldest leaves the window when it is full)."""
+        fr = FrameRays(np.array(R, float), np.array(t, float), fixed=fixed, index=index)
         self.frames.append(fr)
         return fr
 
