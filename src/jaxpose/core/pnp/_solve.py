@@ -329,7 +329,8 @@ def _compiled(name: str, cfg: _Static, two: bool, devices: int):
 def _traced(cfg: _Static, two: bool):
     """The fused solve for callers that transform it: inside their ``jit`` it is inlined; under
     an eager ``grad`` or ``vmap`` it runs as one compiled program instead of op by op (eager
-    ``grad`` of a 10-point solve: 84 -> 27 s of CPU time, mostly compilation)."""
+    ``grad`` of a 10-point solve: 84 -> 32 s of CPU time, mostly compilation). A jit apart from
+    :func:`_compiled`'s: JAX refuses ``compiler_options`` on a jit nested in the caller's."""
     return jax.jit(functools.partial(_solve_fused, cfg=cfg, two=two))
 
 
