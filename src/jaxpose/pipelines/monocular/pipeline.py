@@ -20,6 +20,7 @@ from jaxpose.pipelines.monocular.score import (
     _jit_silhouette_term,
     _score_poses,
 )
+from jaxpose.vision.coarse import model_extents
 from jaxpose.vision.features import detect
 from jaxpose.vision.image_maps import orientation_maps
 from jaxpose.vision.models import WireframeModel, tango
@@ -66,7 +67,7 @@ def initialise_pose(
     trace = {} if options.trace else None
     t0 = time.perf_counter()
     L_C = model.characteristic_length * ROI_LENGTH_FACTOR
-    det = detect(image, camera, L_C, options.detection)
+    det = detect(image, camera, L_C, options.detection, extents=model_extents(model))
     timings.update(det.timings)
     base = dict(
         pose=None,
