@@ -28,9 +28,21 @@ import json
 
 import numpy as np
 
+#: Every quantity a rule may use, with +1: high needs it at most the threshold; -1: at least.
+#: A record without the quantity (no silhouette, no pose) passes its condition.
+ALL_SIGNS = {
+    "score": 1,
+    "coverage": -1,
+    "orientation_agreement": -1,
+    "margin": -1,
+    "face_spread": 1,
+    "range_agreement": 1,
+    "silhouette_iou": -1,
+    "e2d_rel": 1,
+}
+#: The quantities of the rule in use (:data:`jaxpose.pipelines.monocular.CONFIDENCE`).
 KEYS = ("score", "coverage", "orientation_agreement", "margin", "face_spread")
-#: +1: high needs the quantity at most the threshold; -1: at least.
-SIGNS = (1, -1, -1, -1, 1)
+SIGNS = tuple(ALL_SIGNS[k] for k in KEYS)
 
 
 def _records(paths, source, spread_key="face_spread"):
@@ -39,32 +51,28 @@ def _records(paths, source, spread_key="face_spread"):
         for r in json.load(open(p))["per_image"]:
             if r.get("score") is None or r.get("orientation_agreement") is None:
                 continue
-            out.append(
-                {
-                    "source": source,
-                    "image": r.get("image", ""),
-                    "success": bool(r["success"]),
-                    "score": float(r["score"]),
-                    "coverage": float(r["coverage"]),
-                    "orientation_agreement": float(r["orientation_agreement"]),
-                    "margin": np.inf if r.get("margin") is None else float(r["margin"]),
-                    "face_spread": -np.inf if r.get(spread_key) is None else float(r[spread_key]),
-                }
-            )
+            rec = {"source": source, "image": r.get("image", ""), "success": bool(r["success"])}
+            for k, sg in ALL_SIGNS.items():
+                v = r.get(spread_key if k == "face_spread" else k)
+                rec[k] = -sg * np.inf if v is None else float(v)  # missing: passes
+            out.append(rec)
     return out
 
 
-def _high(rec, th):
+def _high(rec, th, rule=KEYS):
     return all(
-        (rec[k] <= v) if sg > 0 else (rec[k] >= v) for k, sg, v in zip(KEYS, SIGNS, th, strict=True)
+        (rec[k] <= v) if ALL_SIGNS[k] > 0 else (rec[k] >= v) for k, v in zip(rule, th, strict=True)
     )
 
 
-def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None):
-    """Thresholds (one per quantity of ``KEYS``: at most for score and spread, at least for the
-    others): the largest sum of the shares of each source's successes made ``high``, with
-    training precision >= ``precision`` on the renders and on the SPEED+ images apart; ties to
-    fewer wrong ones, then the first found. Quantities not in ``keys`` are left open."""
+def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None, rule=KEYS):
+    """Thresholds (one per quantity of ``rule``, at least 3: at most for score, spread and range
+    agreement, at least for the others): the largest sum of the shares of each source's
+    successes made ``high``, with training precision >= ``precision`` on the renders and on the
+    SPEED+ images apart; ties to fewer wrong ones, then the first found. Quantities not in
+    ``keys`` are left open."""
+    SIGNS = tuple(ALL_SIGNS[k] for k in rule)  # noqa: N806
+    KEYS = rule  # noqa: N806
     ok = [r for r in records if r["success"]]
     open_th = tuple(np.inf if sg > 0 else -np.inf for sg in SIGNS)
     if not ok:
@@ -92,12 +100,16 @@ def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None):
     ]
     best, best_key = tuple(-v for v in open_th), (0.0, 0)
     sources = [src == s for s in ("render", "speedplus")]
-    for i0, i1 in itertools.product(*(range(len(c)) for c in cands[:2])):
-        base = passes[0][i0] & passes[1][i1]
+    n_outer = len(KEYS) - 3
+    for outer in itertools.product(*(range(len(c)) for c in cands[:n_outer])):
+        base = np.ones(len(records), bool)
+        for k, i in enumerate(outer):
+            base = base & passes[k][i]
         if not base.any():
             continue
-        # (J2, J3, J4, N): every threshold of the last three quantities at once
-        sel = base & passes[2][:, None, None] & passes[3][None, :, None] & passes[4][None, None]
+        # (J, J, J, N): every threshold of the last three quantities at once
+        p2, p3, p4 = passes[n_outer:]
+        sel = base & p2[:, None, None] & p3[None, :, None] & p4[None, None]
         n_sel = sel.sum(-1)
         good = (sel & succ).sum(-1)
         okp = n_sel > 0
@@ -114,7 +126,9 @@ def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None):
         j = np.unravel_index(np.argmax(score), score.shape)
         key = (float(np.round(recall[j], 9)), -int(n_sel[j] - good[j]))
         if key > best_key:
-            best = (cands[0][i0], cands[1][i1], cands[2][j[0]], cands[3][j[1]], cands[4][j[2]])
+            best = tuple(cands[k][i] for k, i in enumerate(outer)) + tuple(
+                cands[n_outer + k][j[k]] for k in range(3)
+            )
             best_key = key
     return best
 
@@ -139,6 +153,13 @@ def main() -> None:
         help=f"the quantities the rule may use (default: all of {', '.join(KEYS)})",
     )
     ap.add_argument(
+        "--rule",
+        nargs="*",
+        default=list(KEYS),
+        help=f"the quantities of the rule, at least 3 (default: {', '.join(KEYS)}; "
+        f"any of {', '.join(ALL_SIGNS)})",
+    )
+    ap.add_argument(
         "--spread-key",
         default="face_spread",
         help="the record field read as the spread (face_spread_bg: with the background label)",
@@ -149,16 +170,27 @@ def main() -> None:
 
     def choose(records, precision):  # noqa: F811 (the quantities asked for)
         return _choose(
-            records, precision, keys=tuple(args.keys), precision_speedplus=args.precision_speedplus
+            records,
+            precision,
+            keys=tuple(args.keys),
+            precision_speedplus=args.precision_speedplus,
+            rule=rule,
         )
+
+    rule = tuple(args.rule)
+    if len(rule) < 3 or any(k not in ALL_SIGNS for k in rule):
+        raise SystemExit(f"--rule needs at least 3 of {', '.join(ALL_SIGNS)}; got {rule}")
 
     th_all = choose(renders + dev, args.precision)
     print(
-        "thresholds (score<=, coverage>=, orientation>=, margin>=, spread<=) on all:",
-        tuple(float(x) for x in th_all),
+        "thresholds on all:",
+        ", ".join(
+            f"{k} {'<=' if ALL_SIGNS[k] > 0 else '>='} {float(v):.4g}"
+            for k, v in zip(rule, th_all, strict=True)
+        ),
     )
     for name, recs in (("renders", renders), ("speedplus (in-sample)", dev)):
-        sel = [r for r in recs if _high(r, th_all)]
+        sel = [r for r in recs if _high(r, th_all, rule)]
         print(
             f"{name}: {len(recs)} images, {sum(r['success'] for r in recs)} successes, "
             f"high {len(sel)}, of which right {sum(r['success'] for r in sel)}"
@@ -166,7 +198,7 @@ def main() -> None:
     loo = []
     for i, r in enumerate(dev):
         th = choose(renders + dev[:i] + dev[i + 1 :], args.precision)
-        loo.append((r, _high(r, th)))
+        loo.append((r, _high(r, th, rule)))
     hi = [r for r, h in loo if h]
     print(
         f"speedplus leave-one-out: high {len(hi)} of {len(dev)}, right "
@@ -176,7 +208,7 @@ def main() -> None:
     for r, h in loo:
         print(
             f"  {r['image']:26s} success={int(r['success'])} high={int(h)} "
-            + " ".join(f"{k[:5]}={r[k]:.3f}" for k in KEYS)
+            + " ".join(f"{k[:5]}={r[k]:.3f}" for k in rule)
         )
 
 
