@@ -55,24 +55,48 @@ def _records(paths, source, spread_key="face_spread"):
             for k, sg in ALL_SIGNS.items():
                 v = r.get(spread_key if k == "face_spread" else k)
                 rec[k] = -sg * np.inf if v is None else float(v)  # missing: passes
+                rec["alt_" + k] = np.nan if v is None else float(v)  # missing: fails
             out.append(rec)
     return out
 
 
-def _high(rec, th, rule=KEYS):
+def _high(rec, th, rule=KEYS, prefix=""):
     return all(
-        (rec[k] <= v) if ALL_SIGNS[k] > 0 else (rec[k] >= v) for k, v in zip(rule, th, strict=True)
+        (rec[prefix + k] <= v) if ALL_SIGNS[k] > 0 else (rec[prefix + k] >= v)
+        for k, v in zip(rule, th, strict=True)
     )
 
 
-def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None, rule=KEYS):
+def _high_either(rec, th, rule, th_alt, alt):
+    """``high`` by the main rule, or by the alternative one (its quantities all present)."""
+    return _high(rec, th, rule) or (bool(alt) and _high(rec, th_alt, alt, prefix="alt_"))
+
+
+def _choose(
+    records,
+    precision,
+    grid=12,
+    keys=KEYS,
+    precision_speedplus=None,
+    rule=KEYS,
+    already=None,
+    prefix="",
+    weights=(1.0, 1.0),
+    tighten=False,
+):
     """Thresholds (one per quantity of ``rule``, at least 3: at most for score, spread and range
     agreement, at least for the others): the largest sum of the shares of each source's
     successes made ``high``, with training precision >= ``precision`` on the renders and on the
     SPEED+ images apart; ties to fewer wrong ones, then the first found. Quantities not in
-    ``keys`` are left open."""
+    ``keys`` are left open. ``already`` (a mask of the records): those are ``high`` by another
+    rule, and the precision and recall are those of either rule; ``prefix="alt_"`` reads the
+    values with missing ones failing (NaN) instead of passing. ``weights``: of the renders' and
+    the SPEED+ images' recall in the sum. ``tighten``: each threshold is then moved in to the
+    least passing value among the successes it makes ``high`` (no training answer changes
+    class; fewer near misses of new images pass)."""
     SIGNS = tuple(ALL_SIGNS[k] for k in rule)  # noqa: N806
-    KEYS = rule  # noqa: N806
+    KEYS = tuple(prefix + k for k in rule)  # noqa: N806
+    keys = tuple(prefix + k for k in keys)
     ok = [r for r in records if r["success"]]
     open_th = tuple(np.inf if sg > 0 else -np.inf for sg in SIGNS)
     if not ok:
@@ -110,6 +134,8 @@ def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None, ru
         # (J, J, J, N): every threshold of the last three quantities at once
         p2, p3, p4 = passes[n_outer:]
         sel = base & p2[:, None, None] & p3[None, :, None] & p4[None, None]
+        if already is not None:
+            sel = sel | already
         n_sel = sel.sum(-1)
         good = (sel & succ).sum(-1)
         okp = n_sel > 0
@@ -121,7 +147,10 @@ def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None, ru
             continue
         # the share of each source's successes made high, summed (a photograph weighs as much
         # as the renders together: they are what the rule is for), then fewer wrong highs
-        recall = sum((sel & m & succ).sum(-1) / max((m & succ).sum(), 1) for m in sources)
+        recall = sum(
+            w * (sel & m & succ).sum(-1) / max((m & succ).sum(), 1)
+            for w, m in zip(weights, sources, strict=True)
+        )
         score = np.where(okp, np.round(recall, 9) * 1e4 - (n_sel - good), -1)
         j = np.unravel_index(np.argmax(score), score.shape)
         key = (float(np.round(recall[j], 9)), -int(n_sel[j] - good[j]))
@@ -130,6 +159,23 @@ def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None, ru
                 cands[n_outer + k][j[k]] for k in range(3)
             )
             best_key = key
+    if tighten and np.all(np.isfinite(best)):
+        th = np.array(best, float)
+        mine = np.all(
+            [
+                (X[:, k] <= v) if sg > 0 else (X[:, k] >= v)
+                for k, (v, sg) in enumerate(zip(th, SIGNS, strict=True))
+            ],
+            axis=0,
+        )
+        mine &= succ
+        if already is not None:
+            mine &= ~already
+        if mine.any():
+            best = tuple(
+                float(X[mine, k].max() if sg > 0 else X[mine, k].min())
+                for k, sg in enumerate(SIGNS)
+            )
     return best
 
 
@@ -160,6 +206,26 @@ def main() -> None:
         f"any of {', '.join(ALL_SIGNS)})",
     )
     ap.add_argument(
+        "--held-out",
+        nargs="*",
+        default=[],
+        help="render records not used for the choice, classified by the rule chosen on all",
+    )
+    ap.add_argument(
+        "--alt-photographs",
+        action="store_true",
+        help="the alternative rule counts the SPEED+ images' recall only (the renders' precision "
+        "still binds)",
+    )
+    ap.add_argument("--no-loo", action="store_true", help="skip the leave-one-out")
+    ap.add_argument(
+        "--alt-rule",
+        nargs="*",
+        default=[],
+        help="a second rule (at least 3 quantities; a record must have them all, e.g. the "
+        "silhouette IoU): high by either; its thresholds are chosen after the first rule's",
+    )
+    ap.add_argument(
         "--spread-key",
         default="face_spread",
         help="the record field read as the spread (face_spread_bg: with the background label)",
@@ -178,27 +244,60 @@ def main() -> None:
         )
 
     rule = tuple(args.rule)
-    if len(rule) < 3 or any(k not in ALL_SIGNS for k in rule):
-        raise SystemExit(f"--rule needs at least 3 of {', '.join(ALL_SIGNS)}; got {rule}")
+    alt = tuple(args.alt_rule)
+    for r_ in (rule, alt) if alt else (rule,):
+        if len(r_) < 3 or any(k not in ALL_SIGNS for k in r_):
+            raise SystemExit(f"a rule needs at least 3 of {', '.join(ALL_SIGNS)}; got {r_}")
 
-    th_all = choose(renders + dev, args.precision)
-    print(
-        "thresholds on all:",
-        ", ".join(
+    def choose_both(records, precision):
+        th = choose(records, precision)
+        if not alt:
+            return th, ()
+        first = np.array([_high(r, th, rule) for r in records])
+        th_alt = _choose(
+            records,
+            precision,
+            keys=tuple(alt),
+            precision_speedplus=args.precision_speedplus,
+            rule=alt,
+            already=first,
+            prefix="alt_",
+            weights=(0.0, 1.0) if args.alt_photographs else (1.0, 1.0),
+            tighten=True,
+        )
+        return th, th_alt
+
+    th_all, th_alt = choose_both(renders + dev, args.precision)
+
+    def show(rule_, th):
+        return ", ".join(
             f"{k} {'<=' if ALL_SIGNS[k] > 0 else '>='} {float(v):.4g}"
-            for k, v in zip(rule, th_all, strict=True)
-        ),
-    )
-    for name, recs in (("renders", renders), ("speedplus (in-sample)", dev)):
-        sel = [r for r in recs if _high(r, th_all, rule)]
+            for k, v in zip(rule_, th, strict=True)
+        )
+
+    print("thresholds on all:", show(rule, th_all))
+    if alt:
+        print("or (the alternative rule):", show(alt, th_alt))
+
+    def is_high(r, th, th2):
+        return _high_either(r, th, rule, th2, alt)
+
+    held = _records(args.held_out, "render", args.spread_key)
+    sets = (("renders", renders), ("speedplus (in-sample)", dev), ("held-out renders", held))
+    for name, recs in sets:
+        if not recs:
+            continue
+        sel = [r for r in recs if is_high(r, th_all, th_alt)]
         print(
             f"{name}: {len(recs)} images, {sum(r['success'] for r in recs)} successes, "
             f"high {len(sel)}, of which right {sum(r['success'] for r in sel)}"
         )
+    if args.no_loo:
+        return
     loo = []
     for i, r in enumerate(dev):
-        th = choose(renders + dev[:i] + dev[i + 1 :], args.precision)
-        loo.append((r, _high(r, th, rule)))
+        th, th2 = choose_both(renders + dev[:i] + dev[i + 1 :], args.precision)
+        loo.append((r, is_high(r, th, th2)))
     hi = [r for r, h in loo if h]
     print(
         f"speedplus leave-one-out: high {len(hi)} of {len(dev)}, right "
@@ -208,7 +307,7 @@ def main() -> None:
     for r, h in loo:
         print(
             f"  {r['image']:26s} success={int(r['success'])} high={int(h)} "
-            + " ".join(f"{k[:5]}={r[k]:.3f}" for k in rule)
+            + " ".join(f"{k[:5]}={r[k]:.3f}" for k in dict.fromkeys(rule + alt))
         )
 
 

@@ -148,7 +148,14 @@ def initialise_pose(
     timings["select_s"] = time.perf_counter() - t1
     s_rel = float(score[best]) / l_roi
     conf = classify(
-        s_rel, coverage, options.confidence, orientation=ori, margin=margin, spread=spread
+        s_rel,
+        coverage,
+        options.confidence,
+        orientation=ori,
+        margin=margin,
+        spread=spread,
+        silhouette=sil_iou,
+        range_agreement=_range_agreement(pose.t, det.coarse_t_cam),
     )
     timings["total_s"] = 0.0
     total = time.perf_counter() - t0
@@ -177,6 +184,15 @@ def initialise_pose(
         margin=margin,
         face_spread=spread,
     )
+
+
+def _range_agreement(t, coarse_t) -> float | None:
+    """``|log(||t|| / ||coarse_t||)|``: how far the pose's range is from the ROI's coarse range
+    (eq. 6); ``None`` without a coarse position."""
+    if coarse_t is None:
+        return None
+    r, rc = float(np.linalg.norm(np.asarray(t))), float(np.linalg.norm(np.asarray(coarse_t)))
+    return abs(float(np.log(r / rc))) if r > 0 and rc > 0 else None
 
 
 #: Candidates whose attitudes differ by more than this are distinct answers for the margin.
