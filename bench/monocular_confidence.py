@@ -217,6 +217,12 @@ def main() -> None:
         help="the alternative rule counts the SPEED+ images' recall only (the renders' precision "
         "still binds)",
     )
+    ap.add_argument(
+        "--tighten",
+        action="store_true",
+        help="move the alternative rule's thresholds in to the least passing value among the "
+        "successes it makes high",
+    )
     ap.add_argument("--no-loo", action="store_true", help="skip the leave-one-out")
     ap.add_argument(
         "--alt-rule",
@@ -263,7 +269,7 @@ def main() -> None:
             already=first,
             prefix="alt_",
             weights=(0.0, 1.0) if args.alt_photographs else (1.0, 1.0),
-            tighten=True,
+            tighten=args.tighten,
         )
         return th, th_alt
 

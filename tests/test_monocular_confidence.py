@@ -19,7 +19,6 @@ TH = {
     "silhouette_iou": 0.7,
     "silhouette_spread": 0.8,
     "silhouette_range": 0.05,
-    "silhouette_score": 0.045,
     "low_score": 0.1,
 }
 
@@ -31,7 +30,7 @@ def test_silhouette_route_needs_every_one_of_its_quantities():
     assert classify(0.04, 0.7, TH, **photo) == "high"
     for key, bad in (("silhouette", 0.69), ("spread", 0.81), ("range_agreement", 0.06)):
         assert classify(0.04, 0.7, TH, **(photo | {key: bad})) == "low"
-    assert classify(0.046, 0.7, TH, **photo) == "low"  # the score still bounds it
+    assert classify(0.11, 0.7, TH, **photo) == "position-only"  # no fit to the edges at all
     # no silhouette (an Earth behind the target) or no coarse range: only the first route
     assert classify(0.04, 0.7, TH, **(photo | {"silhouette": None})) == "low"
     assert classify(0.04, 0.7, TH, **(photo | {"range_agreement": None})) == "low"

@@ -31,11 +31,11 @@ def classify(
     pose's range to the ROI's coarse range (``range_agreement``).
 
     ``high`` when every quantity passes its ``high_*`` threshold, or, with a silhouette, when
-    the silhouette IoU, the spread, the range agreement and the score pass their ``silhouette_*``
-    thresholds (a second route for photographs, whose edges are cluttered by surface texture
-    and shadow but whose silhouette, shading and size agree with the pose; thresholds absent:
-    no second route); ``low`` when the score is at most ``low_score``; ``position-only``
-    otherwise."""
+    the silhouette IoU, the spread and the range agreement pass their ``silhouette_*``
+    thresholds and the score ``low_score`` (a second route for photographs, whose edges are
+    cluttered by surface texture and shadow but whose silhouette, shading and size agree with
+    the pose; thresholds absent: no second route); ``low`` when the score is at most
+    ``low_score``; ``position-only`` otherwise."""
     if not math.isfinite(score_rel):
         return "position-only"
     ori_ok = orientation is None or orientation >= thresholds.get("high_orientation", 0.0)
@@ -57,7 +57,7 @@ def classify(
         and silhouette >= thresholds["silhouette_iou"]
         and spread <= thresholds["silhouette_spread"]
         and range_agreement <= thresholds["silhouette_range"]
-        and score_rel <= thresholds["silhouette_score"]
+        and score_rel <= thresholds["low_score"]
     ):
         return "high"
     if score_rel <= thresholds["low_score"]:
