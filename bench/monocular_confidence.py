@@ -83,6 +83,7 @@ def _choose(
     prefix="",
     weights=(1.0, 1.0),
     tighten=False,
+    widen=(),
 ):
     """Thresholds (one per quantity of ``rule``, at least 3: at most for score, spread and range
     agreement, at least for the others): the largest sum of the shares of each source's
@@ -93,7 +94,8 @@ def _choose(
     values with missing ones failing (NaN) instead of passing. ``weights``: of the renders' and
     the SPEED+ images' recall in the sum. ``tighten``: each threshold is then moved in to the
     least passing value among the successes it makes ``high`` (no training answer changes
-    class; fewer near misses of new images pass)."""
+    class; fewer near misses of new images pass). ``widen``: the thresholds of these quantities are
+    moved out to halfway to the nearest wrong record that would pass (:func:`_widen`)."""
     SIGNS = tuple(ALL_SIGNS[k] for k in rule)  # noqa: N806
     KEYS = tuple(prefix + k for k in rule)  # noqa: N806
     keys = tuple(prefix + k for k in keys)
@@ -176,7 +178,30 @@ def _choose(
                 float(X[mine, k].max() if sg > 0 else X[mine, k].min())
                 for k, sg in enumerate(SIGNS)
             )
+    if widen and np.all(np.isfinite(best)):
+        which = [k in widen for k in rule]
+        best = _widen(np.array(best, float), X, succ, SIGNS, already, which)
     return best
+
+
+def _widen(th, X, succ, signs, already, which):
+    """Each threshold moved out, the others held, to halfway to the nearest value beyond it of a
+    wrong record that passes the other conditions (and is not ``high`` already): the margin
+    between the successes made ``high`` and the nearest wrong answer, split evenly (none: kept).
+    No training record changes class."""
+    out = th.copy()
+    sg = np.array(signs, float)
+    passes = X * sg[None] <= th * sg  # (N, K); NaN fails
+    wrong = ~succ if already is None else (~succ & ~already)
+    for k in range(len(th)):
+        if not which[k]:
+            continue
+        others = np.delete(passes, k, axis=1).all(axis=1)
+        v = X[wrong & others, k] * sg[k]
+        v = v[np.isfinite(v) & (v > th[k] * sg[k])]
+        if len(v):
+            out[k] = 0.5 * (th[k] * sg[k] + v.min()) * sg[k]
+    return tuple(float(x) for x in out)
 
 
 def main() -> None:
@@ -222,6 +247,13 @@ def main() -> None:
         action="store_true",
         help="move the alternative rule's thresholds in to the least passing value among the "
         "successes it makes high",
+    )
+    ap.add_argument(
+        "--widen",
+        nargs="*",
+        default=[],
+        help="quantities of the alternative rule whose thresholds move out to halfway to the "
+        "nearest wrong answer that would pass",
     )
     ap.add_argument("--no-loo", action="store_true", help="skip the leave-one-out")
     ap.add_argument(
@@ -270,6 +302,7 @@ def main() -> None:
             prefix="alt_",
             weights=(0.0, 1.0) if args.alt_photographs else (1.0, 1.0),
             tighten=args.tighten,
+            widen=tuple(args.widen),
         )
         return th, th_alt
 
