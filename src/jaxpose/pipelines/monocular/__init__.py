@@ -36,6 +36,7 @@ from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR as ROI_LENGTH_
 from jaxpose.pipelines.monocular.options import SILHOUETTE_WEIGHT as SILHOUETTE_WEIGHT
 from jaxpose.pipelines.monocular.options import SPREAD_QUICK_WEIGHT as SPREAD_QUICK_WEIGHT
 from jaxpose.pipelines.monocular.options import SPREAD_WEIGHT as SPREAD_WEIGHT
+from jaxpose.pipelines.monocular.options import TEMPLATE_SLOTS as TEMPLATE_SLOTS
 from jaxpose.pipelines.monocular.options import InitOptions as InitOptions
 from jaxpose.pipelines.monocular.options import InitResult as InitResult
 from jaxpose.pipelines.monocular.pipeline import initialise_pose as initialise_pose
@@ -53,6 +54,7 @@ __all__ = [
     "SILHOUETTE_WEIGHT",
     "SPREAD_QUICK_WEIGHT",
     "SPREAD_WEIGHT",
+    "TEMPLATE_SLOTS",
     "InitOptions",
     "InitResult",
     "classify",
