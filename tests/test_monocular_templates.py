@@ -88,7 +88,7 @@ def case():
     ori = rng.random((8, 96, 96)).astype(np.float32)
     R = np.asarray(euler_to_dcm(jnp.asarray([0.4, -0.3, 0.9])), float)
     t = np.array([0.05, -0.03, 18.0])
-    shifts = T.template_shifts(40.0)
+    shifts = T.template_shifts(40.0)[::4]  # 13 of the 49 (the brute force is slow)
     scales = np.array(T.TEMPLATE_SCALES)
     return model, ori, R, t, shifts, scales
 
@@ -108,7 +108,7 @@ def test_template_finds_planted_shift(case):
     each feature's orientation bin: the search returns that shift and scale, similarity 1."""
     model, _, R, t, shifts, scales = case
     ori = np.zeros((8, 96, 96), np.float32)
-    j_true, k_true = 30, scales[2]
+    j_true, k_true = 9, scales[2]
     feats, cc = _features(R, t, model, 8)
     for o, rel in feats:
         c = _cell(cc, rel, k_true, shifts[j_true], 96)
@@ -134,3 +134,48 @@ def test_moved_pose_projects_where_asked():
     p2 = CAM4[:2] * c2[:2] / c2[2] + CAM4[2:]
     np.testing.assert_allclose(p2 - p1, shift[0], atol=1e-9)
     assert c2[2] == pytest.approx(c1[2] / 1.15)
+
+
+def test_template_poses_find_the_rendered_attitude():
+    """A rendering at one of 64 grid attitudes, every attitude placed 4% of the range off
+    sideways and 8% too far: the best template is the rendered attitude, moved back to within
+    two strides of the true centre's pixel and 10% of its range."""
+    from types import SimpleNamespace
+
+    from jaxpose import PinholeCamera, Pose
+    from jaxpose.pipelines.monocular.hypothesise import _attitudes
+    from jaxpose.vision.render import render
+
+    model = tango()
+    camera = PinholeCamera(747.0, 747.0, 239.5, 149.5, width=480, height=300)
+    R = _attitudes(64)
+    k = 23
+    t_true = np.array([0.1, -0.05, 5.0])
+    r = render(model, Pose(R[k], t_true), camera, rng=3)
+    geom = _model_geometry(model)
+    centre = np.asarray(geom[1]).reshape(-1, 3).mean(0)
+    c_true = R[k] @ centre + t_true
+    c_off = c_true * 1.08 + np.array([0.04 * c_true[2], 0.0, 0.0])
+    t0 = c_off[None] - R @ centre
+    cam4 = jnp.asarray([747.0, 747.0, 239.5, 149.5])
+    sc = SimpleNamespace(geom=geom, cam4=cam4)
+    det = SimpleNamespace(image=r.image, roi=np.asarray(r.roi, float))
+    Rb, tb, sim = T._template_poses(R, t0, sc, det, 3, chunk=64)
+    assert np.allclose(Rb[0], R[k])
+    assert sim[0] > sim[1]
+    c = Rb[0] @ centre + tb[0]
+    px = 747.0 * c[:2] / c[2]
+    px_true = 747.0 * c_true[:2] / c_true[2]
+    l_roi = np.hypot(r.roi[2] - r.roi[0], r.roi[3] - r.roi[1])
+    assert np.linalg.norm(px - px_true) < 2 * T.TEMPLATE_STRIDE * l_roi
+    assert abs(c[2] / c_true[2] - 1.0) < 0.1
+
+
+@pytest.mark.parametrize("bad", [-1, 129, True])
+def test_template_slots_checked(bad):
+    from jaxpose import PinholeCamera
+    from jaxpose.pipelines.monocular import InitOptions, initialise_pose
+
+    camera = PinholeCamera(747.0, 747.0, 239.5, 149.5, width=480, height=300)
+    with pytest.raises(ValueError, match="template_slots"):
+        initialise_pose(np.zeros((300, 480)), camera, options=InitOptions(template_slots=bad))
