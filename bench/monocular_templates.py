@@ -18,7 +18,10 @@ options (every pose kept: ``low_score`` 1):
   close attitude becomes when it reaches the shortlist;
 - ``key_minus_answer``: their ranking key minus the returned answer's (``l_ROI`` units; above 0:
   the ranking prefers the answer);
-- ``template_cpu_s``: CPU time of the template search (``time.process_time``).
+- ``template_cpu_s``: CPU time of the template search (``time.process_time``);
+- ``label_fit_deg``, ``label_fit_range``: the labelled pose after the shortlist's edge fit
+  alone, its rotation from the label and the ratio of its centre's range to the label's (above
+  1: the fit moves the model away from the camera).
 
 Development diagnostics (a few seconds per image); the figures are in the docs' monocular
 evaluation page.
@@ -110,6 +113,13 @@ def diagnose_image(res, Rt, tt, model, opts) -> dict:
     cpu = time.process_time() - cpu
     ang = _angles(R, Rt)
     close = ang < 10.0
+    Rl, tl = _batched_fit()(
+        jnp.asarray(np.repeat(Rt[None], _SHORTLIST, 0)),
+        jnp.asarray(np.repeat(tt[None], _SHORTLIST, 0)),
+        sc,
+    )
+    Rl, tl = np.asarray(Rl[0]), np.asarray(tl[0])
+    c_label = Rt @ centre + tt
     row = {
         "roi": True,
         "silhouette": sc.sil_pts is not None,
@@ -118,6 +128,10 @@ def diagnose_image(res, Rt, tt, model, opts) -> dict:
         "quick_rank": _best_rank(quick, close),
         "template_rank": _best_rank(-sim, close),
         "template_cpu_s": round(cpu, 3),
+        "label_fit_deg": round(float(_angles(Rl[None], Rt)[0]), 1),
+        "label_fit_range": round(
+            float(np.linalg.norm(Rl @ centre + tl) / np.linalg.norm(c_label)), 3
+        ),
     }
     if not close.any() or res.pose is None:
         return row
