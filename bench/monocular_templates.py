@@ -21,7 +21,10 @@ options (every pose kept: ``low_score`` 1):
 - ``template_cpu_s``: CPU time of the template search (``time.process_time``);
 - ``label_fit_deg``, ``label_fit_range``: the labelled pose after the shortlist's edge fit
   alone, its rotation from the label and the ratio of its centre's range to the label's (above
-  1: the fit moves the model away from the camera).
+  1: the fit moves the model away from the camera);
+- ``scan_model``, ``scan_image``: at the labelled attitude, the range (times the label's, 0.85
+  to 1.15 in steps of 0.01, the centre moved along its ray) where the model side and the image
+  side of the fit's chamfer residuals (``_chamfer_residuals``) are least.
 
 Development diagnostics (a few seconds per image); the figures are in the docs' monocular
 evaluation page.
@@ -45,7 +48,7 @@ from jaxpose.core.geometry import Pose  # noqa: E402
 from jaxpose.io import load_camera, load_image, load_speed_labels  # noqa: E402
 from jaxpose.pipelines.monocular import CONFIDENCE, InitOptions, initialise_pose  # noqa: E402
 from jaxpose.pipelines.monocular import templates as T  # noqa: E402
-from jaxpose.pipelines.monocular.fit import _batched_fit  # noqa: E402
+from jaxpose.pipelines.monocular.fit import _batched_fit, _chamfer_residuals  # noqa: E402
 from jaxpose.pipelines.monocular.hypothesise import (  # noqa: E402
     _CHUNK,
     _SHORTLIST,
@@ -56,7 +59,11 @@ from jaxpose.pipelines.monocular.hypothesise import (  # noqa: E402
 )
 from jaxpose.pipelines.monocular.rematch import _rematch_refine  # noqa: E402
 from jaxpose.pipelines.monocular.scene import _edge_scene  # noqa: E402
-from jaxpose.pipelines.monocular.score import _batched_quick, _batched_rank  # noqa: E402
+from jaxpose.pipelines.monocular.score import (  # noqa: E402
+    _batched_quick,
+    _batched_rank,
+    _visible_edges,
+)
 from jaxpose.vision.image_maps import orientation_maps  # noqa: E402
 from jaxpose.vision.models import tango  # noqa: E402
 from jaxpose.vision.roi import roi_diagonal  # noqa: E402
@@ -83,6 +90,22 @@ def _best_rank(key, close) -> int:
     r = np.empty(len(key), int)
     r[np.argsort(key, kind="stable")] = np.arange(len(key))
     return int(r[close].min()) if close.any() else -1
+
+
+def _range_scan(Rt, tt, sc, centre):
+    """Ranges (times the label's) where the model side and the image side of the chamfer
+    residuals are least, at the labelled attitude."""
+    scales = np.round(np.linspace(0.85, 1.15, 31), 2)
+    c = Rt @ centre + tt
+    n_model = int(np.prod(sc.geom[1].shape[:2]))
+    cost = []
+    for k in scales:
+        t = jnp.asarray(c * k - Rt @ centre)
+        R = jnp.asarray(Rt)
+        r = np.asarray(_chamfer_residuals(R, t, _visible_edges(R, t, sc.geom), sc))
+        cost.append((np.sum(r[:n_model] ** 2), np.sum(r[n_model:] ** 2)))
+    cost = np.asarray(cost)
+    return float(scales[cost[:, 0].argmin()]), float(scales[cost[:, 1].argmin()])
 
 
 def diagnose_image(res, Rt, tt, model, opts) -> dict:
@@ -133,6 +156,7 @@ def diagnose_image(res, Rt, tt, model, opts) -> dict:
             float(np.linalg.norm(Rl @ centre + tl) / np.linalg.norm(c_label)), 3
         ),
     }
+    row["scan_model"], row["scan_image"] = _range_scan(Rt, tt, sc, centre)
     if not close.any() or res.pose is None:
         return row
     idx = np.where(close)[0][:_SHORTLIST]
