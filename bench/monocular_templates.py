@@ -24,7 +24,10 @@ options (every pose kept: ``low_score`` 1):
   1: the fit moves the model away from the camera);
 - ``scan_model``, ``scan_image``: at the labelled attitude, the range (times the label's, 0.85
   to 1.15 in steps of 0.01, the centre moved along its ray) where the model side and the image
-  side of the fit's chamfer residuals (``_chamfer_residuals``) are least.
+  side of the fit's chamfer residuals (``_chamfer_residuals``) are least; ``scan_directional``:
+  the same for a directional model side (each edge sample's distance to the nearest detected
+  segment whose direction lies within 22.5 deg of the edge's, truncated at ``tau``: directional
+  chamfer matching, Liu et al. 2010), to see whether segments of other directions cause the drift.
 
 Development diagnostics (a few seconds per image); the figures are in the docs' monocular
 evaluation page.
@@ -108,6 +111,53 @@ def _range_scan(Rt, tt, sc, centre):
     return float(scales[cost[:, 0].argmin()]), float(scales[cost[:, 1].argmin()])
 
 
+def _directional_maps(segments, shape, bins: int = 8) -> np.ndarray:
+    """Distance maps ``(bins, H, W)`` (pixels) of the detected segments whose direction lies
+    in bin ``o`` or a neighbouring bin (bin ``o``: ``o x 180 / bins`` deg, modulo 180)."""
+    import cv2
+
+    d = segments[:, 1] - segments[:, 0]
+    b = np.mod(np.rint(np.mod(np.arctan2(d[:, 1], d[:, 0]), np.pi) / (np.pi / bins)), bins)
+    out = np.empty((bins,) + tuple(shape), np.float32)
+    for o in range(bins):
+        mask = np.full(shape, 255, np.uint8)
+        near = np.minimum(np.mod(b - o, bins), np.mod(o - b, bins)) <= 1
+        for seg in segments[near]:
+            p, q = (tuple(int(round(v)) for v in x) for x in seg)
+            cv2.line(mask, p, q, 0, 1)
+        out[o] = cv2.distanceTransform(mask, cv2.DIST_L2, 5)
+    return out
+
+
+def _directional_scan(Rt, tt, sc, det, centre, scales):
+    """Range (times the label's) where the directional model side is least (NumPy)."""
+    maps = _directional_maps(np.asarray(det.segments, float), det.image.shape)
+    edges, samples = np.asarray(sc.geom[0]), np.asarray(sc.geom[1])
+    fx, fy, cx, cy = (float(v) for v in np.asarray(sc.cam4))
+    H, W = det.image.shape
+    tau = float(sc.tau)
+    c = Rt @ centre + tt
+    cost = []
+    for k in scales:
+        t = c * k - Rt @ centre
+        vis = np.asarray(_visible_edges(jnp.asarray(Rt), jnp.asarray(t), sc.geom))
+        pc = samples @ Rt.T + t
+        u, v = fx * pc[..., 0] / pc[..., 2] + cx, fy * pc[..., 1] / pc[..., 2] + cy
+        ends = edges @ Rt.T + t
+        du = fx * ends[:, 1, 0] / ends[:, 1, 2] - fx * ends[:, 0, 0] / ends[:, 0, 2]
+        dv = fy * ends[:, 1, 1] / ends[:, 1, 2] - fy * ends[:, 0, 1] / ends[:, 0, 2]
+        o = np.mod(np.rint(np.mod(np.arctan2(dv, du), np.pi) / (np.pi / 8)), 8).astype(int)
+        inside = (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+        iu, iv = (
+            np.clip(np.rint(u), 0, W - 1).astype(int),
+            np.clip(np.rint(v), 0, H - 1).astype(int),
+        )
+        d = np.where(inside, np.minimum(maps[o[:, None], iv, iu], tau), tau)
+        m = vis[:, None] & (pc[..., 2] > 1e-3)
+        cost.append(np.sum(np.where(m, d * d, 0.0)) / max(m.sum(), 1))
+    return float(scales[int(np.argmin(cost))])
+
+
 def diagnose_image(res, Rt, tt, model, opts) -> dict:
     det = res.detection
     if det.roi is None or det.coarse_t_cam is None:
@@ -157,6 +207,8 @@ def diagnose_image(res, Rt, tt, model, opts) -> dict:
         ),
     }
     row["scan_model"], row["scan_image"] = _range_scan(Rt, tt, sc, centre)
+    scales = np.round(np.linspace(0.85, 1.15, 31), 2)
+    row["scan_directional"] = _directional_scan(Rt, tt, sc, det, centre, scales)
     if not close.any() or res.pose is None:
         return row
     idx = np.where(close)[0][:_SHORTLIST]
