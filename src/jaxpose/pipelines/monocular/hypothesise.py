@@ -300,13 +300,21 @@ def _grid_poses(det, model: WireframeModel, opts: InitOptions, sc: _EdgeScene):
     each placed on the silhouette (:func:`_place_on_silhouette`, from the model's centre at the
     coarse position), ``(R (X, 3, 3), t (X, 3))``; ``None``
     when the grid is off or the image has no silhouette term (the edges alone cannot rank an
-    attitude that no feature group proposed: a grid ranked without the silhouette was tried
-    earlier and gave no gain, README)."""
+    attitude that no feature group proposed: with ``opts.grid_without_silhouette`` the grid is
+    placed on the ROI instead, measured in the docs' monocular evaluation)."""
     if opts.attitude_grid <= 0 or det.coarse_t_cam is None:
         return None
     on_roi = sc.sil_pts is None
     if on_roi and not opts.grid_without_silhouette:
         return None
+    return _placed_attitudes(det, opts, sc, on_roi)
+
+
+def _placed_attitudes(det, opts: InitOptions, sc: _EdgeScene, on_roi: bool):
+    """The ``opts.attitude_grid`` grid attitudes ``R (X, 3, 3)`` and their translations
+    ``t (X, 3)`` (metres): the model's centre (the face polygons' with a silhouette, the edges'
+    on the ROI) at the coarse position, then placed on the silhouette
+    (:func:`_place_on_silhouette`) or on the ROI (:func:`_place_on_roi`), in fixed-size chunks."""
     R = _attitudes(int(opts.attitude_grid))
     if on_roi:
         centre = np.asarray(sc.geom[1]).reshape(-1, 3).mean(0)
@@ -335,15 +343,8 @@ def _template_grid(det, opts: InitOptions, sc: _EdgeScene):
     n = int(opts.template_slots)
     if n <= 0 or opts.attitude_grid <= 0 or det.coarse_t_cam is None:
         return None
-    R = _attitudes(int(opts.attitude_grid))
-    centre = np.asarray(sc.geom[1]).reshape(-1, 3).mean(0)
-    t = np.asarray(det.coarse_t_cam, dtype=float)[None] - R @ centre
-    out = []
-    for a in range(0, len(R), _CHUNK):
-        Rp, tp = _pad_batch([R[a : a + _CHUNK], t[a : a + _CHUNK]], _CHUNK)
-        tp = _batched_place_roi()(jnp.asarray(Rp), jnp.asarray(tp), sc, jnp.asarray(det.roi))
-        out.append(np.asarray(tp)[: len(R[a : a + _CHUNK])])
-    Rt, tt, _ = _template_poses(R, np.concatenate(out), sc, det, n)
+    R, t = _placed_attitudes(det, opts, sc, on_roi=True)
+    Rt, tt, _ = _template_poses(R, t, sc, det, n)
     return Rt, tt
 
 
