@@ -39,6 +39,7 @@ __all__ = [
     "disparity_range",
     "match_lines_stereo",
     "match_points_stereo",
+    "match_stereo",
     "parabolic_offset",
     "zncc",
 ]
@@ -259,7 +260,7 @@ def match_points_stereo(
     group = np.ceil(np.log2(D)).astype(np.int64)
     for g in np.unique(group):
         sel = np.nonzero(group == g)[0]
-        uv_r, best, ok = _search_rows(L, padded, p[sel], d_max[sel], int(D[sel].max()), options)
+        uv_r, best, ok = _search_rows(L, padded, p[sel], d_max[sel], D[sel], options)
         out.pixels_right[sel], out.score[sel], out.ok[sel] = uv_r, best, ok
     return out
 
@@ -292,11 +293,14 @@ def _coarse_ranges(L, Rimg, p, d_min, d_max, wide, options: StereoMatchOptions):
     return d_min, d_max
 
 
-def _search_rows(L, padded, p, d_max, D: int, options: StereoMatchOptions):
-    """ZNCC of each left patch against the ``D`` right windows ending at disparity ``d_max``
-    (per point) on its row (the right image ``padded`` by :func:`_padded`), the best score, its
-    parabolic sub-pixel column and the tests."""
+def _search_rows(L, padded, p, d_max, widths, options: StereoMatchOptions):
+    """ZNCC of each left patch against the right windows of disparities ``d_max - widths + 1 ..
+    d_max`` (per point) on its row (the right image ``padded`` by :func:`_padded`), the best
+    score, its parabolic sub-pixel column and the tests. The points are searched together over
+    the largest width, the windows beyond a point's own range scored -1: a point's match does
+    not depend on the points searched with it."""
     N = len(p)
+    D = int(widths.max())
     w = options.window  # columns
     wr = options.window_rows or w  # rows
     h, hr = w // 2, wr // 2
@@ -337,10 +341,11 @@ def _search_rows(L, padded, p, d_max, D: int, options: StereoMatchOptions):
     score = np.where(den > 1e-9, ab / np.where(den > 1e-9, den, 1.0), -1.0)
     # a window reaching outside the right image is not a candidate
     centre = (c0 + h)[:, None] + np.arange(D)[None, :]
-    score = np.where((centre - h >= 0) & (centre + h <= W - 1), score, -1.0)
+    own = np.arange(D)[None, :] < widths[:, None]  # j = d_max - disparity
+    score = np.where((centre - h >= 0) & (centre + h <= W - 1) & own, score, -1.0)
     j = np.argmax(score, axis=1)
     best = score[np.arange(N), j]
-    inner = (j > 0) & (j < D - 1)
+    inner = (j > 0) & (j < widths - 1)
     jm, jp = np.clip(j - 1, 0, D - 1), np.clip(j + 1, 0, D - 1)
     off = parabolic_offset(score[np.arange(N), jm], best, score[np.arange(N), jp])
     u_right = c0 + h + j + np.where(inner, off, 0.0)
@@ -418,3 +423,63 @@ def match_lines_stereo(
         out[i] = np.stack([u_cut, rows], 1)
         ok[i] = True
     return LineMatches(out, fit_error, n_matched, ok)
+
+
+def _n_line_samples(segments: np.ndarray, options: StereoMatchOptions) -> int:
+    """How many samples :func:`match_lines_stereo` searches for ``segments`` ``(M, 2, 2)``."""
+    if len(segments) == 0:
+        return 0
+    d = segments[:, 1] - segments[:, 0]
+    length = np.linalg.norm(d, axis=1)
+    steep = np.abs(d[:, 1]) >= np.sin(np.radians(options.min_epipolar_angle_deg)) * np.maximum(
+        length, 1e-12
+    )
+    n = np.clip((length / options.line_step_px).astype(int), 3, options.line_max_samples)
+    return int(n[steep].sum())
+
+
+def match_stereo(
+    left: np.ndarray,
+    right: np.ndarray,
+    pixels_left: np.ndarray,
+    point_disparities,
+    segments_left: np.ndarray,
+    line_disparities,
+    *,
+    options: StereoMatchOptions = StereoMatchOptions(),
+    executor=None,
+) -> tuple[PointMatches, LineMatches]:
+    """The points (:func:`match_points_stereo`) and segments (:func:`match_lines_stereo`) of one
+    frame, disparities as there.
+
+    ``executor`` (e.g. a one-worker :class:`concurrent.futures.ThreadPoolExecutor`): the segments
+    and a share of the points are searched in the worker while the other points are searched in
+    the calling thread (NumPy and OpenCV release the GIL, so two cores overlap them); the share
+    evens out the two threads' searched samples (a segment counts its samples). A point's match
+    does not depend on the points searched with it: the matches are the same either way.
+    """
+    L, Rimg = _as_float(left), _as_float(right)  # converted once for every call below
+    p = np.asarray(pixels_left, dtype=np.float64).reshape(-1, 2)
+    seg = np.asarray(segments_left, dtype=np.float64).reshape(-1, 2, 2)
+    if executor is None or len(seg) == 0:
+        pm = match_points_stereo(L, Rimg, p, point_disparities, options=options)
+        return pm, match_lines_stereo(L, Rimg, seg, line_disparities, options=options)
+    N = len(p)
+    dp = np.asarray(point_disparities)
+    if dp.shape == (2,):
+        dp = np.broadcast_to(dp, (N, 2))
+    k = int(np.clip((N - _n_line_samples(seg, options)) // 2, 0, N))  # points of the worker
+
+    def worker():
+        lm = match_lines_stereo(L, Rimg, seg, line_disparities, options=options)
+        return lm, match_points_stereo(L, Rimg, p[N - k :], dp[N - k :], options=options)
+
+    pending = executor.submit(worker)
+    head = match_points_stereo(L, Rimg, p[: N - k], dp[: N - k], options=options)
+    lm, tail = pending.result()
+    pm = PointMatches(
+        np.concatenate([head.pixels_right, tail.pixels_right]).reshape(-1, 2),
+        np.concatenate([head.score, tail.score]),
+        np.concatenate([head.ok, tail.ok]),
+    )
+    return pm, lm
