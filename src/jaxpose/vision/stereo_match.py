@@ -194,7 +194,11 @@ def _strips(padded, pads, c0: np.ndarray, v: np.ndarray, width: int, wr: int, hr
     vi = np.floor(v).astype(np.int64)
     frac = (v - vi).astype(np.float32)[:, None, None]
     out = sliding_window_view(padded, (wr + 1, width))[vi - hr + pads[1], c0 + pads[0]]
-    return out[:, :-1] * (1.0 - frac) + out[:, 1:] * frac
+    low = out[:, :-1]
+    strip = out[:, 1:] - low  # low + frac (high - low), in place
+    strip *= frac
+    strip += low
+    return strip
 
 
 def _per_feature(disparities, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -339,10 +343,12 @@ def _search_rows(L, padded, p, d_max, widths, options: StereoMatchOptions):
         ab += np.einsum("ni,nij->nj", a32[:, :, k], strip[:, :, k : k + D])
     den = np.sqrt(aa[:, None] * bb)
     score = np.where(den > 1e-9, ab / np.where(den > 1e-9, den, 1.0), -1.0)
-    # a window reaching outside the right image is not a candidate
-    centre = (c0 + h)[:, None] + np.arange(D)[None, :]
-    own = np.arange(D)[None, :] < widths[:, None]  # j = d_max - disparity
-    score = np.where((centre - h >= 0) & (centre + h <= W - 1) & own, score, -1.0)
+    # candidates: the point's own disparities (j = d_max - disparity < width) whose window lies
+    # inside the right image (window centre c0 + h + j within [h, W - 1 - h])
+    j_lo = np.maximum(-c0, 0)[:, None]
+    j_hi = np.minimum(widths, W - 2 * h - c0)[:, None]
+    jj = np.arange(D)[None, :]
+    score = np.where((jj >= j_lo) & (jj < j_hi), score, -1.0)
     j = np.argmax(score, axis=1)
     best = score[np.arange(N), j]
     inner = (j > 0) & (j < widths - 1)
@@ -408,20 +414,30 @@ def match_lines_stereo(
     cand = (n_matched >= options.line_min_matches) & (2 * n_matched >= n_samples) & steep
     cos_eps = np.cos(np.radians(options.eps_theta_deg))
     sin_min = np.sin(np.radians(options.min_epipolar_angle_deg))
-    for i in np.nonzero(cand)[0]:
-        pts = pm.pixels_right[(owner == i) & pm.ok]
-        c = pts.mean(0)
-        _, _, vt = np.linalg.svd(pts - c, full_matrices=False)
-        direction, normal = vt[0], vt[1]
-        delta = float(np.abs((pts - c) @ normal).mean())
-        fit_error[i] = delta
-        cos_angle = abs(direction @ d[i]) / length[i]
-        if delta >= options.eps_delta_px or cos_angle < cos_eps or abs(direction[1]) < sin_min:
-            continue
-        rows = seg[i, :, 1]
-        u_cut = c[0] + (rows - c[1]) * direction[0] / direction[1]
-        out[i] = np.stack([u_cut, rows], 1)
-        ok[i] = True
+    # total-least-squares line of each segment's matches, all segments at once: the centroid
+    # and the principal axis of the 2x2 scatter matrix (closed form)
+    use = pm.ok & cand[owner]
+    who, pts = owner[use], pm.pixels_right[use]
+    count = np.maximum(np.bincount(who, minlength=M), 1)
+    c = np.stack([np.bincount(who, pts[:, k], M) for k in (0, 1)], 1) / count[:, None]
+    q = pts - c[who]
+    sxx, sxy, syy = (np.bincount(who, q[:, a] * q[:, b], M) for a, b in ((0, 0), (0, 1), (1, 1)))
+    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    direction = np.stack([np.cos(theta), np.sin(theta)], 1)
+    normal = np.stack([-direction[:, 1], direction[:, 0]], 1)
+    delta = np.bincount(who, np.abs((q * normal[who]).sum(1)), M) / count
+    fit_error = np.where(cand, delta, np.inf)
+    cos_angle = np.abs((direction * d).sum(1)) / np.maximum(length, 1e-12)
+    ok = (
+        cand
+        & (delta < options.eps_delta_px)
+        & (cos_angle >= cos_eps)
+        & (np.abs(direction[:, 1]) >= sin_min)
+    )
+    rows = seg[ok, :, 1]  # (k, 2): the right segment cut at the left endpoints' rows
+    dirs = direction[ok]
+    u_cut = c[ok, :1] + (rows - c[ok, 1:]) * (dirs[:, :1] / dirs[:, 1:])
+    out[ok] = np.stack([u_cut, rows], 2)
     return LineMatches(out, fit_error, n_matched, ok)
 
 

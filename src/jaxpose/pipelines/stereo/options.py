@@ -110,8 +110,10 @@ class TrackerOptions:
         disparity_margin_px: the margin of the first tracked frame.
         neighbour_px: radius of the matched points that predict an unmatched feature's
             disparity.
-        threads: run the line detection (LSD + LBD) and the lines' stereo search in a second
-            thread, beside the points' (the same results; on two cores the wall times overlap).
+        threads: run the line detection (LSD + LBD) in a second thread beside the points', and
+            the lines' stereo search with a share of the points' in a second thread beside the
+            other points' (:func:`~jaxpose.vision.stereo_match.match_stereo`; the same results;
+            on two cores the wall times overlap).
         window_frames: jointly adjust the poses of the last ``window_frames`` tracked frames
             and the point landmarks they observed, every ``k``-th frame (``window_every``)
             (:mod:`~jaxpose.pipelines.stereo.window`; each landmark keeps its rays from older

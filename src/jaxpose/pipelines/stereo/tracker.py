@@ -221,7 +221,7 @@ class StereoTracker:
             n = int(round(target_area_px / o.keypoint_spacing_px**2, -2))
             f = replace(f, n_points=max(100, min(f.n_points, n)))
         if o.lsd_area_px is not None and target_area_px > o.lsd_area_px:
-            # LSD on at most lsd_area_px pixels of target at the scale of the options: a near
+            # LSD on about lsd_area_px pixels of target at the scale of the options: a near
             # target's edges are long, and LSD's time goes with the pixels it scans
             scale = f.lsd_scale * np.sqrt(o.lsd_area_px / target_area_px)
             f = replace(f, lsd_scale=round(float(max(scale, 0.4)), 2))
