@@ -226,8 +226,9 @@ class StereoTracker:
     def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
         """The feature options of a frame whose target covers ``target_area_px`` pixels: the ORB
         budget at one keypoint per ``keypoint_spacing_px^2`` pixels of target (a constant
-        keypoint density on the target, whatever its range and attitude), and LSD's scale
-        reduced by ``sqrt(lsd_area_px / target_area_px)`` on a target larger than
+        keypoint density on the target, whatever its range and attitude), the shortest segment
+        at ``line_length_frac`` of the target's apparent size when eq. 1's is longer, and LSD's
+        scale reduced by ``sqrt(lsd_area_px / target_area_px)`` on a target larger than
         ``lsd_area_px`` (at least 0.4)."""
         o = self.options
         if target_area_px is None:
@@ -236,6 +237,11 @@ class StereoTracker:
         if o.keypoint_spacing_px is not None:
             n = int(round(target_area_px / o.keypoint_spacing_px**2, -2))
             f = replace(f, n_points=max(100, min(f.n_points, n)))
+        if o.line_length_frac is not None:
+            # eq. 1's bound mu min(W, H), or a fraction of the target's apparent size if shorter
+            side = float(min(self.rig.left.width, self.rig.left.height))
+            mu = o.line_length_frac * np.sqrt(max(target_area_px, 0.0)) / side
+            f = replace(f, mu=round(float(min(f.mu, mu)), 4))
         if o.lsd_area_px is not None and target_area_px > o.lsd_area_px:
             # LSD on about lsd_area_px pixels of target at the scale of the options: a near
             # target's edges are long, and LSD's time goes with the pixels it scans
