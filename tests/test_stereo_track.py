@@ -137,6 +137,13 @@ def test_keypoint_budget_follows_the_target_area():
     assert tracker.feature_options(100_000.0).lsd_scale == 0.8
     assert tracker.feature_options(120_000.0 * 1.5625).lsd_scale == pytest.approx(0.64)
     assert tracker.feature_options(120_000.0 * 9).lsd_scale == 0.4
+    # the shortest segment: eq. 1's mu min(W, H), or 0.15 sqrt(area) on a smaller target
+    side = min(RIG.left.width, RIG.left.height)
+    assert tracker.feature_options(200_000.0).mu == 0.04
+    short = tracker.feature_options(20_000.0).mu * side
+    assert short == pytest.approx(0.15 * np.sqrt(20_000.0), abs=0.1)
+    with pytest.raises(ValueError, match="line_length_frac"):
+        TrackerOptions(line_length_frac=0.0)
     with pytest.raises(ValueError, match="keypoint_spacing_px"):
         TrackerOptions(keypoint_spacing_px=0.0)
     with pytest.raises(ValueError, match="lsd_area_px"):
