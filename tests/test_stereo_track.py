@@ -112,7 +112,7 @@ def test_tracker_rejects_unrectified_rigs():
 def test_keypoint_budget_follows_the_target_area():
     """One keypoint per spacing^2 pixels of target (rounded to 100, within [100, n_points]); the
     apparent area is the count of bright pixels (checked on a drawn disc)."""
-    from jaxpose.pipelines.stereo.tracker import target_area, target_roi
+    from jaxpose.pipelines.stereo.tracker import target_area
 
     tracker = StereoTracker(RIG, None)
     assert tracker.feature_options(8.0**2 * 1234).n_points == 1200
@@ -127,23 +127,10 @@ def test_keypoint_budget_follows_the_target_area():
     vv, uu = np.mgrid[:768, :1024]
     img[(uu - 500) ** 2 + (vv - 400) ** 2 < 200**2] = 120
     assert target_area(img) == pytest.approx(np.pi * 200**2, rel=0.02)
-    # sensor noise of 2% (5 grey levels) and lone hot pixels on the sky: the same box and area
-    rng = np.random.default_rng(0)
-    noisy = np.clip(img + rng.normal(0.0, 5.0, img.shape), 0, 255).astype(np.uint8)
-    noisy[rng.integers(0, 768, 40), rng.integers(0, 1024, 40)] = 255
-    assert target_area(noisy) == pytest.approx(np.pi * 200**2, rel=0.02)
-    np.testing.assert_allclose(target_roi(noisy), [300, 200, 700, 600], atol=8)
     # LSD's scale: sqrt(lsd_area_px / area) of the options' on a larger target, at least 0.4
     assert tracker.feature_options(100_000.0).lsd_scale == 0.8
     assert tracker.feature_options(120_000.0 * 1.5625).lsd_scale == pytest.approx(0.64)
     assert tracker.feature_options(120_000.0 * 9).lsd_scale == 0.4
-    # the shortest segment: eq. 1's mu min(W, H), or 0.15 sqrt(area) on a smaller target
-    side = min(RIG.left.width, RIG.left.height)
-    assert tracker.feature_options(200_000.0).mu == 0.04
-    short = tracker.feature_options(20_000.0).mu * side
-    assert short == pytest.approx(0.15 * np.sqrt(20_000.0), abs=0.1)
-    with pytest.raises(ValueError, match="line_length_frac"):
-        TrackerOptions(line_length_frac=0.0)
     with pytest.raises(ValueError, match="keypoint_spacing_px"):
         TrackerOptions(keypoint_spacing_px=0.0)
     with pytest.raises(ValueError, match="lsd_area_px"):

@@ -127,8 +127,6 @@ def _roi_slice(shape, roi, pad: int = 8):
 
 
 _ORB: dict = {}
-_ORB_EDGE = 31  # cv2.ORB_create's edgeThreshold (default), at each of its 8 levels 1.2 apart
-_ORB_PAD = int(np.ceil(_ORB_EDGE * 1.2**7)) + 1
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
 _LSD: dict = {}
 _LBD: list = []
@@ -147,16 +145,9 @@ def detect_points(
     key = (options.n_points, options.orb_fast_threshold)
     if key not in _ORB:
         _ORB[key] = cv2.ORB_create(
-            nfeatures=options.n_points,
-            fastThreshold=options.orb_fast_threshold,
-            edgeThreshold=_ORB_EDGE,
-            scaleFactor=1.2,
-            nlevels=8,
+            nfeatures=options.n_points, fastThreshold=options.orb_fast_threshold
         )
-    # ORB finds no keypoint within its edge threshold (31 px) of the image it is given, at each
-    # pyramid level (1.2^7 x 31 = 111 px at the top one): the box grows by as much, or the
-    # corners on the target's rim would be lost (the keypoints are those of the whole image)
-    u0, v0, u1, v1 = _roi_slice(img.shape, roi, pad=_ORB_PAD)
+    u0, v0, u1, v1 = _roi_slice(img.shape, roi)
     kps, desc = _ORB[key].detectAndCompute(np.ascontiguousarray(img[v0:v1, u0:u1]), None)
     if desc is None or not kps:
         empty = np.zeros((0, 2)), np.zeros((0, 32), np.uint8)

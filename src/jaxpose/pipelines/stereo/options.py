@@ -77,10 +77,6 @@ class TrackerOptions:
             at 2 m, and the near target's edges are long enough to be found on the coarser image
             (on ``d3``, 1.5 m: scale 0.6, 12 ms instead of 21 ms of LSD, as many segments longer
             than eq. 1's bound). ``None``: always ``features.lsd_scale``.
-        line_length_frac: segments shorter than ``line_length_frac * sqrt(A)`` (``A`` the
-            target's apparent area, pixels) are kept when eq. 1's bound ``mu min(W, H)`` is longer:
-            a far target's edges are short in pixels (at 5 m the 1 m target spans about 135 px,
-            and eq. 1's 31 px left few segments). ``None``: eq. 1 alone.
         line_planes: refine the line landmarks from all their observation planes (the planes
             through each camera centre and the segment, body frame, of every stereo pair that
             matched the landmark; :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe_lines`)
@@ -186,7 +182,6 @@ class TrackerOptions:
     features: FeatureOptions = field(default_factory=lambda: FeatureOptions(n_points=2000))
     keypoint_spacing_px: float | None = 8.0
     lsd_area_px: float | None = 120_000.0
-    line_length_frac: float | None = 0.15
     line_planes: bool = True
     line_stereo_residuals: bool = True
     measured_line_sigma: bool = True
@@ -225,10 +220,6 @@ class TrackerOptions:
             )
         if not 0.0 < self.budget_subsample <= 1.0:
             raise ValueError(f"budget_subsample must be in (0, 1]; got {self.budget_subsample}")
-        if self.line_length_frac is not None and not self.line_length_frac > 0:
-            raise ValueError(
-                f"line_length_frac must be positive or None; got {self.line_length_frac}"
-            )
         if self.lsd_area_px is not None and not self.lsd_area_px > 0:
             raise ValueError(f"lsd_area_px must be positive or None; got {self.lsd_area_px}")
         if self.keypoint_spacing_px is not None and not self.keypoint_spacing_px > 0:

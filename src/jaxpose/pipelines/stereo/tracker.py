@@ -41,7 +41,6 @@ from __future__ import annotations
 import warnings
 from dataclasses import replace
 
-import cv2
 import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
@@ -82,36 +81,21 @@ from jaxpose.vision.stereo_match import disparity_range
 __all__ = ["StereoTracker", "as_gray_uint8", "target_area", "target_roi"]
 
 
-def _bright_blocks(image: np.ndarray, threshold: float, step: int) -> np.ndarray:
-    """``step x step`` blocks of ``image`` whose mean is above ``threshold`` (bool, ``(H // step,
-    W // step)``). Averaging a block divides the sensor noise by ``step``: a lone noisy pixel of
-    the dark sky (with 1% noise a few pixels of every frame exceed 10 grey levels) does not count
-    as target, whereas a bright structure a pixel wide still does. Isolated bright blocks are
-    dropped."""
-    img = np.asarray(image)
-    h, w = img.shape[0] // step, img.shape[1] // step
-    if h == 0 or w == 0:
-        return np.zeros((h, w), bool)
-    small = cv2.resize(img[: h * step, : w * step], (w, h), interpolation=cv2.INTER_AREA)
-    bright = (small > threshold).astype(np.uint8)
-    # a bright block with no bright neighbour (a star, a hot pixel) is not target
-    count = cv2.boxFilter(bright, cv2.CV_16U, (3, 3), normalize=False)
-    return (bright > 0) & (count >= 2)
-
-
 def target_roi(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> np.ndarray | None:
-    """Bounding box ``(u0, v0, u1, v1)`` of the ``step x step`` blocks brighter than ``threshold``
-    on average (a target on a dark sky); ``None`` when nothing is bright."""
-    vv, uu = np.nonzero(_bright_blocks(image, threshold, step))
+    """Bounding box ``(u0, v0, u1, v1)`` of the pixels brighter than ``threshold`` (a target on a
+    dark sky), from a ``step``-subsampled image; ``None`` when nothing is bright."""
+    small = np.asarray(image)[::step, ::step]
+    vv, uu = np.nonzero(small > threshold)
     if len(uu) < 4:
         return None
     return np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float) * step
 
 
 def target_area(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> float:
-    """Apparent area of the target, pixels: the ``step x step`` blocks brighter than
-    ``threshold`` on average (a target on a dark sky), times ``step^2``."""
-    return float(np.count_nonzero(_bright_blocks(image, threshold, step))) * step * step
+    """Apparent area of the target, pixels: the pixels brighter than ``threshold`` (a target on a
+    dark sky), counted on a ``step``-subsampled image."""
+    small = np.asarray(image)[::step, ::step]
+    return float(np.count_nonzero(small > threshold)) * step * step
 
 
 def as_gray_uint8(image, name: str = "image") -> np.ndarray:
@@ -226,9 +210,8 @@ class StereoTracker:
     def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
         """The feature options of a frame whose target covers ``target_area_px`` pixels: the ORB
         budget at one keypoint per ``keypoint_spacing_px^2`` pixels of target (a constant
-        keypoint density on the target, whatever its range and attitude), the shortest segment
-        at ``line_length_frac`` of the target's apparent size when eq. 1's is longer, and LSD's
-        scale reduced by ``sqrt(lsd_area_px / target_area_px)`` on a target larger than
+        keypoint density on the target, whatever its range and attitude), and LSD's scale
+        reduced by ``sqrt(lsd_area_px / target_area_px)`` on a target larger than
         ``lsd_area_px`` (at least 0.4)."""
         o = self.options
         if target_area_px is None:
@@ -237,11 +220,6 @@ class StereoTracker:
         if o.keypoint_spacing_px is not None:
             n = int(round(target_area_px / o.keypoint_spacing_px**2, -2))
             f = replace(f, n_points=max(100, min(f.n_points, n)))
-        if o.line_length_frac is not None:
-            # eq. 1's bound mu min(W, H), or a fraction of the target's apparent size if shorter
-            side = float(min(self.rig.left.width, self.rig.left.height))
-            mu = o.line_length_frac * np.sqrt(max(target_area_px, 0.0)) / side
-            f = replace(f, mu=round(float(min(f.mu, mu)), 4))
         if o.lsd_area_px is not None and target_area_px > o.lsd_area_px:
             # LSD on about lsd_area_px pixels of target at the scale of the options: a near
             # target's edges are long, and LSD's time goes with the pixels it scans
