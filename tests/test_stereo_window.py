@@ -44,7 +44,7 @@ def test_adjustment_recovers_the_true_poses_and_landmarks():
     rig, X, poses = _scene()
     rng = np.random.default_rng(1)
     m = LandmarkMap()
-    win = WindowAdjuster(rig, frames=5, iterations=iterations)
+    win = WindowAdjuster(rig, frames=5, iterations=iterations, max_points=60)
     ids = None
     for j, (R, t) in enumerate(poses):
         # the frames' poses as a tracker would have them: off by up to 0.5 degree and 1 cm
@@ -77,7 +77,7 @@ def test_older_rays_are_a_prior_that_holds_the_landmarks():
     fixed frame, the oldest frame not anchored) returns the true poses."""
     rig, X, poses = _scene(n_frames=6)
     m = LandmarkMap()
-    win = WindowAdjuster(rig, frames=3, iterations=8)
+    win = WindowAdjuster(rig, frames=3, iterations=8, max_points=60)
     win.anchor_oldest = False
     ids = m.add("points", X, np.zeros((60, 32)), Pose(*poses[0]), 0)
     rng = np.random.default_rng(2)

@@ -31,6 +31,7 @@ sizes compiles a few programs.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -81,37 +82,32 @@ class WindowOptions:
 
 
 class WindowObservations(eqx.Module):
-    """The padded observations of one window (``m`` point observations, ``n`` landmarks, ``k``
-    line-endpoint rows, ``f`` frames).
+    """The observations of one window of ``f`` frames and ``n`` landmarks, as a visibility grid
+    (a landmark is seen at most once in each image of a frame), with ``k`` line-endpoint rows a
+    frame. Padding: ``mask``, ``points_mask`` and ``line_weight`` say what is real.
 
     Attributes:
-        frame, landmark: ``(m,)`` frame (in ``[0, f)``) and landmark (in ``[0, n)``) of each
-            point observation.
-        pixels: ``(m, 2)`` observed pixels.
-        right: ``(m,)`` the pixel is in the right image.
-        mask: ``(m,)`` the observation is real (padding: ``False``).
+        pixels: ``(f, n, 2, 2)`` the pixel of landmark ``i`` in frame ``j``, left image
+            (``[j, i, 0]``) and right image (``[j, i, 1]``).
+        mask: ``(f, n, 2)`` the pixel is observed.
         prior_M, prior_b: ``(n, 3, 3)``, ``(n, 3)`` each landmark's ray normal equations from
             outside the window (body frame, angular units; zero for none).
         points_mask: ``(n,)`` the landmark is real.
-        line_frame: ``(k,)`` frame of each line-endpoint row.
-        line_points: ``(k, 3)`` the fixed landmark endpoint, body frame, metres.
-        line_coeffs: ``(k, 3)`` the observed left-image line ``(a, b, c)``, ``a^2 + b^2 = 1``.
-        line_weight: ``(k,)`` ``1 / sigma_l^2`` (padding: 0).
+        line_points: ``(f, k, 3)`` fixed line-landmark endpoints, body frame, metres.
+        line_coeffs: ``(f, k, 3)`` the line observed in the left image of the frame, ``(a, b,
+            c)`` with ``a^2 + b^2 = 1``.
+        line_weight: ``(f, k)`` ``1 / sigma_l^2`` (padding: 0).
         free: ``(f,)`` the frame's pose is adjusted (a gauge anchor or a padded frame: ``False``).
     """
 
-    frame: Int[Array, " m"]
-    landmark: Int[Array, " m"]
-    pixels: Float[Array, "m 2"]
-    right: Bool[Array, " m"]
-    mask: Bool[Array, " m"]
+    pixels: Float[Array, "f n 2 2"]
+    mask: Bool[Array, "f n 2"]
     prior_M: Float[Array, "n 3 3"]
     prior_b: Float[Array, "n 3"]
     points_mask: Bool[Array, " n"]
-    line_frame: Int[Array, " k"]
-    line_points: Float[Array, "k 3"]
-    line_coeffs: Float[Array, "k 3"]
-    line_weight: Float[Array, " k"]
+    line_points: Float[Array, "f k 3"]
+    line_coeffs: Float[Array, "f k 3"]
+    line_weight: Float[Array, "f k"]
     free: Bool[Array, " f"]
 
 
@@ -132,15 +128,17 @@ class WindowResult(eqx.Module):
     status: Int[Array, ""]
 
 
-def point_residual(xi, dX, pose: Pose, point_body, pixel, right, rig: StereoCamera):
-    """Pixel residual ``(2,)`` of one observation at the increments ``xi`` (``(6,)``, the pose's
-    tangent, :meth:`jaxpose.Pose.retract`) and ``dX`` (``(3,)``, metres), and the point's depth
-    in the observing camera (Yang et al. 2024 eq. 8; the right image through the rig)."""
+def point_residual(xi, dX, pose: Pose, point_body, pixels, rig: StereoCamera):
+    """Pixel residuals ``(2, 2)`` of one landmark seen in both images of one frame, at the
+    increments ``xi`` (``(6,)``, the pose's tangent, :meth:`jaxpose.Pose.retract`) and ``dX``
+    (``(3,)``, metres), and the point's depths ``(2,)`` in the two cameras (Yang et al. 2024
+    eq. 8; the right image through the rig, ``x_right = R_rl x_left + t_rl``). ``pixels``:
+    ``(2, 2)``, left then right."""
     p = pose.retract(xi)
     x = p.R @ (point_body + dX) + p.t
     xr = rig.to_right(x)
-    uv = jnp.where(right, rig.right.project(xr), rig.left.project(x))
-    return uv - pixel, jnp.where(right, xr[2], x[2])
+    uv = jnp.stack([rig.left.project(x), rig.right.project(xr)])
+    return uv - pixels, jnp.stack([x[2], xr[2]])
 
 
 def line_residual(xi, pose: Pose, point_body, line, camera):
@@ -178,44 +176,46 @@ def _inv3(A):
 
 def _normal_equations(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: WindowOptions):
     """The blocks ``H_pp (f, 6, 6), g_p (f, 6), H_pl (f, n, 6, 3), H_ll (n, 3, 3), g_l (n, 3)``
-    at the poses ``(R, t)`` and landmarks ``X``, and whether every observed depth is positive."""
-    f, n = R.shape[0], X.shape[0]
+    at the poses ``(R, t)`` and landmarks ``X``, and whether every observed depth is positive.
+    Sums over the visibility grid's axes (no scatter)."""
     dtype = X.dtype
-    jj, li = obs.frame, obs.landmark
     zero6, zero3 = jnp.zeros(6, dtype), jnp.zeros(3, dtype)
+    pose = Pose(R, t)
     jac = jax.jacfwd(_with_value(point_residual), argnums=(0, 1), has_aux=True)
-    (J_pose, J_point), (r, z) = jax.vmap(jac, in_axes=(None, None, 0, 0, 0, 0, None))(
-        zero6, zero3, Pose(R[jj], t[jj]), X[li], obs.pixels, obs.right, rig
-    )
+    one = jax.vmap(jac, in_axes=(None, None, None, 0, 0, None))  # the landmarks
+    grid = jax.vmap(one, in_axes=(None, None, 0, None, 0, None))  # the frames
+    (J_pose, J_point), (r, z) = grid(zero6, zero3, pose, X, obs.pixels, rig)
+    # J_pose (f, n, 2, 2, 6), J_point (f, n, 2, 2, 3), r (f, n, 2, 2), z (f, n, 2)
     depth_ok = jnp.all(jnp.where(obs.mask, z > _MIN_DEPTH, True))
     w = jnp.where(obs.mask, _huber_weight(jnp.linalg.norm(r, axis=-1), cfg.huber_px), 0.0)
-    wp = jnp.where(obs.free[jj], w, 0.0)
-    Jw_point = w[:, None, None] * J_point
-    Jw_pose = wp[:, None, None] * J_pose
-    seg = jax.ops.segment_sum
-    H_ll = seg(jnp.einsum("mca,mcb->mab", J_point, Jw_point), li, n)
-    g_l = seg(jnp.einsum("mca,mc->ma", Jw_point, r), li, n)
-    H_pp = seg(jnp.einsum("mca,mcb->mab", J_pose, Jw_pose), jj, f)
-    g_p = seg(jnp.einsum("mca,mc->ma", Jw_pose, r), jj, f)
-    H_pl = seg(jnp.einsum("mca,mcb->mab", Jw_pose, J_point), jj * n + li, f * n)
-    H_pl = H_pl.reshape(f, n, 6, 3)
+    wp = jnp.where(obs.free[:, None, None], w, 0.0)
+    Jw_point = w[..., None, None] * J_point
+    Jw_pose = wp[..., None, None] * J_pose
+    # (products and sums written out: XLA fuses them; as einsums they are thousands of tiny
+    # batched matrix products)
+    outer = lambda a, b: jnp.sum(a[..., :, None] * b[..., None, :], axis=(2, 3))  # noqa: E731
+    H_fn = outer(Jw_pose, J_point)  # (f, n, 6, 3)
+    H_ll = jnp.sum(outer(J_point, Jw_point), axis=0)
+    g_l = jnp.sum(Jw_point * r[..., None], axis=(0, 2, 3))
+    H_pp = jnp.sum(outer(J_pose, Jw_pose), axis=1)
+    g_p = jnp.sum(Jw_pose * r[..., None], axis=(1, 2, 3))
+    H_pl = H_fn
     # the landmark prior s (X^T M X - 2 b^T X), beside the squared residuals' normal equations
     # (J^T W J, J^T W e: half the cost's Hessian and gradient): s M and s (M X - b)
     s = rig.left.fx * rig.left.fy
     H_ll = H_ll + s * obs.prior_M
     g_l = g_l + s * (jnp.einsum("nab,nb->na", obs.prior_M, X) - obs.prior_b)
     # the fixed line landmarks' endpoint distances, pose blocks only
-    if obs.line_frame.shape[0]:
-        jl = obs.line_frame
+    if obs.line_points.shape[1]:
         ljac = jax.jacfwd(_with_value(line_residual), has_aux=True)
-        J_line, (d, zl) = jax.vmap(ljac, in_axes=(None, 0, 0, 0, None))(
-            zero6, Pose(R[jl], t[jl]), obs.line_points, obs.line_coeffs, rig.left
-        )
+        lgrid = jax.vmap(jax.vmap(ljac, in_axes=(None, None, 0, 0, None)), (None, 0, 0, 0, None))
+        J_line, (d, zl) = lgrid(zero6, pose, obs.line_points, obs.line_coeffs, rig.left)
         live = obs.line_weight > 0
         depth_ok = depth_ok & jnp.all(jnp.where(live, zl > _MIN_DEPTH, True))
-        wl = jnp.where(obs.free[jl], obs.line_weight, 0.0) * _huber_weight(jnp.abs(d), cfg.huber_px)
-        H_pp = H_pp + seg(wl[:, None, None] * J_line[:, :, None] * J_line[:, None, :], jl, f)
-        g_p = g_p + seg((wl * d)[:, None] * J_line, jl, f)
+        wl = jnp.where(obs.free[:, None], obs.line_weight, 0.0)
+        wl = wl * _huber_weight(jnp.abs(d), cfg.huber_px)
+        H_pp = H_pp + jnp.einsum("fka,fkb->fab", J_line, wl[..., None] * J_line)
+        g_p = g_p + jnp.einsum("fka,fk->fa", J_line, wl * d)
     return H_pp, g_p, H_pl, H_ll, g_l, depth_ok
 
 
@@ -249,7 +249,18 @@ def _step(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: WindowOption
     return stepped.R, stepped.t, X + dX, depth_ok, blocks_ok & finite
 
 
-@eqx.filter_jit
+_COMPILER_OPTIONS_CPU = {"xla_cpu_use_fusion_emitters": False}
+"""XLA options of the adjustment's compilation on a CPU: measured on a window of 8 frames and
+300 landmarks (``bench/stereo.py``'s window), the compilation takes about half the time of
+the default one and the compiled step is no slower."""
+
+
+@functools.cache
+def _compiled(backend: str):
+    options = _COMPILER_OPTIONS_CPU if backend == "cpu" else None
+    return jax.jit(_adjust, static_argnums=4, compiler_options=options)
+
+
 def _adjust(points_body, obs: WindowObservations, pose: Pose, rig: StereoCamera, cfg):
     def body(_, state):
         R, t, X, depth_ok, solve_ok = state
@@ -267,9 +278,7 @@ def _adjust(points_body, obs: WindowObservations, pose: Pose, rig: StereoCamera,
     ).astype(jnp.int32)
     good = status == Status.OK
     keep = lambda new, old: jnp.where(good, new, old)  # noqa: E731
-    return WindowResult(
-        Pose(keep(R, pose.R), keep(t, pose.t)), keep(X, points_body), status
-    )
+    return WindowResult(Pose(keep(R, pose.R), keep(t, pose.t)), keep(X, points_body), status)
 
 
 def adjust_window(
@@ -308,22 +317,19 @@ def adjust_window(
         )
     f = R.shape[0]
     o = observations
-    m, k = o.frame.shape[0], o.line_frame.shape[0]
+    k = o.line_points.shape[1] if o.line_points.ndim == 3 else -1
     shapes = {
-        "frame": (o.frame.shape, (m,)),
-        "landmark": (o.landmark.shape, (m,)),
-        "pixels": (o.pixels.shape, (m, 2)),
-        "right": (o.right.shape, (m,)),
-        "mask": (o.mask.shape, (m,)),
+        "pixels": (o.pixels.shape, (f, n, 2, 2)),
+        "mask": (o.mask.shape, (f, n, 2)),
         "prior_M": (o.prior_M.shape, (n, 3, 3)),
         "prior_b": (o.prior_b.shape, (n, 3)),
         "points_mask": (o.points_mask.shape, (n,)),
-        "line_points": (o.line_points.shape, (k, 3)),
-        "line_coeffs": (o.line_coeffs.shape, (k, 3)),
-        "line_weight": (o.line_weight.shape, (k,)),
+        "line_points": (o.line_points.shape, (f, k, 3)),
+        "line_coeffs": (o.line_coeffs.shape, (f, k, 3)),
+        "line_weight": (o.line_weight.shape, (f, k)),
         "free": (o.free.shape, (f,)),
     }
     for name, (got, want) in shapes.items():
         if tuple(got) != want:
             raise ValueError(f"observations.{name} must have shape {want}; got {tuple(got)}")
-    return _adjust(X, o, Pose(R, t), rig, options)
+    return _compiled(jax.default_backend())(X, o, Pose(R, t), rig, options)

@@ -15,9 +15,11 @@ the information of its observation rays from frames outside the window as a Gaus
 (the normal equations ``M, b`` of :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe`, in
 pixels: ``f^2 (X^T M X - 2 b^T X)``). Long-lived landmarks are therefore held by all their past
 observations (anchors), and the gauge is fixed by the first frame's pose while it is in the
-window, else by the oldest frame's. Gauss-Newton with a small Levenberg damping and the Schur
-complement on the ``3 x 3`` landmark blocks; analytic Jacobians (``x_cam = R X + t``, the
-rotation perturbed on the left, ``R <- exp(w) R``).
+window, else by the oldest frame's. The solver is :func:`jaxpose.core.refine.adjust_window`
+(Gauss-Newton with a small Levenberg damping, the Schur complement on the ``3 x 3`` landmark
+blocks, Jacobians by ``jax.jacfwd`` of one observation's residual; compiled once): this module
+gathers the window's observations, priors and line terms into its padded visibility grid
+(``frames`` x ``max_points`` landmarks x two images; ``2 max_lines`` line rows a frame).
 
 After the adjustment the rays of the window's frames are moved to the adjusted poses (removed at
 the old pose, added at the new one) and the landmarks re-solved from their rays, so the map stays
@@ -107,6 +109,7 @@ class WindowAdjuster:
         huber_px: Huber threshold of the pixel residuals.
         max_points: most landmarks in the solve (those with the most observations in the
             window; the cost grows with the observations: at 1.5 m a window holds thousands).
+        max_lines: most line observations a frame (the tracker's ``max_lines``).
     """
 
     anchor_oldest = True
@@ -118,6 +121,7 @@ class WindowAdjuster:
         iterations: int = 3,
         huber_px: float = 1.5,
         max_points: int = 600,
+        max_lines: int = 96,
     ):
         if frames < 2:
             raise ValueError(f"window frames must be >= 2; got {frames}")
@@ -125,6 +129,7 @@ class WindowAdjuster:
         self.frames: deque[FrameRays] = deque(maxlen=int(frames))
         self.options = WindowOptions(iterations=int(iterations), huber_px=float(huber_px))
         self.max_points = int(max_points)
+        self.max_lines = int(max_lines)
         c = rig.left
         self.f = (float(c.fx), float(c.fy))
         self.c = (float(c.cx), float(c.cy))
@@ -135,6 +140,24 @@ class WindowAdjuster:
         fr = FrameRays(np.array(R, float), np.array(t, float), fixed=fixed, index=index)
         self.frames.append(fr)
         return fr
+
+    def warm_up(self) -> None:
+        """Compile the adjustment for this window's padded size (about 2 s of CPU, once per
+        process and size) before the first frame rather than in the middle of a sequence."""
+        R, t = np.eye(3)[None], np.array([[0.0, 0.0, 2.0]])
+        one = np.zeros(1, np.int64)
+        self._solve(
+            R,
+            t,
+            np.zeros((1, 3)),
+            one,
+            one,
+            np.zeros((1, 2)),
+            np.zeros(1, bool),
+            np.eye(3)[None],
+            np.zeros((1, 3)),
+            np.zeros(1, bool),
+        )
 
     # ------------------------------------------------------------------ the adjustment
     def adjust(self, landmarks: LandmarkMap) -> bool:
@@ -238,46 +261,53 @@ class WindowAdjuster:
         return origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
     def _solve(self, Rs, ts, X, jj, li, px, right, M_out, b_out, free, lines=None):
-        """The adjustment (:func:`jaxpose.core.refine.adjust_window`) at padded sizes; ``None``
-        poses when it fails."""
-        n, m = len(X), len(jj)
-        f = self.frames.maxlen
-        n_pad = _bucket(n, 64, max(self.max_points, 64))
-        m_pad = _bucket(m, 256)
+        """The adjustment (:func:`jaxpose.core.refine.adjust_window`) on the visibility grid,
+        padded to ``frames`` frames, ``max_points`` landmarks and ``max_lines`` lines a frame
+        (one compiled size); ``None`` poses when it fails."""
+        n, K = len(X), len(Rs)
+        f, n_pad, k_pad = self.frames.maxlen, max(self.max_points, n), 2 * self.max_lines
         Rp = np.broadcast_to(np.eye(3), (f, 3, 3)).copy()
         tp = np.zeros((f, 3))
         tp[:, 2] = 1.0
-        Rp[: len(Rs)], tp[: len(ts)] = Rs, ts
+        Rp[:K], tp[:K] = Rs, ts
         free_p = np.zeros(f, bool)
-        free_p[: len(free)] = free
-        if lines is None:
-            lines = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
-        jl, Xl, L, wl = lines
-        k_pad = _bucket(len(jl), 64)
+        free_p[:K] = free
+        pixels = np.zeros((f, n_pad, 2, 2))
+        mask = np.zeros((f, n_pad, 2), bool)
+        cam = np.asarray(right, int)
+        pixels[jj, li, cam] = px  # (a repeated observation: one of them)
+        mask[jj, li, cam] = True
+        Lp, Lc, Lw = np.zeros((f, k_pad, 3)), np.zeros((f, k_pad, 3)), np.zeros((f, k_pad))
+        Lp[..., 2] = 1.0
+        if lines is not None:
+            jl, Xl, L, wl = lines
+            slot = np.arange(len(jl)) - np.searchsorted(jl, jl)  # rank within the frame
+            keep = slot < k_pad  # (more than max_lines lines in a frame: the first ones)
+            jl, slot = jl[keep], slot[keep]
+            Lp[jl, slot], Lc[jl, slot], Lw[jl, slot] = Xl[keep], L[keep], wl[keep]
+        X_pad = np.zeros((n_pad, 3))
+        X_pad[:, 2] = 1.0
+        X_pad[:n] = X
         obs = WindowObservations(
-            frame=jnp.asarray(_pad(jj, m_pad, 0, np.int32)),
-            landmark=jnp.asarray(_pad(li, m_pad, 0, np.int32)),
-            pixels=jnp.asarray(_pad(px, m_pad, 0.0)),
-            right=jnp.asarray(_pad(right, m_pad, False, bool)),
-            mask=jnp.asarray(_pad(np.ones(m, bool), m_pad, False, bool)),
-            prior_M=jnp.asarray(_pad(M_out, n_pad, 0.0)),
-            prior_b=jnp.asarray(_pad(b_out, n_pad, 0.0)),
-            points_mask=jnp.asarray(_pad(np.ones(n, bool), n_pad, False, bool)),
-            line_frame=jnp.asarray(_pad(jl, k_pad, 0, np.int32)),
-            line_points=jnp.asarray(_pad(Xl, k_pad, 0.0)),
-            line_coeffs=jnp.asarray(_pad(L, k_pad, 0.0)),
-            line_weight=jnp.asarray(_pad(wl, k_pad, 0.0)),
+            pixels=jnp.asarray(pixels),
+            mask=jnp.asarray(mask),
+            prior_M=jnp.asarray(_pad(M_out, n_pad)),
+            prior_b=jnp.asarray(_pad(b_out, n_pad)),
+            points_mask=jnp.asarray(np.arange(n_pad) < n),
+            line_points=jnp.asarray(Lp),
+            line_coeffs=jnp.asarray(Lc),
+            line_weight=jnp.asarray(Lw),
             free=jnp.asarray(free_p),
         )
-        X_pad = _pad(X, n_pad, 0.0)
-        X_pad[n:, 2] = 1.0
         res = adjust_window(
-            jnp.asarray(X_pad), obs, Pose(jnp.asarray(Rp), jnp.asarray(tp)), self.rig,
+            jnp.asarray(X_pad),
+            obs,
+            Pose(jnp.asarray(Rp), jnp.asarray(tp)),
+            self.rig,
             options=self.options,
         )
         if int(res.status) != Status.OK:
             return None, None, None
-        K = len(Rs)
         return (
             np.asarray(res.pose.R)[:K],
             np.asarray(res.pose.t)[:K],
@@ -285,17 +315,7 @@ class WindowAdjuster:
         )
 
 
-def _bucket(n: int, least: int, most: int | None = None) -> int:
-    """The padded size of ``n`` rows: a power of two times ``least``, at most ``most`` (when
-    ``n`` fits), so that a sequence compiles a few sizes."""
-    size = least
-    while size < n:
-        size *= 2
-    return size if most is None or n > most else min(size, most)
-
-
-def _pad(a, n: int, fill, dtype=np.float64) -> np.ndarray:
-    a = np.asarray(a)
-    out = np.full((n, *a.shape[1:]), fill, dtype=dtype)
+def _pad(a: np.ndarray, n: int) -> np.ndarray:
+    out = np.zeros((n, *a.shape[1:]))
     out[: len(a)] = a
     return out
