@@ -17,6 +17,7 @@ from jaxpose.core.refine import (
     WindowOptions,
     adjust_window,
     line_residual,
+    motion_residual,
     point_residual,
 )
 from jaxpose.core.status import Status
@@ -61,6 +62,7 @@ def window():
         line_coeffs=jnp.asarray(L),
         line_weight=jnp.asarray(Lw),
         free=jnp.asarray([False, True, True]),
+        motion_weight=jnp.zeros((F, 6)),
     )
     # the starting point: poses and landmarks off the ones the pixels were made from
     R0 = np.stack([Rotation.from_rotvec(rng.normal(0, 2e-3, 3)).as_matrix() @ R for R in Rs])
@@ -189,3 +191,22 @@ def test_shapes_and_options_are_checked(window):
         WindowOptions(iterations=0)
     with pytest.raises(ValueError, match="huber_px"):
         WindowOptions(huber_px=0.0)
+
+
+def test_motion_residual_is_zero_for_a_constant_twist_only():
+    """A body spinning at a constant rate about a fixed axis (not through the camera) seen
+    from a camera at rest: ``T_j = exp(j xi) T_0``, a constant twist; the second differences
+    vanish, and one frame turned further shows in the three differences around it."""
+    axis_point = np.array([0.1, -0.2, 4.0])
+    step = Rotation.from_rotvec([0.0, np.radians(1.5), np.radians(0.4)]).as_matrix()
+    R, t = [Rotation.from_rotvec([0.3, 0.1, -0.2]).as_matrix()], [axis_point + [0.05, 0.0, 0.1]]
+    for _ in range(4):  # rotate about the fixed line through axis_point
+        R.append(step @ R[-1])
+        t.append(step @ (t[-1] - axis_point) + axis_point)
+    pose = Pose(jnp.asarray(np.stack(R)), jnp.asarray(np.stack(t)))
+    zero = jnp.zeros((5, 6))
+    np.testing.assert_allclose(np.asarray(motion_residual(zero, pose)), 0.0, atol=1e-12)
+    bump = zero.at[2, 4].set(np.radians(0.3))  # frame 2 turned 0.3 degree further about y
+    r = np.asarray(motion_residual(bump, pose))
+    a = np.radians(0.3)  # the differences centred at frames 1, 2, 3: (1, -2, 1) a about y
+    np.testing.assert_allclose(r[:, 4], [a, -2 * a, a], rtol=0.02)

@@ -64,4 +64,5 @@ from jaxpose.core.refine._window import WindowOptions as WindowOptions
 from jaxpose.core.refine._window import WindowResult as WindowResult
 from jaxpose.core.refine._window import adjust_window as adjust_window
 from jaxpose.core.refine._window import line_residual as line_residual
+from jaxpose.core.refine._window import motion_residual as motion_residual
 from jaxpose.core.refine._window import point_residual as point_residual

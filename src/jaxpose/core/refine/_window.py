@@ -39,7 +39,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from jaxpose.core.camera import StereoCamera
-from jaxpose.core.geometry import Pose
+from jaxpose.core.geometry import Pose, so3_log
 from jaxpose.core.status import Status
 
 __all__ = [
@@ -48,6 +48,7 @@ __all__ = [
     "WindowResult",
     "adjust_window",
     "line_residual",
+    "motion_residual",
     "point_residual",
 ]
 
@@ -98,6 +99,9 @@ class WindowObservations(eqx.Module):
             c)`` with ``a^2 + b^2 = 1``.
         line_weight: ``(f, k)`` ``1 / sigma_l^2`` (padding: 0).
         free: ``(f,)`` the frame's pose is adjusted (a gauge anchor or a padded frame: ``False``).
+        motion_weight: ``(f, 6)`` the weight ``1 / sigma^2`` (per metre^2 and radian^2, against
+            the pixel residuals' unit weight) of the constant-twist prior centred at each frame
+            (:func:`motion_residual`; zero: none, and always for the first and last frame).
     """
 
     pixels: Float[Array, "f n 2 2"]
@@ -109,6 +113,7 @@ class WindowObservations(eqx.Module):
     line_coeffs: Float[Array, "f k 3"]
     line_weight: Float[Array, "f k"]
     free: Bool[Array, " f"]
+    motion_weight: Float[Array, "f 6"]
 
 
 class WindowResult(eqx.Module):
@@ -219,6 +224,33 @@ def _normal_equations(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: 
     return H_pp, g_p, H_pl, H_ll, g_l, depth_ok
 
 
+def motion_residual(xi, pose: Pose):
+    """Second differences ``(f - 2, 6)`` of the frames' relative motions ``T_j T_{j-1}^-1``
+    (translation, rotation vector; metres, radians) at the increments ``xi`` (``(f, 6)``): zero
+    for a constant twist, a rigid body spinning about a fixed axis at a constant rate seen from
+    a camera at rest (torque-free tumbling without nutation)."""
+    p = pose.retract(xi)
+    R_rel = p.R[1:] @ jnp.swapaxes(p.R[:-1], -1, -2)
+    t_rel = p.t[1:] - jnp.einsum("fij,fj->fi", R_rel, p.t[:-1])
+    v = jnp.concatenate([t_rel, so3_log(R_rel)], -1)
+    return v[1:] - v[:-1]
+
+
+def _motion_equations(R, t, obs: WindowObservations):
+    """Normal equations ``(6f, 6f)``, ``(6f,)`` of the constant-twist prior (``motion_weight``:
+    the whitening ``1 / sigma^2`` of the second difference centred at each frame)."""
+    f = R.shape[0]
+    pose = Pose(R, t)
+    xi = jnp.zeros((f, 6), R.dtype)
+    r = motion_residual(xi, pose)  # (f - 2, 6)
+    J = jax.jacfwd(motion_residual)(xi, pose).reshape(f - 2, 6, 6 * f)
+    J = jnp.where(jnp.repeat(obs.free, 6)[None, None, :], J, 0.0)
+    w = obs.motion_weight[1:-1]
+    H = jnp.einsum("kai,ka,kaj->ij", J, w, J)
+    g = jnp.einsum("kai,ka->i", J, w * r)
+    return H, g
+
+
 def _step(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: WindowOptions):
     """One damped Gauss-Newton step, landmarks eliminated (Schur complement); ``ok`` flags."""
     f, n = R.shape[0], X.shape[0]
@@ -236,9 +268,12 @@ def _step(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: WindowOption
     S = -(A @ B.T)
     idx = jnp.arange(f)
     S = S.reshape(f, 6, f, 6).at[idx, :, idx, :].add(H_pp).reshape(6 * f, 6 * f)
+    rhs = g_p.reshape(-1) - A @ g_l.reshape(-1)
+    if f >= 3:  # the constant-twist prior couples neighbouring frames
+        H_m, g_m = _motion_equations(R, t, obs)
+        S, rhs = S + H_m, rhs + g_m
     fixed = jnp.where(jnp.repeat(obs.free, 6), 0.0, 1.0)  # a fixed frame's rows are zero
     S = S + jnp.diag(lam * jnp.diagonal(S) + fixed + 1e-9)
-    rhs = g_p.reshape(-1) - A @ g_l.reshape(-1)
     chol = jnp.linalg.cholesky(S)
     dxi = -jax.scipy.linalg.cho_solve((chol, True), rhs)
     dX = -jnp.einsum("nab,nb->na", L_inv, g_l + (B.T @ dxi).reshape(n, 3))
@@ -328,6 +363,7 @@ def adjust_window(
         "line_coeffs": (o.line_coeffs.shape, (f, k, 3)),
         "line_weight": (o.line_weight.shape, (f, k)),
         "free": (o.free.shape, (f,)),
+        "motion_weight": (o.motion_weight.shape, (f, 6)),
     }
     for name, (got, want) in shapes.items():
         if tuple(got) != want:

@@ -199,6 +199,7 @@ class StereoTracker:
                 options.window_iterations,
                 max_points=options.window_points,
                 max_lines=options.max_lines,
+                motion_sigma=options.window_motion_sigma,
             )
             if options.window_frames
             else None

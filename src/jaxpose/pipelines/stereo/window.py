@@ -122,6 +122,7 @@ class WindowAdjuster:
         huber_px: float = 1.5,
         max_points: int = 600,
         max_lines: int = 96,
+        motion_sigma: tuple[float, float] | None = None,
     ):
         if frames < 2:
             raise ValueError(f"window frames must be >= 2; got {frames}")
@@ -130,6 +131,7 @@ class WindowAdjuster:
         self.options = WindowOptions(iterations=int(iterations), huber_px=float(huber_px))
         self.max_points = int(max_points)
         self.max_lines = int(max_lines)
+        self.motion_sigma = motion_sigma
         c = rig.left
         self.f = (float(c.fx), float(c.fy))
         self.c = (float(c.cx), float(c.cy))
@@ -140,6 +142,21 @@ class WindowAdjuster:
         fr = FrameRays(np.array(R, float), np.array(t, float), fixed=fixed, index=index)
         self.frames.append(fr)
         return fr
+
+    def _motion_weight(self, f: int) -> np.ndarray:
+        """``(f, 6)`` weights of the constant-twist prior: ``1 / sigma^2`` at each frame whose
+        neighbours in the window are the frames just before and after it (no frame lost
+        between), zero elsewhere and without ``motion_sigma``."""
+        w = np.zeros((f, 6))
+        if self.motion_sigma is None:
+            return w
+        deg, mm = self.motion_sigma
+        row = np.r_[np.full(3, (1e3 / mm) ** 2), np.full(3, np.degrees(1.0 / deg) ** 2)]
+        idx = [fr.index for fr in self.frames]
+        for j in range(1, len(idx) - 1):
+            if idx[j - 1] + 1 == idx[j] == idx[j + 1] - 1:
+                w[j] = row
+        return w
 
     def warm_up(self) -> None:
         """Compile the adjustment for this window's padded size (about 2 s of CPU, once per
@@ -298,6 +315,7 @@ class WindowAdjuster:
             line_coeffs=jnp.asarray(Lc),
             line_weight=jnp.asarray(Lw),
             free=jnp.asarray(free_p),
+            motion_weight=jnp.asarray(self._motion_weight(f)),
         )
         res = adjust_window(
             jnp.asarray(X_pad),
