@@ -88,13 +88,24 @@ def _residuals_numpy(obs, Rs, ts, X):
     L = np.asarray(obs.line_coeffs)
     d = L[..., 0] * uv[..., 0] + L[..., 1] * uv[..., 1] + L[..., 2]
     out.append((np.sqrt(np.asarray(obs.line_weight)) * d).ravel())
+    # the constant-twist prior: second differences of (t_rel, rotvec(R_rel))
+    R_rel = np.einsum("fij,fkj->fik", Rs[1:], Rs[:-1])
+    t_rel = ts[1:] - np.einsum("fij,fj->fi", R_rel, ts[:-1])
+    v = np.concatenate([t_rel, Rotation.from_matrix(R_rel).as_rotvec()], 1)
+    out.append((np.sqrt(np.asarray(obs.motion_weight)[1:-1]) * (v[1:] - v[:-1])).ravel())
     return np.concatenate(out)
 
 
-def test_one_step_equals_the_dense_gauss_newton_step(window):
+@pytest.mark.parametrize("motion", [False, True])
+def test_one_step_equals_the_dense_gauss_newton_step(window, motion):
     """damping 0, one iteration: the Schur-complement step equals the step of the dense normal
-    equations ``(J^T J + s M) d = -(J^T e + s (M X - b))`` with ``J`` by central differences."""
+    equations ``(J^T J + s M) d = -(J^T e + s (M X - b))`` with ``J`` by central differences
+    (with the constant-twist prior's rows in ``J``, ``e`` when ``motion``)."""
     obs, R0, t0, X0 = window
+    if motion:  # 0.2 degree and 3 mm at the middle frame
+        w = np.zeros((F, 6))
+        w[1] = np.r_[np.full(3, 3e-3**-2), np.full(3, np.radians(0.2) ** -2)]
+        obs = eqx.tree_at(lambda o: o.motion_weight, obs, jnp.asarray(w))
     free = np.asarray(obs.free)
     real = np.asarray(obs.points_mask)
     nf, nl = int(free.sum()), int(real.sum())
@@ -138,7 +149,7 @@ def test_one_step_equals_the_dense_gauss_newton_step(window):
         obs,
         Pose(jnp.asarray(R0), jnp.asarray(t0)),
         RIG,
-        options=WindowOptions(iterations=1, huber_px=1e6, damping=0.0),
+        options=WindowOptions(iterations=1, huber_px=1e6, damping=0.0, motion_prior=motion),
     )
     assert int(res.status) == Status.OK
     assert np.abs(X_ref - X0).max() > 1e-4  # the step moves things
@@ -205,8 +216,9 @@ def test_motion_residual_is_zero_for_a_constant_twist_only():
         t.append(step @ (t[-1] - axis_point) + axis_point)
     pose = Pose(jnp.asarray(np.stack(R)), jnp.asarray(np.stack(t)))
     zero = jnp.zeros((5, 6))
-    np.testing.assert_allclose(np.asarray(motion_residual(zero, pose)), 0.0, atol=1e-12)
+    motion = jax.jit(motion_residual)
+    np.testing.assert_allclose(np.asarray(motion(zero, pose)), 0.0, atol=1e-12)
     bump = zero.at[2, 4].set(np.radians(0.3))  # frame 2 turned 0.3 degree further about y
-    r = np.asarray(motion_residual(bump, pose))
+    r = np.asarray(motion(bump, pose))
     a = np.radians(0.3)  # the differences centred at frames 1, 2, 3: (1, -2, 1) a about y
     np.testing.assert_allclose(r[:, 4], [a, -2 * a, a], rtol=0.02)

@@ -64,6 +64,9 @@ class WindowOptions:
         iterations: Gauss-Newton iterations (at least 1).
         huber_px: Huber threshold of the pixel residuals and line distances, pixels.
         damping: Marquardt's damping, relative to each normal matrix's diagonal.
+        motion_prior: add the constant-twist prior of ``observations.motion_weight``
+            (:func:`motion_residual`); off, the weights are not read and the prior is not in
+            the compiled function.
 
     Raises:
         ValueError: a non-positive iteration count or threshold, a negative damping.
@@ -72,6 +75,7 @@ class WindowOptions:
     iterations: int = 2
     huber_px: float = 1.5
     damping: float = 1e-3
+    motion_prior: bool = False
 
     def __post_init__(self):
         if not (isinstance(self.iterations, int) and self.iterations >= 1):
@@ -269,7 +273,7 @@ def _step(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: WindowOption
     idx = jnp.arange(f)
     S = S.reshape(f, 6, f, 6).at[idx, :, idx, :].add(H_pp).reshape(6 * f, 6 * f)
     rhs = g_p.reshape(-1) - A @ g_l.reshape(-1)
-    if f >= 3:  # the constant-twist prior couples neighbouring frames
+    if cfg.motion_prior and f >= 3:  # the constant-twist prior couples neighbouring frames
         H_m, g_m = _motion_equations(R, t, obs)
         S, rhs = S + H_m, rhs + g_m
     fixed = jnp.where(jnp.repeat(obs.free, 6), 0.0, 1.0)  # a fixed frame's rows are zero

@@ -233,6 +233,11 @@ class TrackerOptions:
             value = getattr(self, name)
             if not (isinstance(value, int | np.integer) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1; got {value!r}")
+        ms = self.window_motion_sigma
+        if ms is not None and not (len(ms) == 2 and all(v > 0 for v in ms)):
+            raise ValueError(
+                f"window_motion_sigma must be None or two positive numbers (deg, mm); got {ms!r}"
+            )
         if self.window_depth_m is not None and not self.window_depth_m > 0:
             raise ValueError(f"window_depth_m must be positive or None; got {self.window_depth_m}")
         if self.window_frames and self.window_every > self.window_frames:

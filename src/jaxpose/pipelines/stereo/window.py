@@ -110,6 +110,8 @@ class WindowAdjuster:
         max_points: most landmarks in the solve (those with the most observations in the
             window; the cost grows with the observations: at 1.5 m a window holds thousands).
         max_lines: most line observations a frame (the tracker's ``max_lines``).
+        motion_sigma: ``(deg, mm)`` of the constant-twist prior on consecutive frames
+            (:func:`jaxpose.core.refine.motion_residual`), or ``None`` (no prior).
     """
 
     anchor_oldest = True
@@ -128,10 +130,14 @@ class WindowAdjuster:
             raise ValueError(f"window frames must be >= 2; got {frames}")
         self.rig = rig
         self.frames: deque[FrameRays] = deque(maxlen=int(frames))
-        self.options = WindowOptions(iterations=int(iterations), huber_px=float(huber_px))
+        self.options = WindowOptions(
+            iterations=int(iterations),
+            huber_px=float(huber_px),
+            motion_prior=motion_sigma is not None,
+        )
         self.max_points = int(max_points)
         self.max_lines = int(max_lines)
-        self.motion_sigma = motion_sigma
+        self.motion_sigma = motion_sigma  # (deg, mm), or None
         c = rig.left
         self.f = (float(c.fx), float(c.fy))
         self.c = (float(c.cx), float(c.cy))
