@@ -21,11 +21,12 @@ Gauss-Newton on the tangent of each free frame (:meth:`jaxpose.Pose.retract`: ``
 the landmarks are eliminated by their ``3 x 3`` blocks (the Schur complement) and the reduced
 ``6F x 6F`` system of the poses solved by Cholesky. The Jacobians of one observation's residual
 are ``jax.jacfwd`` of :func:`point_residual` (and :func:`line_residual`) at zero increments,
-under ``vmap``; the normal-equation blocks are segment sums over the observations.
+under ``vmap``; the observations form a visibility grid (frames x landmarks x the two images)
+and the normal-equation blocks are sums along its axes (no scatter).
 
-Variable sizes are padded: observations and lines with a mask, landmarks with ``points_mask``,
-frames with ``free`` (a fixed or padded frame is not moved). A caller that pads to a few bucket
-sizes compiles a few programs.
+Variable sizes are padded: unseen grid cells and lines with a mask, landmarks with
+``points_mask``, frames with ``free`` (a fixed or padded frame is not moved). A caller that pads
+to one grid size compiles one program.
 """
 
 from __future__ import annotations
