@@ -40,6 +40,7 @@ from jaxpose.pipelines.monocular import (  # noqa: E402
     SILHOUETTE_WEIGHT,
     SPREAD_QUICK_WEIGHT,
     SPREAD_WEIGHT,
+    TEMPLATE_SLOTS,
     InitOptions,
     initialise_pose,
 )
@@ -290,6 +291,13 @@ def main() -> None:
         help="attitudes placed on the silhouette when the image has one (0: off)",
     )
     ap.add_argument(
+        "--template-slots",
+        type=int,
+        default=TEMPLATE_SLOTS,
+        help="shortlist places for the LINE-2D template search over the attitude grid "
+        "(InitOptions.template_slots; 0: off)",
+    )
+    ap.add_argument(
         "--cell-grid",
         type=float,
         nargs=3,
@@ -336,6 +344,7 @@ def main() -> None:
         spread_weight=args.spread_weight,
         spread_quick_weight=args.spread_quick_weight,
         grid_without_silhouette=args.grid_on_roi,
+        template_slots=args.template_slots,
         confidence=dict(
             CONFIDENCE, **({} if args.low_score is None else {"low_score": args.low_score})
         ),

@@ -183,9 +183,13 @@ def _crop_frame(shape, roi, grow, side):
     return (a0, b0, a1, b1), k, (w, h)
 
 
-def orientation_maps(image: np.ndarray, roi) -> tuple[np.ndarray, np.ndarray]:
+def orientation_maps(
+    image: np.ndarray, roi, spread: float = ORIENTATION_SPREAD
+) -> tuple[np.ndarray, np.ndarray]:
     """Spread gradient-orientation responses around the ROI: ``(maps (B, S, S) in [0, 1],
-    [u0, v0, scale])`` with ``B = ORIENTATION_BINS``, ``S = ROD_SIDE``.
+    [u0, v0, scale])`` with ``B = ORIENTATION_BINS``, ``S = ROD_SIDE``; ``spread``: the diameter
+    of the spreading disc as a share of ``l_ROI`` (``ORIENTATION_SPREAD`` by default; the template
+    search of :mod:`jaxpose.pipelines.monocular.templates` spreads by its shift stride).
 
     ``maps[o]`` at a cell is ``max |cos(o - b)|`` over the orientation bins ``b`` (modulo
     180 deg, bin ``b`` centred on ``b x 180 / B`` deg) that a strong gradient within the spread
@@ -207,7 +211,7 @@ def orientation_maps(image: np.ndarray, roi) -> tuple[np.ndarray, np.ndarray]:
     theta = np.mod(np.arctan2(gy, gx), np.pi)
     bins = np.mod(np.rint(theta / (np.pi / B)).astype(int), B)
     strong = mag >= ORIENTATION_LEVEL * top
-    size = max(3, int(ORIENTATION_SPREAD * roi_diagonal(roi) * k) | 1)
+    size = max(3, int(spread * roi_diagonal(roi) * k) | 1)
     ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     spread = np.stack(
         [cv2.dilate((strong & (bins == b)).astype(np.uint8), ker) for b in range(B)]

@@ -10,7 +10,9 @@ Stages, one module each (:func:`initialise_pose` in :mod:`.pipeline` runs them i
    ranking) paired with every model group of that kind under the kind's permutations, sharing
    ``max_hypotheses`` by water-filling; with a silhouette (a dark sky), ``attitude_grid``
    attitudes spread over SO(3), each placed on the silhouette by its area and centroid; EPnP of
-   every hypothesis in one batched call (``jax.vmap(jaxpose.core.pnp.epnp)``);
+   every hypothesis in one batched call (``jax.vmap(jaxpose.core.pnp.epnp)``); optionally
+   (``template_slots``, off by default) the grid attitudes ranked by a LINE-2D template search
+   over in-plane shifts and scales (:mod:`.templates`) take places in the shortlist;
 3. score (:mod:`.score`, pure JAX, batched with ``jax.vmap``): a quick model-side score of all
    hypotheses; the best 128 are fitted to the edges (:mod:`.fit`) and ranked by the symmetric
    truncated chamfer distance plus the region, antenna and silhouette terms; the ``top_k``
@@ -36,6 +38,7 @@ from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR as ROI_LENGTH_
 from jaxpose.pipelines.monocular.options import SILHOUETTE_WEIGHT as SILHOUETTE_WEIGHT
 from jaxpose.pipelines.monocular.options import SPREAD_QUICK_WEIGHT as SPREAD_QUICK_WEIGHT
 from jaxpose.pipelines.monocular.options import SPREAD_WEIGHT as SPREAD_WEIGHT
+from jaxpose.pipelines.monocular.options import TEMPLATE_SLOTS as TEMPLATE_SLOTS
 from jaxpose.pipelines.monocular.options import InitOptions as InitOptions
 from jaxpose.pipelines.monocular.options import InitResult as InitResult
 from jaxpose.pipelines.monocular.pipeline import initialise_pose as initialise_pose
@@ -53,6 +56,7 @@ __all__ = [
     "SILHOUETTE_WEIGHT",
     "SPREAD_QUICK_WEIGHT",
     "SPREAD_WEIGHT",
+    "TEMPLATE_SLOTS",
     "InitOptions",
     "InitResult",
     "classify",

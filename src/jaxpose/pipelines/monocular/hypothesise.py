@@ -109,8 +109,19 @@ def _svd_candidates(det, model, opts, cam, sc: _EdgeScene, trace=None):
     n = len(P)
     fitted = opts.shortlist_fit and opts.rank_by == "chamfer"
     grid = _grid_poses(det, model, opts, sc) if fitted else None
+    tpl = _template_grid(det, opts, sc) if fitted else None
     R_all, t_all, ok, key = _solve_and_score(
-        P, Q, M, cam, sc, opts.rank_by, det.roi, fit=fitted, extra=grid, trace=trace
+        P,
+        Q,
+        M,
+        cam,
+        sc,
+        opts.rank_by,
+        det.roi,
+        fit=fitted,
+        extra=grid,
+        reserved=tpl,
+        trace=trace,
     )
     if not ok.any():
         return None
@@ -145,7 +156,9 @@ def _svd_candidates(det, model, opts, cam, sc: _EdgeScene, trace=None):
             poses.append(planar_flip(p, jnp.asarray(c), jnp.asarray(vt[-1])))
     tried = n + (0 if grid is None else len(grid[0]))  # hypotheses and grid attitudes
     if order[0] >= n:
-        return poses, tried, np.zeros(0, int), "attitude-grid"
+        n_grid = 0 if grid is None else len(grid[0])
+        kind = "attitude-template" if order[0] >= n + n_grid else "attitude-grid"
+        return poses, tried, np.zeros(0, int), kind
     kind = KINDS[int(info[order[0], 0])]
     seg_idx = det.groups.segments[kind][int(info[order[0], 1])]
     return poses, tried, np.asarray(seg_idx), kind
@@ -181,14 +194,19 @@ def _ransac_candidates(det, model, opts, cam, sc: _EdgeScene, trace=None):
     return poses, k, np.asarray(ii[order[0]]), "ransac"
 
 
-def _solve_and_score(P, Q, M, cam, sc: _EdgeScene, rank_by, roi, fit=False, extra=None, trace=None):
+def _solve_and_score(
+    P, Q, M, cam, sc: _EdgeScene, rank_by, roi, fit=False, extra=None, reserved=None, trace=None
+):
     """EPnP of every hypothesis (``jax.vmap(epnp)``, fixed-size chunks) and its ranking key.
 
     ``chamfer``: a quick model-side score ranks all hypotheses, the best ``_SHORTLIST`` get the
     symmetric chamfer distance (after :func:`_chamfer_fit` when ``fit``: their poses are then
     replaced by the fitted ones); ``e2d``: EPnP's own reprojection error (eq. 22). ``extra``:
     ``(R (X, 3, 3), t (X, 3))`` more poses (no correspondences) ranked with the hypotheses
-    (``chamfer`` only); they come after the ``len(P)`` hypotheses in the outputs."""
+    (``chamfer`` only); they come after the ``len(P)`` hypotheses in the outputs. ``reserved``:
+    ``(R (Y, 3, 3), t (Y, 3))`` poses that take ``Y`` of the shortlist's places whatever their
+    quick score (the template search's, :mod:`~jaxpose.pipelines.monocular.templates`); they
+    come last in the outputs."""
     n = len(P)
     Rs, ts, ok, key = [], [], [], []
     for a in range(0, n, _CHUNK):
@@ -212,14 +230,22 @@ def _solve_and_score(P, Q, M, cam, sc: _EdgeScene, rank_by, roi, fit=False, extr
             ts.append(te)
             ok.append(np.ones(len(Re), bool))
             key.append(np.asarray(k)[: len(Re)])
+    n_res = 0
+    if reserved is not None and rank_by == "chamfer":
+        n_res = min(len(reserved[0]), _SHORTLIST)
+        Rs.append(np.asarray(reserved[0][:n_res]))
+        ts.append(np.asarray(reserved[1][:n_res]))
+        ok.append(np.ones(n_res, bool))
+        key.append(np.full(n_res, np.inf))
     R_all, t_all, ok = np.concatenate(Rs), np.concatenate(ts), np.concatenate(ok)
     if trace is not None:  # every hypothesis and grid pose before the shortlist's fit
         trace["hypotheses"] = (R_all.copy(), t_all.copy(), ok.copy())
     key = np.where(ok, np.concatenate(key), np.inf)
     key = np.where(np.isfinite(key), key, np.inf)
     if rank_by == "chamfer":
-        short = np.argsort(key, kind="stable")[:_SHORTLIST]
+        short = np.argsort(key, kind="stable")[: _SHORTLIST - n_res]
         short = short[np.isfinite(key[short])]
+        short = np.concatenate([short, np.arange(len(key) - n_res, len(key))])
         if len(short):
             pad = np.concatenate([short, np.repeat(short[:1], _SHORTLIST - len(short))])
             Rs_, ts_ = jnp.asarray(R_all[pad]), jnp.asarray(t_all[pad])
@@ -274,13 +300,21 @@ def _grid_poses(det, model: WireframeModel, opts: InitOptions, sc: _EdgeScene):
     each placed on the silhouette (:func:`_place_on_silhouette`, from the model's centre at the
     coarse position), ``(R (X, 3, 3), t (X, 3))``; ``None``
     when the grid is off or the image has no silhouette term (the edges alone cannot rank an
-    attitude that no feature group proposed: a grid ranked without the silhouette was tried
-    earlier and gave no gain, README)."""
+    attitude that no feature group proposed: with ``opts.grid_without_silhouette`` the grid is
+    placed on the ROI instead, measured in the docs' monocular evaluation)."""
     if opts.attitude_grid <= 0 or det.coarse_t_cam is None:
         return None
     on_roi = sc.sil_pts is None
     if on_roi and not opts.grid_without_silhouette:
         return None
+    return _placed_attitudes(det, opts, sc, on_roi)
+
+
+def _placed_attitudes(det, opts: InitOptions, sc: _EdgeScene, on_roi: bool):
+    """The ``opts.attitude_grid`` grid attitudes ``R (X, 3, 3)`` and their translations
+    ``t (X, 3)`` (metres): the model's centre (the face polygons' with a silhouette, the edges'
+    on the ROI) at the coarse position, then placed on the silhouette
+    (:func:`_place_on_silhouette`) or on the ROI (:func:`_place_on_roi`), in fixed-size chunks."""
     R = _attitudes(int(opts.attitude_grid))
     if on_roi:
         centre = np.asarray(sc.geom[1]).reshape(-1, 3).mean(0)
@@ -296,6 +330,22 @@ def _grid_poses(det, model: WireframeModel, opts: InitOptions, sc: _EdgeScene):
             tp = _batched_place()(jnp.asarray(Rp), jnp.asarray(tp), sc)
         out.append(np.asarray(tp)[: len(R[a : a + _CHUNK])])
     return R, np.concatenate(out)
+
+
+def _template_grid(det, opts: InitOptions, sc: _EdgeScene):
+    """The ``opts.template_slots`` best poses of the LINE-2D template search
+    (:func:`jaxpose.pipelines.monocular.templates._template_poses`) over the ``opts.attitude_grid``
+    attitudes, each placed on the ROI first (:func:`_place_on_roi`, from the model's centre at
+    the coarse position): ``(R (n, 3, 3), t (n, 3))``, or ``None`` when off. It needs no
+    silhouette: only the image's gradient orientations at the model's edges vote."""
+    from jaxpose.pipelines.monocular.templates import _template_poses
+
+    n = int(opts.template_slots)
+    if n <= 0 or opts.attitude_grid <= 0 or det.coarse_t_cam is None:
+        return None
+    R, t = _placed_attitudes(det, opts, sc, on_roi=True)
+    Rt, tt, _ = _template_poses(R, t, sc, det, n)
+    return Rt, tt
 
 
 @functools.lru_cache(maxsize=4)

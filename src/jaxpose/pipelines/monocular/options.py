@@ -126,6 +126,14 @@ SPREAD_WEIGHT = 0.0
 #: Its weight in the quick score of every hypothesis (on the pooled grid; 0: off).
 SPREAD_QUICK_WEIGHT = 0.0
 
+#: Shortlist places given to the best poses of the LINE-2D template search over the attitude
+#: grid (:mod:`jaxpose.pipelines.monocular.templates`), taken from the quick score's (0: off).
+#: Off by default: 32 places gave the same successes as 0 on the 24 SPEED+ development images (7)
+#: and on 60 renders of the evaluation seed (56) and 20 lightbox-over-Earth development renders
+#: (15), one wrong ``high`` more on the renders, at about 0.38 s more CPU time per image (docs:
+#: monocular evaluation, the template search).
+TEMPLATE_SLOTS = 0
+
 
 @dataclass(frozen=True)
 class InitOptions:
@@ -148,6 +156,7 @@ class InitOptions:
     panel_weight: float = PANEL_WEIGHT  # + this x tau x _panel_term (0: off)
     spread_weight: float = SPREAD_WEIGHT  # + this x tau x _face_spread in the ranking (0: off)
     spread_quick_weight: float = SPREAD_QUICK_WEIGHT  # the same in the quick score (0: off)
+    template_slots: int = TEMPLATE_SLOTS  # shortlist places for the template search (0: off)
     ransac_iterations: int | None = None
     ransac_seed: int = 0
     confidence: dict = field(default_factory=lambda: dict(CONFIDENCE))

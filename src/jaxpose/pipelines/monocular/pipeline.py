@@ -62,6 +62,9 @@ def initialise_pose(
     g = options.attitude_grid
     if isinstance(g, bool) or not isinstance(g, int | np.integer) or g < 0:
         raise ValueError(f"attitude_grid must be an integer >= 0 (0 turns it off); got {g!r}")
+    n = options.template_slots
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or not 0 <= n <= 128:
+        raise ValueError(f"template_slots must be an integer in [0, 128] (0: off); got {n!r}")
     timings = {}
     trace = {} if options.trace else None
     t0 = time.perf_counter()

@@ -131,6 +131,11 @@ class TrackerOptions:
             2-3 m, 3 at 1.5-2 m, 4 at 1.5 m and nearer.
         window_points: most point landmarks in each adjustment (those observed most often in
             the window).
+        window_motion_sigma: ``(deg, mm)``: the windowed adjustment holds the target's motion
+            to a constant twist (a rigid body spinning about a fixed axis at a constant rate,
+            seen from a camera at rest), the second difference of consecutive frames' relative
+            motions with these standard deviations against 1 px of the pixel residuals
+            (:func:`jaxpose.core.refine.motion_residual`); ``None``: no motion prior.
         feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
             points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
             dilution of precision at the predicted pose), ``"random"`` or ``"response"``
@@ -199,6 +204,7 @@ class TrackerOptions:
     window_every: int = 4
     window_depth_m: float | None = 6.0
     window_points: int = 300
+    window_motion_sigma: tuple[float, float] | None = None
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
     budget_rule: str = "dop"
@@ -238,6 +244,11 @@ class TrackerOptions:
             value = getattr(self, name)
             if not (isinstance(value, int | np.integer) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1; got {value!r}")
+        ms = self.window_motion_sigma
+        if ms is not None and not (len(ms) == 2 and all(v > 0 for v in ms)):
+            raise ValueError(
+                f"window_motion_sigma must be None or two positive numbers (deg, mm); got {ms!r}"
+            )
         if self.window_depth_m is not None and not self.window_depth_m > 0:
             raise ValueError(f"window_depth_m must be positive or None; got {self.window_depth_m}")
         if self.window_frames and self.window_every > self.window_frames:

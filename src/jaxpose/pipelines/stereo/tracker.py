@@ -198,6 +198,8 @@ class StereoTracker:
                 options.window_frames,
                 options.window_iterations,
                 max_points=options.window_points,
+                max_lines=options.max_lines,
+                motion_sigma=options.window_motion_sigma,
             )
             if options.window_frames
             else None
@@ -205,6 +207,8 @@ class StereoTracker:
         self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
         self._since_adjust = 0  # tracked frames since the last adjustment (window_every)
         warm_up_projection(rig.left)
+        if self._window is not None:
+            self._window.warm_up()
 
     # ------------------------------------------------------------------ scene-dependent settings
     def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
