@@ -290,7 +290,8 @@ def main(argv=None) -> int:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="a TrackerOptions field for every scene (a Python literal), e.g. window_frames=0",
+        help="a TrackerOptions field for every scene (a Python literal), e.g. window_frames=0; "
+        "a field of its feature or stereo options as features.mu=0.03, stereo.window=11",
     )
     p.add_argument("--out", type=Path, default=Path("runs/bench-stereo"))
     p.add_argument(
@@ -321,11 +322,15 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()
     options = None
     if args.option:
-        fields = {}
+        options = TrackerOptions()
         for item in args.option:
             key, _, value = item.partition("=")
-            fields[key] = ast.literal_eval(value)
-        options = replace(TrackerOptions(), **fields)
+            group, _, field = key.rpartition(".")  # "features.mu=0.03": a nested option
+            if group:
+                inner = replace(getattr(options, group), **{field: ast.literal_eval(value)})
+                options = replace(options, **{group: inner})
+            else:
+                options = replace(options, **{key: ast.literal_eval(value)})
     results = []
     for name in names:
         r = run_scene(name, args.frames, modes, seed=args.seed, options=options)

@@ -17,6 +17,7 @@ from jaxpose.vision.stereo_match import (
     disparity_range,
     match_lines_stereo,
     match_points_stereo,
+    match_stereo,
     parabolic_offset,
     zncc,
 )
@@ -124,6 +125,42 @@ def test_per_point_disparity_ranges(pair):
         match_points_stereo(left, right, pts, bad)
     with pytest.raises(ValueError, match="one pair per feature"):
         match_points_stereo(left, right, pts, np.zeros((len(pts) + 1, 2)))
+
+
+def test_match_stereo_in_two_threads_equals_one(pair):
+    """A point's match does not depend on the points searched with it (ranges of mixed widths,
+    some coarse to fine): the two-thread split of match_stereo returns the one-thread matches."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    left, right, d = pair
+    feats = extract(left)
+    rng = np.random.default_rng(2)
+    n = len(feats.points)
+    lo = rng.integers(0, 20, n)
+    ranges = np.stack([lo, lo + rng.choice([8, 40, 150], n)], 1)
+    opts = StereoMatchOptions(coarse_min_range=64)
+    one = match_stereo(left, right, feats.points, ranges, feats.segments, (5, 60), options=opts)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        two = match_stereo(
+            left,
+            right,
+            feats.points,
+            ranges,
+            feats.segments,
+            (5, 60),
+            options=opts,
+            executor=pool,
+        )
+    assert one[0].ok.sum() > 0.5 * n and one[1].ok.sum() >= 5
+    for a, b in zip(one, two, strict=True):
+        for name in a.__dataclass_fields__:
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    # and each point alone finds what it found among the others
+    for i in np.nonzero(one[0].ok)[0][:5]:
+        alone = match_points_stereo(
+            left, right, feats.points[i : i + 1], ranges[i : i + 1], options=opts
+        )
+        np.testing.assert_array_equal(alone.pixels_right[0], one[0].pixels_right[i])
 
 
 def test_line_stereo_match_and_cut(pair):

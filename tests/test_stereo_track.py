@@ -127,8 +127,14 @@ def test_keypoint_budget_follows_the_target_area():
     vv, uu = np.mgrid[:768, :1024]
     img[(uu - 500) ** 2 + (vv - 400) ** 2 < 200**2] = 120
     assert target_area(img) == pytest.approx(np.pi * 200**2, rel=0.02)
+    # LSD's scale: sqrt(lsd_area_px / area) of the options' on a larger target, at least 0.4
+    assert tracker.feature_options(100_000.0).lsd_scale == 0.8
+    assert tracker.feature_options(120_000.0 * 1.5625).lsd_scale == pytest.approx(0.64)
+    assert tracker.feature_options(120_000.0 * 9).lsd_scale == 0.4
     with pytest.raises(ValueError, match="keypoint_spacing_px"):
         TrackerOptions(keypoint_spacing_px=0.0)
+    with pytest.raises(ValueError, match="lsd_area_px"):
+        TrackerOptions(lsd_area_px=-1.0)
 
 
 def test_search_radius_follows_the_measured_prediction_error(frames):

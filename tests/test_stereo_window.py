@@ -44,7 +44,7 @@ def test_adjustment_recovers_the_true_poses_and_landmarks():
     rig, X, poses = _scene()
     rng = np.random.default_rng(1)
     m = LandmarkMap()
-    win = WindowAdjuster(rig, frames=5, iterations=iterations)
+    win = WindowAdjuster(rig, frames=5, iterations=iterations, max_points=60)
     ids = None
     for j, (R, t) in enumerate(poses):
         # the frames' poses as a tracker would have them: off by up to 0.5 degree and 1 cm
@@ -77,7 +77,7 @@ def test_older_rays_are_a_prior_that_holds_the_landmarks():
     fixed frame, the oldest frame not anchored) returns the true poses."""
     rig, X, poses = _scene(n_frames=6)
     m = LandmarkMap()
-    win = WindowAdjuster(rig, frames=3, iterations=8)
+    win = WindowAdjuster(rig, frames=3, iterations=8, max_points=60)
     win.anchor_oldest = False
     ids = m.add("points", X, np.zeros((60, 32)), Pose(*poses[0]), 0)
     rng = np.random.default_rng(2)
@@ -157,3 +157,21 @@ def test_window_every_and_points_options():
     tracker = StereoTracker(rig, None, options=TrackerOptions(window_every=3, window_depth_m=6.0))
     ks = [tracker._window_every(z) for z in (1.0, 1.5, 2.5, 3.0, 3.5, 5.0)]
     assert ks == [3, 3, 2, 2, 1, 1]
+
+
+def test_motion_prior_weights_only_frames_between_their_neighbours():
+    """``window_motion_sigma``: the constant-twist prior is weighted at a window frame only when
+    the frames before and after it are its neighbours in the sequence (no frame lost between),
+    ``1 / sigma^2`` per metre^2 and radian^2."""
+    from jaxpose.pipelines.stereo import TrackerOptions
+
+    rig = StereoCamera.from_baseline(PinholeCamera(800.0, 800.0, 319.5, 239.5), 0.3)
+    win = WindowAdjuster(rig, frames=6, motion_sigma=(0.5, 4.0))
+    for k in (0, 1, 2, 4, 5):  # frame 3 lost
+        win.start(np.eye(3), np.zeros(3), index=k)
+    w = win._motion_weight(6)
+    np.testing.assert_allclose(w[1], [1 / 0.004**2] * 3 + [1 / np.radians(0.5) ** 2] * 3)
+    assert not w[[0, 2, 3, 4, 5]].any()
+    assert not WindowAdjuster(rig, frames=6)._motion_weight(6).any()
+    with pytest.raises(ValueError, match="window_motion_sigma"):
+        TrackerOptions(window_motion_sigma=(0.5, 0.0))

@@ -57,6 +57,9 @@ class FeatureOptions:
             ``subpixel_half_window`` (7: a 15x15 window; 3 left the keypoints of one corner seen
             in two frames 1.5 px apart (median) after 20 deg of rotation on the rendered quilt,
             7 brought that to 0.6 px).
+        lsd_scale: LSD runs on the image resampled by this factor (Gaussian blur then
+            ``cv2.resize``; LSD's own default is 0.8); its time goes with the square of the
+            scale. The segments are returned in full-resolution pixels either way.
     """
 
     n_points: int = 1200
@@ -70,6 +73,11 @@ class FeatureOptions:
     max_lines: int = 120
     subpixel: bool = True
     subpixel_half_window: int = 7
+    lsd_scale: float = 0.8
+
+    def __post_init__(self):
+        if not 0.1 <= self.lsd_scale <= 1.0:
+            raise ValueError(f"lsd_scale must be in [0.1, 1]; got {self.lsd_scale}")
 
 
 @dataclass
@@ -120,7 +128,7 @@ def _roi_slice(shape, roi, pad: int = 8):
 
 _ORB: dict = {}
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
-_LSD: list = []
+_LSD: dict = {}
 _LBD: list = []
 
 
@@ -157,19 +165,32 @@ def detect_points(
     return pts, desc
 
 
+def _lsd(scale: float):
+    scale = round(float(scale), 3)
+    if scale not in _LSD:
+        param = cv2.line_descriptor.LSDParam()
+        param.scale = scale
+        _LSD[scale] = cv2.line_descriptor.LSDDetector.createLSDDetectorWithParams(param)
+    if not _LBD:
+        _LBD.append(cv2.line_descriptor.BinaryDescriptor.createBinaryDescriptor())
+    return _LSD[scale], scale
+
+
 def detect_lines(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(), roi=None):
     """LSD segments ``(M, 2, 2)`` longer than ``mu min(W, H)`` (eq. 1) and their LBD descriptors.
 
-    ``W, H`` are the full image's size whatever the ``roi``.
+    ``W, H`` are the full image's size whatever the ``roi``. LSD resamples the image by
+    ``options.lsd_scale`` with ``cv2.resize`` (pixel centres aligned: the scaled pixel ``x_s``
+    lies at ``(x_s + 0.5) / s - 0.5``) but maps its segments back by ``x_s / s`` alone, which
+    shifts them by ``0.5 / s - 0.5`` pixels along both axes (-0.125 px at LSD's default 0.8);
+    that shift is added back here.
     """
     img = _gray(image)
-    if not _LSD:
-        _LSD.append(cv2.line_descriptor.LSDDetector.createLSDDetector())
-        _LBD.append(cv2.line_descriptor.BinaryDescriptor.createBinaryDescriptor())
+    lsd, scale = _lsd(options.lsd_scale)
     H, W = img.shape
     u0, v0, u1, v1 = _roi_slice(img.shape, roi)
     crop = np.ascontiguousarray(img[v0:v1, u0:u1])
-    keylines = _LSD[0].detect(crop, 2, 1)
+    keylines = lsd.detect(crop, 2, 1)
     min_len = options.mu * min(W, H)
     keylines = [k for k in keylines if k.octave == 0 and k.lineLength > min_len]
     keylines.sort(key=lambda k: -k.lineLength)
@@ -185,7 +206,8 @@ def detect_lines(image: np.ndarray, *, options: FeatureOptions = FeatureOptions(
         [[[k.startPointX, k.startPointY], [k.endPointX, k.endPointY]] for k in keylines],
         dtype=np.float64,
     )
-    return seg + [u0, v0], np.asarray(desc, np.uint8)
+    shift = 0.5 / scale - 0.5 if scale != 1.0 else 0.0
+    return seg + [u0 + shift, v0 + shift], np.asarray(desc, np.uint8)
 
 
 _POOL: list = []
@@ -263,11 +285,30 @@ def _sparse_knn(desc_ref, desc_cur, allowed, ratio, max_distance) -> np.ndarray:
     return _pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance)
 
 
+def _hamming(desc_ref, desc_cur, i_ref, i_cur) -> np.ndarray:
+    """Hamming distances ``(K,)`` between the descriptor pairs ``(i_ref[k], i_cur[k])``: XOR and
+    popcount on 64-bit words (``np.bitwise_count``, NumPy >= 2) or a byte table."""
+    a, b = np.ascontiguousarray(desc_ref), np.ascontiguousarray(desc_cur)
+    if (
+        _BITWISE_COUNT is not None
+        and a.dtype == b.dtype == np.uint8
+        and a.shape[1] == b.shape[1]
+        and a.shape[1] % 8 == 0
+    ):
+        x = np.bitwise_xor(a.view(np.uint64)[i_ref], b.view(np.uint64)[i_cur])
+        return _BITWISE_COUNT(x).sum(1, dtype=np.int64)
+    return _POPCOUNT[np.bitwise_xor(a[i_ref], b[i_cur])].sum(1, dtype=np.int64)
+
+
+_BITWISE_COUNT = getattr(np, "bitwise_count", None)
+
+
 def _pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance) -> np.ndarray:
     if len(i_ref) == 0:
         return np.zeros((0, 2), int)
-    dist = _POPCOUNT[np.bitwise_xor(desc_ref[i_ref], desc_cur[i_cur])].sum(1)
-    order = np.lexsort((dist, i_ref))
+    dist = _hamming(desc_ref, desc_cur, i_ref, i_cur)
+    # by reference feature, then distance (one stable integer sort; distances are <= 256)
+    order = np.argsort(i_ref * 512 + dist, kind="stable")
     i_ref, i_cur, dist = i_ref[order], i_cur[order], dist[order]
     first = np.r_[True, i_ref[1:] != i_ref[:-1]]
     starts = np.nonzero(first)[0]

@@ -39,6 +39,7 @@ __all__ = [
     "disparity_range",
     "match_lines_stereo",
     "match_points_stereo",
+    "match_stereo",
     "parabolic_offset",
     "zncc",
 ]
@@ -193,7 +194,11 @@ def _strips(padded, pads, c0: np.ndarray, v: np.ndarray, width: int, wr: int, hr
     vi = np.floor(v).astype(np.int64)
     frac = (v - vi).astype(np.float32)[:, None, None]
     out = sliding_window_view(padded, (wr + 1, width))[vi - hr + pads[1], c0 + pads[0]]
-    return out[:, :-1] * (1.0 - frac) + out[:, 1:] * frac
+    low = out[:, :-1]
+    strip = out[:, 1:] - low  # low + frac (high - low), in place
+    strip *= frac
+    strip += low
+    return strip
 
 
 def _per_feature(disparities, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -259,7 +264,7 @@ def match_points_stereo(
     group = np.ceil(np.log2(D)).astype(np.int64)
     for g in np.unique(group):
         sel = np.nonzero(group == g)[0]
-        uv_r, best, ok = _search_rows(L, padded, p[sel], d_max[sel], int(D[sel].max()), options)
+        uv_r, best, ok = _search_rows(L, padded, p[sel], d_max[sel], D[sel], options)
         out.pixels_right[sel], out.score[sel], out.ok[sel] = uv_r, best, ok
     return out
 
@@ -292,11 +297,14 @@ def _coarse_ranges(L, Rimg, p, d_min, d_max, wide, options: StereoMatchOptions):
     return d_min, d_max
 
 
-def _search_rows(L, padded, p, d_max, D: int, options: StereoMatchOptions):
-    """ZNCC of each left patch against the ``D`` right windows ending at disparity ``d_max``
-    (per point) on its row (the right image ``padded`` by :func:`_padded`), the best score, its
-    parabolic sub-pixel column and the tests."""
+def _search_rows(L, padded, p, d_max, widths, options: StereoMatchOptions):
+    """ZNCC of each left patch against the right windows of disparities ``d_max - widths + 1 ..
+    d_max`` (per point) on its row (the right image ``padded`` by :func:`_padded`), the best
+    score, its parabolic sub-pixel column and the tests. The points are searched together over
+    the largest width, the windows beyond a point's own range scored -1: a point's match does
+    not depend on the points searched with it."""
     N = len(p)
+    D = int(widths.max())
     w = options.window  # columns
     wr = options.window_rows or w  # rows
     h, hr = w // 2, wr // 2
@@ -335,12 +343,15 @@ def _search_rows(L, padded, p, d_max, D: int, options: StereoMatchOptions):
         ab += np.einsum("ni,nij->nj", a32[:, :, k], strip[:, :, k : k + D])
     den = np.sqrt(aa[:, None] * bb)
     score = np.where(den > 1e-9, ab / np.where(den > 1e-9, den, 1.0), -1.0)
-    # a window reaching outside the right image is not a candidate
-    centre = (c0 + h)[:, None] + np.arange(D)[None, :]
-    score = np.where((centre - h >= 0) & (centre + h <= W - 1), score, -1.0)
+    # candidates: the point's own disparities (j = d_max - disparity < width) whose window lies
+    # inside the right image (window centre c0 + h + j within [h, W - 1 - h])
+    j_lo = np.maximum(-c0, 0)[:, None]
+    j_hi = np.minimum(widths, W - 2 * h - c0)[:, None]
+    jj = np.arange(D)[None, :]
+    score = np.where((jj >= j_lo) & (jj < j_hi), score, -1.0)
     j = np.argmax(score, axis=1)
     best = score[np.arange(N), j]
-    inner = (j > 0) & (j < D - 1)
+    inner = (j > 0) & (j < widths - 1)
     jm, jp = np.clip(j - 1, 0, D - 1), np.clip(j + 1, 0, D - 1)
     off = parabolic_offset(score[np.arange(N), jm], best, score[np.arange(N), jp])
     u_right = c0 + h + j + np.where(inner, off, 0.0)
@@ -403,18 +414,88 @@ def match_lines_stereo(
     cand = (n_matched >= options.line_min_matches) & (2 * n_matched >= n_samples) & steep
     cos_eps = np.cos(np.radians(options.eps_theta_deg))
     sin_min = np.sin(np.radians(options.min_epipolar_angle_deg))
-    for i in np.nonzero(cand)[0]:
-        pts = pm.pixels_right[(owner == i) & pm.ok]
-        c = pts.mean(0)
-        _, _, vt = np.linalg.svd(pts - c, full_matrices=False)
-        direction, normal = vt[0], vt[1]
-        delta = float(np.abs((pts - c) @ normal).mean())
-        fit_error[i] = delta
-        cos_angle = abs(direction @ d[i]) / length[i]
-        if delta >= options.eps_delta_px or cos_angle < cos_eps or abs(direction[1]) < sin_min:
-            continue
-        rows = seg[i, :, 1]
-        u_cut = c[0] + (rows - c[1]) * direction[0] / direction[1]
-        out[i] = np.stack([u_cut, rows], 1)
-        ok[i] = True
+    # total-least-squares line of each segment's matches, all segments at once: the centroid
+    # and the principal axis of the 2x2 scatter matrix (closed form)
+    use = pm.ok & cand[owner]
+    who, pts = owner[use], pm.pixels_right[use]
+    count = np.maximum(np.bincount(who, minlength=M), 1)
+    c = np.stack([np.bincount(who, pts[:, k], M) for k in (0, 1)], 1) / count[:, None]
+    q = pts - c[who]
+    sxx, sxy, syy = (np.bincount(who, q[:, a] * q[:, b], M) for a, b in ((0, 0), (0, 1), (1, 1)))
+    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    direction = np.stack([np.cos(theta), np.sin(theta)], 1)
+    normal = np.stack([-direction[:, 1], direction[:, 0]], 1)
+    delta = np.bincount(who, np.abs((q * normal[who]).sum(1)), M) / count
+    fit_error = np.where(cand, delta, np.inf)
+    cos_angle = np.abs((direction * d).sum(1)) / np.maximum(length, 1e-12)
+    ok = (
+        cand
+        & (delta < options.eps_delta_px)
+        & (cos_angle >= cos_eps)
+        & (np.abs(direction[:, 1]) >= sin_min)
+    )
+    rows = seg[ok, :, 1]  # (k, 2): the right segment cut at the left endpoints' rows
+    dirs = direction[ok]
+    u_cut = c[ok, :1] + (rows - c[ok, 1:]) * (dirs[:, :1] / dirs[:, 1:])
+    out[ok] = np.stack([u_cut, rows], 2)
     return LineMatches(out, fit_error, n_matched, ok)
+
+
+def _n_line_samples(segments: np.ndarray, options: StereoMatchOptions) -> int:
+    """How many samples :func:`match_lines_stereo` searches for ``segments`` ``(M, 2, 2)``."""
+    if len(segments) == 0:
+        return 0
+    d = segments[:, 1] - segments[:, 0]
+    length = np.linalg.norm(d, axis=1)
+    steep = np.abs(d[:, 1]) >= np.sin(np.radians(options.min_epipolar_angle_deg)) * np.maximum(
+        length, 1e-12
+    )
+    n = np.clip((length / options.line_step_px).astype(int), 3, options.line_max_samples)
+    return int(n[steep].sum())
+
+
+def match_stereo(
+    left: np.ndarray,
+    right: np.ndarray,
+    pixels_left: np.ndarray,
+    point_disparities,
+    segments_left: np.ndarray,
+    line_disparities,
+    *,
+    options: StereoMatchOptions = StereoMatchOptions(),
+    executor=None,
+) -> tuple[PointMatches, LineMatches]:
+    """The points (:func:`match_points_stereo`) and segments (:func:`match_lines_stereo`) of one
+    frame, disparities as there.
+
+    ``executor`` (e.g. a one-worker :class:`concurrent.futures.ThreadPoolExecutor`): the segments
+    and a share of the points are searched in the worker while the other points are searched in
+    the calling thread (NumPy and OpenCV release the GIL, so two cores overlap them); the share
+    evens out the two threads' searched samples (a segment counts its samples). A point's match
+    does not depend on the points searched with it: the matches are the same either way.
+    """
+    L, Rimg = _as_float(left), _as_float(right)  # converted once for every call below
+    p = np.asarray(pixels_left, dtype=np.float64).reshape(-1, 2)
+    seg = np.asarray(segments_left, dtype=np.float64).reshape(-1, 2, 2)
+    if executor is None or len(seg) == 0:
+        pm = match_points_stereo(L, Rimg, p, point_disparities, options=options)
+        return pm, match_lines_stereo(L, Rimg, seg, line_disparities, options=options)
+    N = len(p)
+    dp = np.asarray(point_disparities)
+    if dp.shape == (2,):
+        dp = np.broadcast_to(dp, (N, 2))
+    k = int(np.clip((N - _n_line_samples(seg, options)) // 2, 0, N))  # points of the worker
+
+    def worker():
+        lm = match_lines_stereo(L, Rimg, seg, line_disparities, options=options)
+        return lm, match_points_stereo(L, Rimg, p[N - k :], dp[N - k :], options=options)
+
+    pending = executor.submit(worker)
+    head = match_points_stereo(L, Rimg, p[: N - k], dp[: N - k], options=options)
+    lm, tail = pending.result()
+    pm = PointMatches(
+        np.concatenate([head.pixels_right, tail.pixels_right]).reshape(-1, 2),
+        np.concatenate([head.score, tail.score]),
+        np.concatenate([head.ok, tail.ok]),
+    )
+    return pm, lm

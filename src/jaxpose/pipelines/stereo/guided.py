@@ -17,15 +17,16 @@ __all__ = ["match_by_projection", "match_points_within"]
 
 def match_points_within(pred, desc, feats, radius, options: FeatureOptions):
     """ORB ratio-test matching of landmark descriptors ``desc`` (predicted at pixels ``pred``,
-    ``(k, 2)``) to the keypoints of ``feats`` within ``radius`` pixels (a k-d tree: only those
+    ``(k, 2)``) to the keypoints of ``feats`` within ``radius`` pixels (two k-d trees: only those
     pairs are scored). Returns the landmark and keypoint index pairs."""
     if len(pred) == 0 or len(feats.points) == 0:
         return np.zeros(0, int), np.zeros(0, int)
-    tree = cKDTree(feats.points)
-    pairs = tree.query_ball_point(pred, radius, return_sorted=True)
-    counts = np.fromiter(map(len, pairs), int, count=len(pairs))
-    rows = np.repeat(np.arange(len(pred)), counts)
-    cols = np.concatenate(pairs).astype(int) if counts.sum() else np.zeros(0, int)
+    near = cKDTree(pred).sparse_distance_matrix(
+        cKDTree(feats.points), radius, output_type="ndarray"
+    )  # every pair within radius (distance 0 included), as arrays
+    rows, cols = near["i"].astype(int), near["j"].astype(int)
+    order = np.argsort(rows * len(feats.points) + cols)  # by landmark, then keypoint
+    rows, cols = rows[order], cols[order]
     return knn_ratio_match_pairs(
         desc,
         feats.point_desc,

@@ -22,7 +22,7 @@ from jaxpose.pipelines.stereo._arrays import pad, project, rt
 from jaxpose.pipelines.stereo._clock import StageClock
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
 from jaxpose.pipelines.stereo.options import TrackerOptions
-from jaxpose.vision.stereo_match import match_lines_stereo, match_points_stereo
+from jaxpose.vision.stereo_match import match_points_stereo, match_stereo
 
 __all__ = [
     "FrameStereo",
@@ -100,16 +100,21 @@ def _search(left, right, feats, disparities, o: TrackerOptions):
     else:
         d_points = d_lines = disparities
     if o.use_lines and len(feats.segments):
-        args = (left, right, feats.segments, d_lines)
-        if o.threads:  # the segments' samples in a second thread (NumPy and OpenCV release the GIL)
+        pool = None
+        if o.threads:  # a second thread (NumPy and OpenCV release the GIL): match_stereo
             if not _POOL:
                 _POOL.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxpose-zncc"))
-            pending = _POOL[0].submit(match_lines_stereo, *args, options=o.stereo)
-            pm = match_points_stereo(left, right, feats.points, d_points, options=o.stereo)
-            lm = pending.result()
-        else:
-            pm = match_points_stereo(left, right, feats.points, d_points, options=o.stereo)
-            lm = match_lines_stereo(*args, options=o.stereo)
+            pool = _POOL[0]
+        pm, lm = match_stereo(
+            left,
+            right,
+            feats.points,
+            d_points,
+            feats.segments,
+            d_lines,
+            options=o.stereo,
+            executor=pool,
+        )
         return pm, lm, lm.ok
     pm = match_points_stereo(left, right, feats.points, d_points, options=o.stereo)
     return pm, None, np.zeros(len(feats.segments), bool)

@@ -71,6 +71,12 @@ class TrackerOptions:
             per ``spacing x spacing`` pixels of target, within ``[100, features.n_points]``
             (about 2000 at 2 m for the 1 m target, 900 at 3 m). A far target seen with the full
             budget gets weak extra corners. ``None``: always ``features.n_points``.
+        lsd_area_px: on a target of apparent area ``A`` above this (pixels; the 1 m target at
+            about 2 m), LSD runs at ``features.lsd_scale * sqrt(lsd_area_px / A)`` (at least 0.4)
+            instead of ``features.lsd_scale``: it then scans about as many pixels of target as
+            at 2 m, and the near target's edges are long enough to be found on the coarser image
+            (on ``d3``, 1.5 m: scale 0.6, 12 ms instead of 21 ms of LSD, as many segments longer
+            than eq. 1's bound). ``None``: always ``features.lsd_scale``.
         line_planes: refine the line landmarks from all their observation planes (the planes
             through each camera centre and the segment, body frame, of every stereo pair that
             matched the landmark; :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe_lines`)
@@ -104,8 +110,10 @@ class TrackerOptions:
         disparity_margin_px: the margin of the first tracked frame.
         neighbour_px: radius of the matched points that predict an unmatched feature's
             disparity.
-        threads: run the line detection (LSD + LBD) and the lines' stereo search in a second
-            thread, beside the points' (the same results; on two cores the wall times overlap).
+        threads: run the line detection (LSD + LBD) in a second thread beside the points', and
+            the lines' stereo search with a share of the points' in a second thread beside the
+            other points' (:func:`~jaxpose.vision.stereo_match.match_stereo`; the same results;
+            on two cores the wall times overlap).
         window_frames: jointly adjust the poses of the last ``window_frames`` tracked frames
             and the point landmarks they observed, every ``k``-th frame (``window_every``)
             (:mod:`~jaxpose.pipelines.stereo.window`; each landmark keeps its rays from older
@@ -123,6 +131,11 @@ class TrackerOptions:
             2-3 m, 3 at 1.5-2 m, 4 at 1.5 m and nearer.
         window_points: most point landmarks in each adjustment (those observed most often in
             the window).
+        window_motion_sigma: ``(deg, mm)``: the windowed adjustment holds the target's motion
+            to a constant twist (a rigid body spinning about a fixed axis at a constant rate,
+            seen from a camera at rest), the second difference of consecutive frames' relative
+            motions with these standard deviations against 1 px of the pixel residuals
+            (:func:`jaxpose.core.refine.motion_residual`); ``None``: no motion prior.
         feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
             points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
             dilution of precision at the predicted pose), ``"random"`` or ``"response"``
@@ -173,6 +186,7 @@ class TrackerOptions:
     stereo_residuals: bool = True
     features: FeatureOptions = field(default_factory=lambda: FeatureOptions(n_points=2000))
     keypoint_spacing_px: float | None = 8.0
+    lsd_area_px: float | None = 120_000.0
     line_planes: bool = True
     line_stereo_residuals: bool = True
     measured_line_sigma: bool = True
@@ -190,6 +204,7 @@ class TrackerOptions:
     window_every: int = 4
     window_depth_m: float | None = 6.0
     window_points: int = 300
+    window_motion_sigma: tuple[float, float] | None = None
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
     budget_rule: str = "dop"
@@ -211,6 +226,8 @@ class TrackerOptions:
             )
         if not 0.0 < self.budget_subsample <= 1.0:
             raise ValueError(f"budget_subsample must be in (0, 1]; got {self.budget_subsample}")
+        if self.lsd_area_px is not None and not self.lsd_area_px > 0:
+            raise ValueError(f"lsd_area_px must be positive or None; got {self.lsd_area_px}")
         if self.keypoint_spacing_px is not None and not self.keypoint_spacing_px > 0:
             raise ValueError(
                 f"keypoint_spacing_px must be positive or None; got {self.keypoint_spacing_px}"
@@ -227,6 +244,11 @@ class TrackerOptions:
             value = getattr(self, name)
             if not (isinstance(value, int | np.integer) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1; got {value!r}")
+        ms = self.window_motion_sigma
+        if ms is not None and not (len(ms) == 2 and all(v > 0 for v in ms)):
+            raise ValueError(
+                f"window_motion_sigma must be None or two positive numbers (deg, mm); got {ms!r}"
+            )
         if self.window_depth_m is not None and not self.window_depth_m > 0:
             raise ValueError(f"window_depth_m must be positive or None; got {self.window_depth_m}")
         if self.window_frames and self.window_every > self.window_frames:

@@ -198,6 +198,8 @@ class StereoTracker:
                 options.window_frames,
                 options.window_iterations,
                 max_points=options.window_points,
+                max_lines=options.max_lines,
+                motion_sigma=options.window_motion_sigma,
             )
             if options.window_frames
             else None
@@ -205,17 +207,29 @@ class StereoTracker:
         self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
         self._since_adjust = 0  # tracked frames since the last adjustment (window_every)
         warm_up_projection(rig.left)
+        if self._window is not None:
+            self._window.warm_up()
 
     # ------------------------------------------------------------------ scene-dependent settings
     def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
         """The feature options of a frame whose target covers ``target_area_px`` pixels: the ORB
         budget at one keypoint per ``keypoint_spacing_px^2`` pixels of target (a constant
-        keypoint density on the target, whatever its range and attitude)."""
+        keypoint density on the target, whatever its range and attitude), and LSD's scale
+        reduced by ``sqrt(lsd_area_px / target_area_px)`` on a target larger than
+        ``lsd_area_px`` (at least 0.4)."""
         o = self.options
-        if o.keypoint_spacing_px is None or target_area_px is None:
+        if target_area_px is None:
             return o.features
-        n = int(round(target_area_px / o.keypoint_spacing_px**2, -2))
-        return replace(o.features, n_points=max(100, min(o.features.n_points, n)))
+        f = o.features
+        if o.keypoint_spacing_px is not None:
+            n = int(round(target_area_px / o.keypoint_spacing_px**2, -2))
+            f = replace(f, n_points=max(100, min(f.n_points, n)))
+        if o.lsd_area_px is not None and target_area_px > o.lsd_area_px:
+            # LSD on about lsd_area_px pixels of target at the scale of the options: a near
+            # target's edges are long, and LSD's time goes with the pixels it scans
+            scale = f.lsd_scale * np.sqrt(o.lsd_area_px / target_area_px)
+            f = replace(f, lsd_scale=round(float(max(scale, 0.4)), 2))
+        return f
 
     def _update_radius(self, landmarks_xyz: np.ndarray, pose_pred: Pose, pose: Pose) -> None:
         """The next frame's search radius from this frame's prediction error (``adaptive_radius``):

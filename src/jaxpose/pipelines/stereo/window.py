@@ -15,9 +15,11 @@ the information of its observation rays from frames outside the window as a Gaus
 (the normal equations ``M, b`` of :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe`, in
 pixels: ``f^2 (X^T M X - 2 b^T X)``). Long-lived landmarks are therefore held by all their past
 observations (anchors), and the gauge is fixed by the first frame's pose while it is in the
-window, else by the oldest frame's. Gauss-Newton with a small Levenberg damping and the Schur
-complement on the ``3 x 3`` landmark blocks; analytic Jacobians (``x_cam = R X + t``, the
-rotation perturbed on the left, ``R <- exp(w) R``).
+window, else by the oldest frame's. The solver is :func:`jaxpose.core.refine.adjust_window`
+(Gauss-Newton with a small Levenberg damping, the Schur complement on the ``3 x 3`` landmark
+blocks, Jacobians by ``jax.jacfwd`` of one observation's residual; compiled once): this module
+gathers the window's observations, priors and line terms into its padded visibility grid
+(``frames`` x ``max_points`` landmarks x two images; ``2 max_lines`` line rows a frame).
 
 After the adjustment the rays of the window's frames are moved to the adjusted poses (removed at
 the old pose, added at the new one) and the landmarks re-solved from their rays, so the map stays
@@ -29,11 +31,14 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
+import jax.numpy as jnp
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from jaxpose.core.camera import StereoCamera
-from jaxpose.pipelines.stereo._arrays import find, pixel_jacobian
+from jaxpose.core.geometry import Pose
+from jaxpose.core.refine import WindowObservations, WindowOptions, adjust_window
+from jaxpose.core.status import Status
+from jaxpose.pipelines.stereo._arrays import find
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
 
 __all__ = ["FrameRays", "WindowAdjuster"]
@@ -104,6 +109,9 @@ class WindowAdjuster:
         huber_px: Huber threshold of the pixel residuals.
         max_points: most landmarks in the solve (those with the most observations in the
             window; the cost grows with the observations: at 1.5 m a window holds thousands).
+        max_lines: most line observations a frame (the tracker's ``max_lines``).
+        motion_sigma: ``(deg, mm)`` of the constant-twist prior on consecutive frames
+            (:func:`jaxpose.core.refine.motion_residual`), or ``None`` (no prior).
     """
 
     anchor_oldest = True
@@ -115,14 +123,21 @@ class WindowAdjuster:
         iterations: int = 3,
         huber_px: float = 1.5,
         max_points: int = 600,
+        max_lines: int = 96,
+        motion_sigma: tuple[float, float] | None = None,
     ):
         if frames < 2:
             raise ValueError(f"window frames must be >= 2; got {frames}")
         self.rig = rig
         self.frames: deque[FrameRays] = deque(maxlen=int(frames))
-        self.iterations = int(iterations)
-        self.huber_px = float(huber_px)
+        self.options = WindowOptions(
+            iterations=int(iterations),
+            huber_px=float(huber_px),
+            motion_prior=motion_sigma is not None,
+        )
         self.max_points = int(max_points)
+        self.max_lines = int(max_lines)
+        self.motion_sigma = motion_sigma  # (deg, mm), or None
         c = rig.left
         self.f = (float(c.fx), float(c.fy))
         self.c = (float(c.cx), float(c.cy))
@@ -133,6 +148,39 @@ class WindowAdjuster:
         fr = FrameRays(np.array(R, float), np.array(t, float), fixed=fixed, index=index)
         self.frames.append(fr)
         return fr
+
+    def _motion_weight(self, f: int) -> np.ndarray:
+        """``(f, 6)`` weights of the constant-twist prior: ``1 / sigma^2`` at each frame whose
+        neighbours in the window are the frames just before and after it (no frame lost
+        between), zero elsewhere and without ``motion_sigma``."""
+        w = np.zeros((f, 6))
+        if self.motion_sigma is None:
+            return w
+        deg, mm = self.motion_sigma
+        row = np.r_[np.full(3, (1e3 / mm) ** 2), np.full(3, np.degrees(1.0 / deg) ** 2)]
+        idx = [fr.index for fr in self.frames]
+        for j in range(1, len(idx) - 1):
+            if idx[j - 1] + 1 == idx[j] == idx[j + 1] - 1:
+                w[j] = row
+        return w
+
+    def warm_up(self) -> None:
+        """Compile the adjustment for this window's padded size (about 2 s of CPU, once per
+        process and size) before the first frame rather than in the middle of a sequence."""
+        R, t = np.eye(3)[None], np.array([[0.0, 0.0, 2.0]])
+        one = np.zeros(1, np.int64)
+        self._solve(
+            R,
+            t,
+            np.zeros((1, 3)),
+            one,
+            one,
+            np.zeros((1, 2)),
+            np.zeros(1, bool),
+            np.eye(3)[None],
+            np.zeros((1, 3)),
+            np.zeros(1, bool),
+        )
 
     # ------------------------------------------------------------------ the adjustment
     def adjust(self, landmarks: LandmarkMap) -> bool:
@@ -236,155 +284,62 @@ class WindowAdjuster:
         return origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
     def _solve(self, Rs, ts, X, jj, li, px, right, M_out, b_out, free, lines=None):
-        """Gauss-Newton on the window (module docstring); ``None`` poses when it fails."""
-        fx, fy = self.f
-        cx, cy = self.c
-        N = len(X)
-        nf = int(free.sum())
-        fidx = np.cumsum(free) - 1  # column block of each free frame
-        prior_w = fx * fy  # rays' angular units to pixels^2
-        shift = np.where(right[:, None], self.t_rl[None], 0.0)
-        Rs, ts, X = Rs.copy(), ts.copy(), X.copy()
-        fo = free[jj]
-        jf, lf = fidx[jj[fo]], li[fo]
-        pair = jf * N + lf  # (free frame, landmark) of each observation of a free frame
-        lam = 1e-3
-        for _ in range(self.iterations):
-            Rj = Rs[jj]
-            Xi = X[li]
-            RX = (Rj * Xi[:, None, :]).sum(2)
-            p = RX + ts[jj] + shift
-            z = p[:, 2]
-            if np.any(z <= 1e-6):
-                return None, None, None
-            iz = 1.0 / z
-            r = np.stack([fx * p[:, 0] * iz + cx - px[:, 0], fy * p[:, 1] * iz + cy - px[:, 1]], 1)
-            e = np.sqrt(r[:, 0] ** 2 + r[:, 1] ** 2)
-            hw = np.where(e > self.huber_px, self.huber_px / np.maximum(e, 1e-12), 1.0)
-            Jp = pixel_jacobian(p, fx, fy)
-            # Jp R, row by row (Jp has two non-zeros a row)
-            JX = np.stack(
-                [
-                    Jp[:, 0, 0:1] * Rj[:, 0] + Jp[:, 0, 2:3] * Rj[:, 2],
-                    Jp[:, 1, 1:2] * Rj[:, 1] + Jp[:, 1, 2:3] * Rj[:, 2],
-                ],
-                1,
-            )  # (n, 2, 3)
-            # -Jp [RX]x, the rotation part of the pose Jacobian, column by column
-            Jw = np.stack(
-                [
-                    Jp[:, :, 2] * RX[:, 1:2] - Jp[:, :, 1] * RX[:, 2:3],
-                    Jp[:, :, 0] * RX[:, 2:3] - Jp[:, :, 2] * RX[:, 0:1],
-                    Jp[:, :, 1] * RX[:, 0:1] - Jp[:, :, 0] * RX[:, 1:2],
-                ],
-                2,
-            )
-            Jxi = np.concatenate([Jw, Jp], 2)  # (n, 2, 6): rotation, translation
-            JXw = JX * hw[:, None, None]
-            H_ll = _sum_by(li, _inner(JX, JXw), N)
-            g_l = _sum_by(li, (JXw * r[:, :, None]).sum(1), N)
-            H_ll += prior_w * M_out
-            g_l += prior_w * ((M_out * X[:, None, :]).sum(2) - b_out)
-            Jxf = Jxi[fo]
-            Jxw = Jxf * hw[fo][:, None, None]
-            H_pp = _sum_by(jf, _inner(Jxf, Jxw), nf)
-            g_p = _sum_by(jf, (Jxw * r[fo][:, :, None]).sum(1), nf)
-            H_pl = _sum_by(pair, _inner(Jxw, JX[fo]), nf * N)
-            H_pl = H_pl.reshape(nf, N, 6, 3)
-            if lines is not None:  # point-to-line distances of the fixed line landmarks
-                Hl, gl_ = _line_blocks(self, Rs, ts, lines, free, fidx, nf)
-                H_pp += Hl
-                g_p += gl_
-            H_ll_d = H_ll + lam * np.einsum("nii->ni", H_ll)[:, :, None] * np.eye(3)[None]
-            Linv = _inv3(H_ll_d + 1e-9 * np.eye(3)[None])
-            if Linv is None:
-                return None, None, None
-            # the Schur complement S = H_pp - H_pl H_ll^-1 H_pl^T as one stack of (6, 3N) x
-            # (3N, 6) products, a frame pair each: small enough that BLAS runs each on one
-            # thread (one (6F, 3N) product would wake its threads, which spin on a loaded
-            # machine), and 50-70x less CPU time than the same sum by np.einsum
-            Y = np.matmul(H_pl, Linv[None])  # (F, N, 6, 3)
-            A = Y.transpose(0, 2, 1, 3).reshape(nf, 6, 3 * N)
-            B = H_pl.transpose(0, 2, 1, 3).reshape(nf, 6, 3 * N)
-            S = -np.matmul(A[:, None], B[None].transpose(0, 1, 3, 2))  # (F, F, 6, 6)
-            S[np.arange(nf), np.arange(nf)] += H_pp
-            S = S.transpose(0, 2, 1, 3).reshape(6 * nf, 6 * nf)
-            S += lam * np.diag(np.diag(S)) + 1e-9 * np.eye(6 * nf)
-            rhs = g_p.reshape(-1) - np.matmul(A, g_l.reshape(-1)).reshape(-1)
-            try:
-                dxi = -np.linalg.solve(S, rhs)
-            except np.linalg.LinAlgError:
-                return None, None, None
-            d = dxi.reshape(nf, 6)
-            back = np.matmul(d[:, None, :], B)[:, 0].sum(0).reshape(N, 3)
-            dX = -(Linv * (g_l + back)[:, None, :]).sum(2)
-            dR = Rotation.from_rotvec(d[:, :3]).as_matrix()
-            fi = np.nonzero(free)[0]
-            Rs[fi] = dR @ Rs[fi]
-            ts[fi] = ts[fi] + d[:, 3:]
-            X = X + dX
-        if not (np.all(np.isfinite(Rs)) and np.all(np.isfinite(ts)) and np.all(np.isfinite(X))):
+        """The adjustment (:func:`jaxpose.core.refine.adjust_window`) on the visibility grid,
+        padded to ``frames`` frames, ``max_points`` landmarks and ``max_lines`` lines a frame
+        (one compiled size); ``None`` poses when it fails."""
+        n, K = len(X), len(Rs)
+        f, n_pad, k_pad = self.frames.maxlen, max(self.max_points, n), 2 * self.max_lines
+        Rp = np.broadcast_to(np.eye(3), (f, 3, 3)).copy()
+        tp = np.zeros((f, 3))
+        tp[:, 2] = 1.0
+        Rp[:K], tp[:K] = Rs, ts
+        free_p = np.zeros(f, bool)
+        free_p[:K] = free
+        pixels = np.zeros((f, n_pad, 2, 2))
+        mask = np.zeros((f, n_pad, 2), bool)
+        cam = np.asarray(right, int)
+        pixels[jj, li, cam] = px  # (a repeated observation: one of them)
+        mask[jj, li, cam] = True
+        Lp, Lc, Lw = np.zeros((f, k_pad, 3)), np.zeros((f, k_pad, 3)), np.zeros((f, k_pad))
+        Lp[..., 2] = 1.0
+        if lines is not None:
+            jl, Xl, L, wl = lines
+            slot = np.arange(len(jl)) - np.searchsorted(jl, jl)  # rank within the frame
+            keep = slot < k_pad  # (more than max_lines lines in a frame: the first ones)
+            jl, slot = jl[keep], slot[keep]
+            Lp[jl, slot], Lc[jl, slot], Lw[jl, slot] = Xl[keep], L[keep], wl[keep]
+        X_pad = np.zeros((n_pad, 3))
+        X_pad[:, 2] = 1.0
+        X_pad[:n] = X
+        obs = WindowObservations(
+            pixels=jnp.asarray(pixels),
+            mask=jnp.asarray(mask),
+            prior_M=jnp.asarray(_pad(M_out, n_pad)),
+            prior_b=jnp.asarray(_pad(b_out, n_pad)),
+            points_mask=jnp.asarray(np.arange(n_pad) < n),
+            line_points=jnp.asarray(Lp),
+            line_coeffs=jnp.asarray(Lc),
+            line_weight=jnp.asarray(Lw),
+            free=jnp.asarray(free_p),
+            motion_weight=jnp.asarray(self._motion_weight(f)),
+        )
+        res = adjust_window(
+            jnp.asarray(X_pad),
+            obs,
+            Pose(jnp.asarray(Rp), jnp.asarray(tp)),
+            self.rig,
+            options=self.options,
+        )
+        if int(res.status) != Status.OK:
             return None, None, None
-        return Rs, ts, X
+        return (
+            np.asarray(res.pose.R)[:K],
+            np.asarray(res.pose.t)[:K],
+            np.asarray(res.points_body)[:n],
+        )
 
 
-def _line_blocks(self, Rs, ts, lines, free, fidx, nf):
-    """Pose blocks ``(nf, 6, 6)``, ``(nf, 6)`` of the endpoint-to-line distances (Yang et al.
-    2024, eq. 9) of the window's line observations, landmarks held fixed, Huber-weighted."""
-    fx, fy = self.f
-    cx, cy = self.c
-    jl, Xl, L, wl = lines
-    keep = free[jl]
-    jl, Xl, L, wl = jl[keep], Xl[keep], L[keep], wl[keep]
-    H = np.zeros((nf, 6, 6))
-    g = np.zeros((nf, 6))
-    if len(jl) == 0:
-        return H, g
-    RX = np.matmul(Rs[jl], Xl[:, :, None])[:, :, 0]
-    p = RX + ts[jl]
-    iz = 1.0 / p[:, 2]
-    u = fx * p[:, 0] * iz + cx
-    v = fy * p[:, 1] * iz + cy
-    r = L[:, 0] * u + L[:, 1] * v + L[:, 2]
-    hw = np.where(np.abs(r) > self.huber_px, self.huber_px / np.maximum(np.abs(r), 1e-12), 1.0)
-    # d r / d p: the line normal times the projection Jacobian
-    Jp = np.stack(
-        [
-            L[:, 0] * fx * iz,
-            L[:, 1] * fy * iz,
-            -(L[:, 0] * fx * p[:, 0] + L[:, 1] * fy * p[:, 1]) * iz**2,
-        ],
-        1,
-    )
-    Jw = np.cross(RX, Jp)  # d r / d w for R <- exp(w) R: -Jp . (RX x .) = (RX x Jp) . w
-    J = np.concatenate([Jw, Jp], 1)  # (n, 6)
-    wt = wl * hw
-    H = _sum_by(fidx[jl], J[:, :, None] * J[:, None, :] * wt[:, None, None], nf)
-    g = _sum_by(fidx[jl], J * (wt * r)[:, None], nf)
-    return H, g
-
-
-def _inner(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``A^T B`` of stacks of ``(n, 2, a)`` and ``(n, 2, b)`` Jacobians: ``(n, a, b)``."""
-    return A[:, 0, :, None] * B[:, 0, None, :] + A[:, 1, :, None] * B[:, 1, None, :]
-
-
-def _sum_by(keys: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """``(n, ...)`` sums of ``values`` (``(m, ...)``) grouped by ``keys`` (``(m,)`` in
-    ``[0, n)``), one ``np.bincount`` per component."""
-    flat = values.reshape(len(values), -1)
-    out = np.stack(
-        [np.bincount(keys, weights=flat[:, c], minlength=n) for c in range(flat.shape[1])], 1
-    )
-    return out.reshape((n, *values.shape[1:]))
-
-
-def _inv3(A: np.ndarray) -> np.ndarray | None:
-    """Inverses of ``(n, 3, 3)`` matrices by their adjugates; ``None`` when one is singular."""
-    c0 = np.cross(A[:, 1], A[:, 2])
-    c1 = np.cross(A[:, 2], A[:, 0])
-    c2 = np.cross(A[:, 0], A[:, 1])
-    det = np.einsum("ni,ni->n", A[:, 0], c0)
-    if not np.all(np.abs(det) > 0) or not np.all(np.isfinite(det)):
-        return None
-    return np.stack([c0, c1, c2], 2) / det[:, None, None]
+def _pad(a: np.ndarray, n: int) -> np.ndarray:
+    out = np.zeros((n, *a.shape[1:]))
+    out[: len(a)] = a
+    return out

@@ -1,0 +1,80 @@
+"""Stereo tracker features: LSD segments on drawn edges at every detection scale, and the
+ratio-test matching over candidate pairs against a brute-force reference."""
+
+import numpy as np
+import pytest
+
+from jaxpose.vision.stereo_features import FeatureOptions, detect_lines, knn_ratio_match_pairs
+
+H = W = 320
+#: a convex quadrilateral, pixel-centre coordinates (pixel (0, 0) covers [-0.5, 0.5]^2)
+QUAD = np.array([[62.3, 71.7], [251.6, 58.2], [268.9, 247.4], [80.2, 262.8]])
+
+
+@pytest.fixture(scope="module")
+def quad_image():
+    """The quadrilateral (200) on a dark background (20), each pixel the area average of 8 x 8
+    sub-samples; and the four edge lines ``(n, c)``, ``n . x + c = 0``, ``|n| = 1``."""
+    s = 8
+    sub = (np.arange(W * s) + 0.5) / s - 0.5
+    x, y = np.meshgrid(sub, sub)
+    inside = np.ones_like(x, bool)
+    edges = []
+    for i in range(4):
+        a, b = QUAD[i], QUAD[(i + 1) % 4]
+        n = np.array([b[1] - a[1], a[0] - b[0]]) / np.linalg.norm(b - a)
+        inside &= x * n[0] + y * n[1] - n @ a <= 0
+        edges.append((n, -n @ a))
+    img = 20.0 + 180.0 * inside.reshape(H, s, W, s).mean((1, 3))
+    return np.round(img).astype(np.uint8), edges
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.8, 0.5])
+def test_lsd_segments_lie_on_the_edges_at_every_scale(quad_image, scale):
+    """LSD maps its segments back from the resampled image without the half-pixel term; the
+    segments returned lie on the true edges (the shift 0.5 / s - 0.5 would be 0.125 px at 0.8,
+    0.5 px at 0.5)."""
+    img, edges = quad_image
+    seg, desc = detect_lines(img, options=FeatureOptions(mu=0.1, lsd_scale=scale))
+    assert len(seg) == 4 and desc.shape == (4, 32)
+    for s in seg:
+        for p in (s.mean(0), 0.75 * s[0] + 0.25 * s[1], 0.25 * s[0] + 0.75 * s[1]):
+            d = [abs(n @ p + c) for n, c in edges]
+            assert min(d) < 0.05, (scale, min(d))
+    with pytest.raises(ValueError, match="lsd_scale"):
+        FeatureOptions(lsd_scale=0.0)
+
+
+def _brute_force(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance):
+    bits = np.unpackbits(desc_ref[:, None] ^ desc_cur[None], axis=-1).sum(-1)
+    pairs = []
+    for r in np.unique(i_ref):
+        cand = i_cur[i_ref == r]
+        d = bits[r, cand]
+        j = int(np.argmin(d))  # the first of equal distances, in the given order
+        second = np.sort(d)[1] if len(d) > 1 else np.inf
+        if d[j] <= max_distance and d[j] < ratio * second:
+            pairs.append((r, cand[j]))
+    pairs = np.array(pairs, int).reshape(-1, 2)
+    once = [c for c in pairs[:, 1] if (pairs[:, 1] == c).sum() == 1]
+    keep = np.isin(pairs[:, 1], once)
+    return pairs[keep, 0], pairs[keep, 1]
+
+
+def test_knn_ratio_match_pairs_equals_brute_force():
+    rng = np.random.default_rng(3)
+    # near-copies of a few descriptors: ties and close second-best distances
+    base = rng.integers(0, 256, (30, 32), dtype=np.uint8)
+    desc_ref = base[rng.integers(0, 30, 80)] ^ (rng.random((80, 32)) < 0.03).astype(np.uint8)
+    desc_cur = base[rng.integers(0, 30, 90)] ^ (rng.random((90, 32)) < 0.03).astype(np.uint8)
+    i_ref = rng.integers(0, 80, 700)
+    i_cur = rng.integers(0, 90, 700)
+    for ratio, max_distance in ((0.8, 64), (1.0, 256), (0.5, 20)):
+        got = knn_ratio_match_pairs(
+            desc_ref, desc_cur, i_ref, i_cur, ratio=ratio, max_distance=max_distance
+        )
+        want = _brute_force(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance)
+        assert len(want[0]) > 3
+        np.testing.assert_array_equal(np.sort(got[0]), np.sort(want[0]))
+        order_got, order_want = np.argsort(got[0]), np.argsort(want[0])
+        np.testing.assert_array_equal(got[1][order_got], want[1][order_want])
