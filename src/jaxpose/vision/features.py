@@ -180,7 +180,7 @@ class Detection:
     antennas: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     groups: FeatureGroups | None = None
     # the image sides (left, top, right, bottom) the ROI reaches: a target cut by the frame, whose
-    # coarse range (eq. 6 assumes the whole box) is then too long
+    # coarse range (eq. 6 assumes the whole box) is then read with cut_range
     roi_cut: tuple = (False, False, False, False)
     timings: dict = field(default_factory=dict)
     image: np.ndarray | None = None  # the undistorted, smoothed grayscale image
