@@ -98,6 +98,30 @@ def spread_with_background(res, model) -> float | None:
     return float(_jit_face_spread()(R, t, sc, False, True))
 
 
+def range_evidence(res) -> dict:
+    """Evidence for the confidence class from the ROI: ``range_agreement`` (the absolute log
+    ratio of the pose's range to the ROI's coarse range; ``None`` without a pose), ``roi_cut``
+    (the ROI reaches the frame), ``silhouette_iou`` and ``e2d_px`` over ``l_ROI``."""
+    from jaxpose.vision.roi import roi_diagonal
+
+    agree = None
+    if res.pose is not None and res.coarse_t_cam is not None:
+        r_pose = float(np.linalg.norm(np.asarray(res.pose.t)))
+        r_coarse = float(np.linalg.norm(np.asarray(res.coarse_t_cam)))
+        if r_pose > 0 and r_coarse > 0:
+            agree = abs(float(np.log(r_pose / r_coarse)))
+    det = res.detection
+    e2d = res.reprojection_error_px
+    return {
+        "range_agreement": agree,
+        "roi_cut": bool(det is not None and any(det.roi_cut)),
+        "silhouette_iou": res.silhouette_iou,
+        "e2d_rel": None
+        if res.roi is None or not np.isfinite(e2d)
+        else float(e2d) / roi_diagonal(res.roi),
+    }
+
+
 def _mean(values) -> float | None:
     """Mean of a list, ``None`` when empty (a domain without images of that kind)."""
     return float(np.mean(values)) if values else None
@@ -105,12 +129,14 @@ def _mean(values) -> float | None:
 
 def _roi_row(r, camera, model, detection, earth, cover) -> dict:
     """Per-image record of the image processing alone (``--roi-only``)."""
+    from jaxpose.vision.coarse import model_extents
     from jaxpose.vision.features import detect
     from jaxpose.vision.roi import roi_diagonal
 
     t0 = time.perf_counter()
-    # the pipeline's characteristic length (initialise_pose), so that the range is the pipeline's
-    det = detect(r.image, camera, model.characteristic_length * ROI_LENGTH_FACTOR, detection)
+    # the pipeline's characteristic length and extents (initialise_pose): the pipeline's range
+    L_C = model.characteristic_length * ROI_LENGTH_FACTOR
+    det = detect(r.image, camera, L_C, detection, extents=model_extents(model))
     wall = time.perf_counter() - t0
     rng_true = float(np.linalg.norm(np.asarray(r.pose.t)))
     ratio = None if det.coarse_t_cam is None else float(np.linalg.norm(det.coarse_t_cam)) / rng_true
@@ -128,6 +154,7 @@ def _roi_row(r, camera, model, detection, earth, cover) -> dict:
         if det.roi is None
         else roi_diagonal(det.roi) / roi_diagonal(r.roi),
         "roi_iou": 0.0 if det.roi is None else _box_iou(det.roi, r.roi),
+        "roi_cut": [bool(c) for c in det.roi_cut],
         "detect_s": wall,
     }
 
@@ -177,6 +204,7 @@ def _speedplus(args, model, opts) -> None:
         row["face_spread"] = result.face_spread
         row["face_spread_bg"] = spread_with_background(result, model)
         row["timings"] = result.timings
+        row.update(range_evidence(result))
 
     out = evaluate_speedplus(args.speedplus, limit=None, model=model, options=opts, on_result=hook)
     rows = out["per_image"]
@@ -399,6 +427,7 @@ def main() -> None:
             "face_spread_bg": spread_with_background(res, model),
             "margin": res.margin if res.margin is not None and np.isfinite(res.margin) else None,
             "e2d_px": res.reprojection_error_px if np.isfinite(res.reprojection_error_px) else None,
+            **range_evidence(res),
             "runtime_s": wall,
             "timings": res.timings,
             "coarse_within_20pct": bool(

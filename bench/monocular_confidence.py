@@ -28,9 +28,21 @@ import json
 
 import numpy as np
 
+#: Every quantity a rule may use, with +1: high needs it at most the threshold; -1: at least.
+#: A record without the quantity (no silhouette, no pose) passes its condition.
+ALL_SIGNS = {
+    "score": 1,
+    "coverage": -1,
+    "orientation_agreement": -1,
+    "margin": -1,
+    "face_spread": 1,
+    "range_agreement": 1,
+    "silhouette_iou": -1,
+    "e2d_rel": 1,
+}
+#: The quantities of the rule in use (:data:`jaxpose.pipelines.monocular.CONFIDENCE`).
 KEYS = ("score", "coverage", "orientation_agreement", "margin", "face_spread")
-#: +1: high needs the quantity at most the threshold; -1: at least.
-SIGNS = (1, -1, -1, -1, 1)
+SIGNS = tuple(ALL_SIGNS[k] for k in KEYS)
 
 
 def _records(paths, source, spread_key="face_spread"):
@@ -39,32 +51,54 @@ def _records(paths, source, spread_key="face_spread"):
         for r in json.load(open(p))["per_image"]:
             if r.get("score") is None or r.get("orientation_agreement") is None:
                 continue
-            out.append(
-                {
-                    "source": source,
-                    "image": r.get("image", ""),
-                    "success": bool(r["success"]),
-                    "score": float(r["score"]),
-                    "coverage": float(r["coverage"]),
-                    "orientation_agreement": float(r["orientation_agreement"]),
-                    "margin": np.inf if r.get("margin") is None else float(r["margin"]),
-                    "face_spread": -np.inf if r.get(spread_key) is None else float(r[spread_key]),
-                }
-            )
+            rec = {"source": source, "image": r.get("image", ""), "success": bool(r["success"])}
+            for k, sg in ALL_SIGNS.items():
+                v = r.get(spread_key if k == "face_spread" else k)
+                rec[k] = -sg * np.inf if v is None else float(v)  # missing: passes
+                rec["alt_" + k] = np.nan if v is None else float(v)  # missing: fails
+            out.append(rec)
     return out
 
 
-def _high(rec, th):
+def _high(rec, th, rule=KEYS, prefix=""):
     return all(
-        (rec[k] <= v) if sg > 0 else (rec[k] >= v) for k, sg, v in zip(KEYS, SIGNS, th, strict=True)
+        (rec[prefix + k] <= v) if ALL_SIGNS[k] > 0 else (rec[prefix + k] >= v)
+        for k, v in zip(rule, th, strict=True)
     )
 
 
-def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None):
-    """Thresholds (one per quantity of ``KEYS``: at most for score and spread, at least for the
-    others): the largest sum of the shares of each source's successes made ``high``, with
-    training precision >= ``precision`` on the renders and on the SPEED+ images apart; ties to
-    fewer wrong ones, then the first found. Quantities not in ``keys`` are left open."""
+def _high_either(rec, th, rule, th_alt, alt):
+    """``high`` by the main rule, or by the alternative one (its quantities all present)."""
+    return _high(rec, th, rule) or (bool(alt) and _high(rec, th_alt, alt, prefix="alt_"))
+
+
+def _choose(
+    records,
+    precision,
+    grid=12,
+    keys=KEYS,
+    precision_speedplus=None,
+    rule=KEYS,
+    already=None,
+    prefix="",
+    weights=(1.0, 1.0),
+    tighten=False,
+    widen=(),
+):
+    """Thresholds (one per quantity of ``rule``, at least 3: at most for score, spread and range
+    agreement, at least for the others): the largest sum of the shares of each source's
+    successes made ``high``, with training precision >= ``precision`` on the renders and on the
+    SPEED+ images apart; ties to fewer wrong ones, then the first found. Quantities not in
+    ``keys`` are left open. ``already`` (a mask of the records): those are ``high`` by another
+    rule, and the precision and recall are those of either rule; ``prefix="alt_"`` reads the
+    values with missing ones failing (NaN) instead of passing. ``weights``: of the renders' and
+    the SPEED+ images' recall in the sum. ``tighten``: each threshold is then moved in to the
+    least passing value among the successes it makes ``high`` (no training answer changes
+    class; fewer near misses of new images pass). ``widen``: the thresholds of these quantities are
+    moved out to halfway to the nearest wrong record that would pass (:func:`_widen`)."""
+    SIGNS = tuple(ALL_SIGNS[k] for k in rule)  # noqa: N806
+    KEYS = tuple(prefix + k for k in rule)  # noqa: N806
+    keys = tuple(prefix + k for k in keys)
     ok = [r for r in records if r["success"]]
     open_th = tuple(np.inf if sg > 0 else -np.inf for sg in SIGNS)
     if not ok:
@@ -92,12 +126,18 @@ def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None):
     ]
     best, best_key = tuple(-v for v in open_th), (0.0, 0)
     sources = [src == s for s in ("render", "speedplus")]
-    for i0, i1 in itertools.product(*(range(len(c)) for c in cands[:2])):
-        base = passes[0][i0] & passes[1][i1]
+    n_outer = len(KEYS) - 3
+    for outer in itertools.product(*(range(len(c)) for c in cands[:n_outer])):
+        base = np.ones(len(records), bool)
+        for k, i in enumerate(outer):
+            base = base & passes[k][i]
         if not base.any():
             continue
-        # (J2, J3, J4, N): every threshold of the last three quantities at once
-        sel = base & passes[2][:, None, None] & passes[3][None, :, None] & passes[4][None, None]
+        # (J, J, J, N): every threshold of the last three quantities at once
+        p2, p3, p4 = passes[n_outer:]
+        sel = base & p2[:, None, None] & p3[None, :, None] & p4[None, None]
+        if already is not None:
+            sel = sel | already
         n_sel = sel.sum(-1)
         good = (sel & succ).sum(-1)
         okp = n_sel > 0
@@ -109,14 +149,59 @@ def _choose(records, precision, grid=12, keys=KEYS, precision_speedplus=None):
             continue
         # the share of each source's successes made high, summed (a photograph weighs as much
         # as the renders together: they are what the rule is for), then fewer wrong highs
-        recall = sum((sel & m & succ).sum(-1) / max((m & succ).sum(), 1) for m in sources)
+        recall = sum(
+            w * (sel & m & succ).sum(-1) / max((m & succ).sum(), 1)
+            for w, m in zip(weights, sources, strict=True)
+        )
         score = np.where(okp, np.round(recall, 9) * 1e4 - (n_sel - good), -1)
         j = np.unravel_index(np.argmax(score), score.shape)
         key = (float(np.round(recall[j], 9)), -int(n_sel[j] - good[j]))
         if key > best_key:
-            best = (cands[0][i0], cands[1][i1], cands[2][j[0]], cands[3][j[1]], cands[4][j[2]])
+            best = tuple(cands[k][i] for k, i in enumerate(outer)) + tuple(
+                cands[n_outer + k][j[k]] for k in range(3)
+            )
             best_key = key
+    if tighten and np.all(np.isfinite(best)):
+        th = np.array(best, float)
+        mine = np.all(
+            [
+                (X[:, k] <= v) if sg > 0 else (X[:, k] >= v)
+                for k, (v, sg) in enumerate(zip(th, SIGNS, strict=True))
+            ],
+            axis=0,
+        )
+        mine &= succ
+        if already is not None:
+            mine &= ~already
+        if mine.any():
+            best = tuple(
+                float(X[mine, k].max() if sg > 0 else X[mine, k].min())
+                for k, sg in enumerate(SIGNS)
+            )
+    if widen and np.all(np.isfinite(best)):
+        which = [k in widen for k in rule]
+        best = _widen(np.array(best, float), X, succ, SIGNS, already, which)
     return best
+
+
+def _widen(th, X, succ, signs, already, which):
+    """Each threshold moved out, the others held, to halfway to the nearest value beyond it of a
+    wrong record that passes the other conditions (and is not ``high`` already): the margin
+    between the successes made ``high`` and the nearest wrong answer, split evenly (none: kept).
+    No training record changes class."""
+    out = th.copy()
+    sg = np.array(signs, float)
+    passes = X * sg[None] <= th * sg  # (N, K); NaN fails
+    wrong = ~succ if already is None else (~succ & ~already)
+    for k in range(len(th)):
+        if not which[k]:
+            continue
+        others = np.delete(passes, k, axis=1).all(axis=1)
+        v = X[wrong & others, k] * sg[k]
+        v = v[np.isfinite(v) & (v > th[k] * sg[k])]
+        if len(v):
+            out[k] = 0.5 * (th[k] * sg[k] + v.min()) * sg[k]
+    return tuple(float(x) for x in out)
 
 
 def main() -> None:
@@ -139,6 +224,46 @@ def main() -> None:
         help=f"the quantities the rule may use (default: all of {', '.join(KEYS)})",
     )
     ap.add_argument(
+        "--rule",
+        nargs="*",
+        default=list(KEYS),
+        help=f"the quantities of the rule, at least 3 (default: {', '.join(KEYS)}; "
+        f"any of {', '.join(ALL_SIGNS)})",
+    )
+    ap.add_argument(
+        "--held-out",
+        nargs="*",
+        default=[],
+        help="render records not used for the choice, classified by the rule chosen on all",
+    )
+    ap.add_argument(
+        "--alt-photographs",
+        action="store_true",
+        help="the alternative rule counts the SPEED+ images' recall only (the renders' precision "
+        "still binds)",
+    )
+    ap.add_argument(
+        "--tighten",
+        action="store_true",
+        help="move the alternative rule's thresholds in to the least passing value among the "
+        "successes it makes high",
+    )
+    ap.add_argument(
+        "--widen",
+        nargs="*",
+        default=[],
+        help="quantities of the alternative rule whose thresholds move out to halfway to the "
+        "nearest wrong answer that would pass",
+    )
+    ap.add_argument("--no-loo", action="store_true", help="skip the leave-one-out")
+    ap.add_argument(
+        "--alt-rule",
+        nargs="*",
+        default=[],
+        help="a second rule (at least 3 quantities; a record must have them all, e.g. the "
+        "silhouette IoU): high by either; its thresholds are chosen after the first rule's",
+    )
+    ap.add_argument(
         "--spread-key",
         default="face_spread",
         help="the record field read as the spread (face_spread_bg: with the background label)",
@@ -149,24 +274,69 @@ def main() -> None:
 
     def choose(records, precision):  # noqa: F811 (the quantities asked for)
         return _choose(
-            records, precision, keys=tuple(args.keys), precision_speedplus=args.precision_speedplus
+            records,
+            precision,
+            keys=tuple(args.keys),
+            precision_speedplus=args.precision_speedplus,
+            rule=rule,
         )
 
-    th_all = choose(renders + dev, args.precision)
-    print(
-        "thresholds (score<=, coverage>=, orientation>=, margin>=, spread<=) on all:",
-        tuple(float(x) for x in th_all),
-    )
-    for name, recs in (("renders", renders), ("speedplus (in-sample)", dev)):
-        sel = [r for r in recs if _high(r, th_all)]
+    rule = tuple(args.rule)
+    alt = tuple(args.alt_rule)
+    for r_ in (rule, alt) if alt else (rule,):
+        if len(r_) < 3 or any(k not in ALL_SIGNS for k in r_):
+            raise SystemExit(f"a rule needs at least 3 of {', '.join(ALL_SIGNS)}; got {r_}")
+
+    def choose_both(records, precision):
+        th = choose(records, precision)
+        if not alt:
+            return th, ()
+        first = np.array([_high(r, th, rule) for r in records])
+        th_alt = _choose(
+            records,
+            precision,
+            keys=tuple(alt),
+            precision_speedplus=args.precision_speedplus,
+            rule=alt,
+            already=first,
+            prefix="alt_",
+            weights=(0.0, 1.0) if args.alt_photographs else (1.0, 1.0),
+            tighten=args.tighten,
+            widen=tuple(args.widen),
+        )
+        return th, th_alt
+
+    th_all, th_alt = choose_both(renders + dev, args.precision)
+
+    def show(rule_, th):
+        return ", ".join(
+            f"{k} {'<=' if ALL_SIGNS[k] > 0 else '>='} {float(v):.4g}"
+            for k, v in zip(rule_, th, strict=True)
+        )
+
+    print("thresholds on all:", show(rule, th_all))
+    if alt:
+        print("or (the alternative rule):", show(alt, th_alt))
+
+    def is_high(r, th, th2):
+        return _high_either(r, th, rule, th2, alt)
+
+    held = _records(args.held_out, "render", args.spread_key)
+    sets = (("renders", renders), ("speedplus (in-sample)", dev), ("held-out renders", held))
+    for name, recs in sets:
+        if not recs:
+            continue
+        sel = [r for r in recs if is_high(r, th_all, th_alt)]
         print(
             f"{name}: {len(recs)} images, {sum(r['success'] for r in recs)} successes, "
             f"high {len(sel)}, of which right {sum(r['success'] for r in sel)}"
         )
+    if args.no_loo:
+        return
     loo = []
     for i, r in enumerate(dev):
-        th = choose(renders + dev[:i] + dev[i + 1 :], args.precision)
-        loo.append((r, _high(r, th)))
+        th, th2 = choose_both(renders + dev[:i] + dev[i + 1 :], args.precision)
+        loo.append((r, is_high(r, th, th2)))
     hi = [r for r, h in loo if h]
     print(
         f"speedplus leave-one-out: high {len(hi)} of {len(dev)}, right "
@@ -176,7 +346,7 @@ def main() -> None:
     for r, h in loo:
         print(
             f"  {r['image']:26s} success={int(r['success'])} high={int(h)} "
-            + " ".join(f"{k[:5]}={r[k]:.3f}" for k in KEYS)
+            + " ".join(f"{k[:5]}={r[k]:.3f}" for k in dict.fromkeys(rule + alt))
         )
 
 

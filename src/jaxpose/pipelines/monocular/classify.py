@@ -15,6 +15,8 @@ def classify(
     orientation: float | None = None,
     margin: float | None = None,
     spread: float | None = None,
+    silhouette: float | None = None,
+    range_agreement: float | None = None,
 ) -> str:
     """``"high"``, ``"low"`` or ``"position-only"`` from the evidence of the final pose against
     ``thresholds`` (:data:`~jaxpose.pipelines.monocular.options.CONFIDENCE`): the symmetric
@@ -24,10 +26,16 @@ def classify(
     count) and the ranking margin to the best distinct candidate over ``l_ROI`` (``margin``;
     ``None`` or ``inf`` when there is none, which passes) and the face-shading spread at the pose
     (``spread``, :func:`~jaxpose.pipelines.monocular.score._face_spread`; ``None`` when the model
-    has no faces: then it does not count).
+    has no faces: then it does not count); the IoU of the projected faces with the image's
+    silhouette (``silhouette``; ``None`` without a silhouette) and the absolute log ratio of the
+    pose's range to the ROI's coarse range (``range_agreement``).
 
-    ``high`` when every quantity passes its ``high_*`` threshold; ``low`` when the score is at
-    most ``low_score``; ``position-only`` otherwise."""
+    ``high`` when every quantity passes its ``high_*`` threshold, or, with a silhouette, when
+    the silhouette IoU, the spread and the range agreement pass their ``silhouette_*``
+    thresholds and the score ``low_score`` (a second route for photographs, whose edges are
+    cluttered by surface texture and shadow but whose silhouette, shading and size agree with
+    the pose; thresholds absent: no second route); ``low`` when the score is at most
+    ``low_score``; ``position-only`` otherwise."""
     if not math.isfinite(score_rel):
         return "position-only"
     ori_ok = orientation is None or orientation >= thresholds.get("high_orientation", 0.0)
@@ -39,6 +47,17 @@ def classify(
         and ori_ok
         and margin_ok
         and spread_ok
+    ):
+        return "high"
+    if (
+        "silhouette_iou" in thresholds
+        and silhouette is not None
+        and spread is not None
+        and range_agreement is not None
+        and silhouette >= thresholds["silhouette_iou"]
+        and spread <= thresholds["silhouette_spread"]
+        and range_agreement <= thresholds["silhouette_range"]
+        and score_rel <= thresholds["low_score"]
     ):
         return "high"
     if score_rel <= thresholds["low_score"]:

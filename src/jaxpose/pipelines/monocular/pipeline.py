@@ -20,6 +20,7 @@ from jaxpose.pipelines.monocular.score import (
     _jit_silhouette_term,
     _score_poses,
 )
+from jaxpose.vision.coarse import model_extents
 from jaxpose.vision.features import detect
 from jaxpose.vision.image_maps import orientation_maps
 from jaxpose.vision.models import WireframeModel, tango
@@ -69,7 +70,7 @@ def initialise_pose(
     trace = {} if options.trace else None
     t0 = time.perf_counter()
     L_C = model.characteristic_length * ROI_LENGTH_FACTOR
-    det = detect(image, camera, L_C, options.detection)
+    det = detect(image, camera, L_C, options.detection, extents=model_extents(model))
     timings.update(det.timings)
     base = dict(
         pose=None,
@@ -150,7 +151,14 @@ def initialise_pose(
     timings["select_s"] = time.perf_counter() - t1
     s_rel = float(score[best]) / l_roi
     conf = classify(
-        s_rel, coverage, options.confidence, orientation=ori, margin=margin, spread=spread
+        s_rel,
+        coverage,
+        options.confidence,
+        orientation=ori,
+        margin=margin,
+        spread=spread,
+        silhouette=sil_iou,
+        range_agreement=_range_agreement(pose.t, det.coarse_t_cam),
     )
     timings["total_s"] = 0.0
     total = time.perf_counter() - t0
@@ -179,6 +187,15 @@ def initialise_pose(
         margin=margin,
         face_spread=spread,
     )
+
+
+def _range_agreement(t, coarse_t) -> float | None:
+    """``|log(||t|| / ||coarse_t||)|``: how far the pose's range is from the ROI's coarse range
+    (eq. 6); ``None`` without a coarse position."""
+    if coarse_t is None:
+        return None
+    r, rc = float(np.linalg.norm(np.asarray(t))), float(np.linalg.norm(np.asarray(coarse_t)))
+    return abs(float(np.log(r / rc))) if r > 0 and rc > 0 else None
 
 
 #: Candidates whose attitudes differ by more than this are distinct answers for the margin.

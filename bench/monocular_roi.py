@@ -1,0 +1,198 @@
+"""The region of interest and the coarse range alone on labelled SPEED+ images.
+
+    python bench/monocular_roi.py DIR [--out roi.json] [--crops FOLDER]
+
+Runs only the image processing (:func:`jaxpose.vision.features.detect`, with the pipeline's
+characteristic length) on every labelled image of ``DIR`` (a SPEED+ root or a folder with
+``labels.csv``) and reports per image: the ROI's kind (silhouette, gradient, cluster), its IoU
+with the true box (the model's vertices and antenna tips projected at the label in the
+undistorted image, clipped to it: the definition of
+:func:`jaxpose.pipelines.monocular.diagnose.true_box`), the coarse range over the label's, which
+image sides the ROI reaches (``roi_cut``) and the CPU time of ``detect``. The summary counts ROI
+right (IoU >= 0.5) and coarse range within 20%. ``--crops`` writes a quarter-size picture of
+each image with the true box (green) and the ROI (red), for looking at the misses. For renders
+use ``bench/monocular.py --roi-only``.
+
+    python bench/monocular_roi.py --cut-study lightbox --images 40 --seed 11
+
+renders ``--images`` images of a domain (``space``: black sky; ``lightbox``) whose targets lie
+anywhere in the image at 3-6 m (``random_pose(margin=0)``: many cut by the frame) and counts, on
+the images whose coarse range ``DetectionOptions.cut_range`` changes, how many are within 20%
+of the truth with it and without it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from jaxpose.io import load_camera, load_image, load_speed_labels
+from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR
+from jaxpose.vision.coarse import model_extents
+from jaxpose.vision.features import DetectionOptions, detect
+from jaxpose.vision.models import tango
+
+
+def true_box(model, pose, camera, shape) -> np.ndarray | None:
+    """Box of the model's vertices and antenna tips at ``pose`` in the ideal ``camera``."""
+    pts = np.asarray(model.vertices, float)
+    if len(model.antennas):
+        pts = np.concatenate([pts, np.asarray(model.antenna_points, float).reshape(-1, 3)])
+    cam = np.asarray(pose.apply(pts))
+    front = cam[:, 2] > 1e-6
+    if not front.any():
+        return None
+    uv = np.asarray(camera.project(cam))[front]
+    H, W = shape[:2]
+    return np.r_[np.clip(uv.min(0), [0, 0], [W, H]), np.clip(uv.max(0), [0, 0], [W, H])]
+
+
+def box_iou(a, b) -> float:
+    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - w * h
+    return float(w * h / union) if union > 0 else 0.0
+
+
+def roi_kind(det) -> str | None:
+    if det.roi is None:
+        return None
+    if det.roi_silhouette is not None:
+        return "silhouette"
+    return "gradient" if np.array_equal(det.roi, det.roi_gradient) else "cluster"
+
+
+def cut_study(domain: str, images: int, seed: int) -> None:
+    """``--cut-study``: the coarse range with and without ``cut_range`` on close, uncentred
+    targets (see the module docstring)."""
+    from dataclasses import replace
+
+    from monocular import SPEEDPLUS_CAMERA as cam  # the SPEED+ camera, with distortion
+
+    from jaxpose.vision.render import lightbox_scene, random_pose, render
+
+    model = tango()
+    extents = model_extents(model)
+    L_C = model.characteristic_length * ROI_LENGTH_FACTOR
+    rng = np.random.default_rng(seed)
+    moved, within = 0, {False: 0, True: 0}
+    for _ in range(images):
+        pose = random_pose(rng, cam, range_m=(3.0, 6.0), margin=0.0)
+        try:
+            scene = lightbox_scene(model, rng) if domain == "lightbox" else {}
+            r = render(model, pose, cam, rng=rng, **scene)
+        except (AttributeError, ValueError):  # a pose the renderer cannot draw
+            continue
+        rng_true = float(np.linalg.norm(np.asarray(pose.t)))
+        ratio = {}
+        for on in (False, True):
+            opts = replace(DetectionOptions(), cut_range=on)
+            det = detect(r.image, cam, L_C, opts, extents=extents)
+            ratio[on] = (
+                None
+                if det.coarse_t_cam is None
+                else float(np.linalg.norm(det.coarse_t_cam)) / rng_true
+            )
+        if ratio[False] is None or abs(ratio[False] - ratio[True]) < 1e-9:
+            continue
+        moved += 1
+        for on in (False, True):
+            within[on] += abs(ratio[on] - 1) <= 0.2
+    print(
+        json.dumps(
+            {
+                "domain": domain,
+                "images": images,
+                "seed": seed,
+                "moved_by_cut_range": moved,
+                "within_20pct_without": within[False],
+                "within_20pct_with": within[True],
+            }
+        )
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("speedplus", nargs="?", help="SPEED+ root or a folder with labels.csv")
+    ap.add_argument("--cut-study", choices=("space", "lightbox"), default=None)
+    ap.add_argument("--images", type=int, default=40)
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--out", help="write the summary and per-image records (JSON)")
+    ap.add_argument("--crops", help="folder for pictures of the true box and the ROI")
+    args = ap.parse_args()
+    if args.cut_study:
+        cut_study(args.cut_study, args.images, args.seed)
+        return
+    if not args.speedplus:
+        ap.error("give a SPEED+ folder or --cut-study")
+    root = Path(args.speedplus)
+    camera = load_camera(root / "camera.json")
+    model = tango()
+    opts = DetectionOptions()
+    extents = model_extents(model)
+    rows = []
+    for lab in load_speed_labels(root):
+        img = load_image(lab.image)
+        t0 = time.process_time()
+        det = detect(
+            img, camera, model.characteristic_length * ROI_LENGTH_FACTOR, opts, extents=extents
+        )
+        cpu = time.process_time() - t0
+        box = true_box(model, lab.pose, det.camera, det.image.shape)
+        rng = float(np.linalg.norm(np.asarray(lab.pose.t)))
+        ratio = None if det.coarse_t_cam is None else float(np.linalg.norm(det.coarse_t_cam)) / rng
+        iou = 0.0 if det.roi is None or box is None else box_iou(det.roi, box)
+        rows.append(
+            {
+                "image": lab.image.name,
+                "domain": lab.domain,
+                "roi_kind": roi_kind(det),
+                "roi": None if det.roi is None else [float(x) for x in det.roi],
+                "true_box": None if box is None else [float(x) for x in box],
+                "roi_iou": iou,
+                "roi_right": iou >= 0.5,
+                "coarse_range_ratio": ratio,
+                "coarse_within_20pct": ratio is not None and abs(ratio - 1) <= 0.2,
+                "roi_cut": [bool(c) for c in det.roi_cut],
+                "detect_cpu_s": cpu,
+            }
+        )
+        if args.crops:
+            import cv2
+
+            Path(args.crops).mkdir(parents=True, exist_ok=True)
+            pic = cv2.cvtColor(det.image, cv2.COLOR_GRAY2BGR)
+            for b, c in ((box, (0, 255, 0)), (det.roi, (0, 0, 255))):
+                if b is not None:
+                    p = np.rint(b).astype(int)
+                    cv2.rectangle(pic, (p[0], p[1]), (p[2], p[3]), c, 6)
+            pic = cv2.resize(pic, (pic.shape[1] // 4, pic.shape[0] // 4))
+            cv2.imwrite(str(Path(args.crops) / lab.image.name.replace(".jpg", ".png")), pic)
+    summary = {
+        "images": len(rows),
+        "roi_right": sum(r["roi_right"] for r in rows),
+        "coarse_within_20pct": sum(r["coarse_within_20pct"] for r in rows),
+        "median_detect_cpu_s": float(np.median([r["detect_cpu_s"] for r in rows])),
+    }
+    for r in rows:
+        ratio = r["coarse_range_ratio"]
+        cut = "".join("x" if c else "." for c in r["roi_cut"])
+        print(
+            f"{r['image']:28s} {str(r['roi_kind']):10s} iou {r['roi_iou']:.2f} "
+            f"range {ratio if ratio is None else round(ratio, 2)} cut {cut}"
+        )
+    print(json.dumps(summary))
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps({"summary": summary, "per_image": rows}))
+
+
+if __name__ == "__main__":
+    main()
