@@ -329,3 +329,15 @@ def test_lightbox_scene_cell_grid_option(camera):
     np.testing.assert_array_equal(bright.image[~near], off.image[~near])
     with pytest.raises(ValueError, match="cell_grid"):
         lightbox_scene(m, np.random.default_rng(0), cell_grid=(0, 4, 0.5))
+
+
+def test_textured_faces_outside_the_image_render(camera):
+    # a lightbox scene (blanket-textured faces) whose target lies beside the image: the faces
+    # in front of the camera cover no pixel; the image is all background, no error
+    m = tango()
+    rng = np.random.default_rng(5)
+    opts = lightbox_scene(m, rng)
+    pose = Pose(front_pose(4.0).R, np.array([12.0, 0.0, 4.0]))
+    r = render(m, pose, camera, rng=rng, **opts)
+    assert r.image.shape == (480, 640)
+    assert np.all(r.face_ids == BACKGROUND)

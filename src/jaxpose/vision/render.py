@@ -99,6 +99,8 @@ def project_points(camera: PinholeCamera, points_cam: np.ndarray) -> np.ndarray:
 
 def _pixel_rays(camera: PinholeCamera, pixels: np.ndarray) -> np.ndarray:
     """Undistorted normalised rays ``(M, 3)`` (z = 1) of pixels ``(M, 2)`` (OpenCV's iteration)."""
+    if len(pixels) == 0:  # OpenCV returns None for no points
+        return np.zeros((0, 3))
     K = np.asarray(camera.K, dtype=float)
     xy = cv2.undistortPoints(
         pixels.reshape(-1, 1, 2).astype(np.float64), K, np.asarray(camera.dist)
