@@ -454,6 +454,7 @@ def main() -> None:
                 np.rad2deg(rotation_error(res.pose.R, jnp.asarray(pose.R)))
             )
             row["esa_score"] = float(esa_score(res.pose, pose)[0])
+            row["range_ratio"] = float(jnp.linalg.norm(res.pose.t) / rng_true)
         rows.append(row)
     if args.roi_only:
         _roi_summary(rows, args)
