@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from jaxpose.pipelines.monocular.classify import classify
+from jaxpose.pipelines.monocular.classify import check_thresholds, classify
+from jaxpose.pipelines.monocular.options import CONFIDENCE
 from jaxpose.pipelines.monocular.pipeline import _range_agreement
 
 TH = {
@@ -49,3 +50,29 @@ def test_range_agreement_is_the_absolute_log_ratio_of_the_ranges():
     assert _range_agreement(t, np.array([0.0, 0.0, 5.0])) == pytest.approx(np.log(2))
     assert _range_agreement(t, None) is None
     assert _range_agreement(np.zeros(3), t) is None
+
+
+@pytest.mark.parametrize(
+    "rule, match",
+    [
+        ([0.1], "dict of thresholds"),
+        ({**TH, "high_scor": 0.03}, "unknown key"),
+        ({k: v for k, v in TH.items() if k != "low_score"}, "lacks"),
+        ({k: v for k, v in TH.items() if k != "silhouette_range"}, "give all three or none"),
+        ({**TH, "high_margin": float("nan")}, "finite number"),
+        ({**TH, "high_coverage": "0.9"}, "finite number"),
+    ],
+)
+def test_a_malformed_confidence_rule_is_named(rule, match):
+    with pytest.raises(ValueError, match=match):
+        check_thresholds(rule)
+
+
+def test_the_default_rule_and_one_without_the_silhouette_route_pass():
+    check_thresholds(CONFIDENCE)
+    no_route = {k: v for k, v in CONFIDENCE.items() if not k.startswith("silhouette_")}
+    check_thresholds(no_route)
+    # without the route, a pose that only the silhouette supports is "low"
+    photo = dict(orientation=0.4, margin=0.002, spread=0.7, silhouette=0.75, range_agreement=0.03)
+    assert classify(0.04, 0.7, CONFIDENCE, **photo) == "high"
+    assert classify(0.04, 0.7, no_route, **photo) == "low"

@@ -4,7 +4,39 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["classify"]
+__all__ = ["check_thresholds", "classify"]
+
+#: Keys of a confidence rule: always needed, optional one by one, and the silhouette route's,
+#: which come together or not at all.
+_REQUIRED = ("high_score", "high_coverage", "low_score")
+_OPTIONAL = ("high_orientation", "high_margin", "high_spread")
+_SILHOUETTE = ("silhouette_iou", "silhouette_spread", "silhouette_range")
+
+
+def check_thresholds(thresholds) -> None:
+    """Raise ``ValueError`` naming what is wrong with a confidence rule (``InitOptions.
+    confidence``, the layout of :data:`~jaxpose.pipelines.monocular.options.CONFIDENCE`):
+    not a mapping, an unknown or missing key, the silhouette route's keys given in part, a value
+    that is not a finite number."""
+    if not hasattr(thresholds, "keys"):
+        kind = type(thresholds).__name__
+        raise ValueError(f"confidence must be a dict of thresholds; got {kind}")
+    keys, known = set(thresholds), _REQUIRED + _OPTIONAL + _SILHOUETTE
+    unknown = sorted(keys - set(known), key=str)
+    if unknown:
+        raise ValueError(f"confidence has unknown key(s) {unknown}; known: {list(known)}")
+    missing = [k for k in _REQUIRED if k not in keys]
+    if missing:
+        raise ValueError(f"confidence lacks {missing} (needed by every rule)")
+    part = [k for k in _SILHOUETTE if k in keys]
+    if part and len(part) != len(_SILHOUETTE):
+        raise ValueError(
+            f"confidence has {part} of the silhouette route's keys {list(_SILHOUETTE)}: "
+            "give all three or none (none: no silhouette route)"
+        )
+    for k, v in thresholds.items():
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise ValueError(f"confidence[{k!r}] must be a finite number; got {v!r}")
 
 
 def classify(

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpose.core.camera import PinholeCamera
-from jaxpose.pipelines.monocular.classify import classify
+from jaxpose.pipelines.monocular.classify import check_thresholds, classify
 from jaxpose.pipelines.monocular.hypothesise import _ransac_candidates, _svd_candidates
 from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR, InitOptions, InitResult
 from jaxpose.pipelines.monocular.rematch import _e2d, _rematch_refine
@@ -66,6 +66,7 @@ def initialise_pose(
     n = options.template_slots
     if isinstance(n, bool) or not isinstance(n, int | np.integer) or not 0 <= n <= 128:
         raise ValueError(f"template_slots must be an integer in [0, 128] (0: off); got {n!r}")
+    check_thresholds(options.confidence)
     timings = {}
     trace = {} if options.trace else None
     t0 = time.perf_counter()
