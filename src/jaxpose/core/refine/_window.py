@@ -41,6 +41,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose, so3_log
+from jaxpose.core.residuals import robust_weight
 from jaxpose.core.status import Status
 
 __all__ = [
@@ -170,10 +171,6 @@ def _with_value(fn):
     return wrapped
 
 
-def _huber_weight(e, h):
-    return jnp.where(e > h, h / jnp.where(e > h, e, 1.0), 1.0)
-
-
 def _inv3(A):
     """Inverses ``(n, 3, 3)`` by adjugates, and the determinants."""
     c0 = jnp.cross(A[:, 1], A[:, 2])
@@ -197,19 +194,18 @@ def _normal_equations(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: 
     (J_pose, J_point), (r, z) = grid(zero6, zero3, pose, X, obs.pixels, rig)
     # J_pose (f, n, 2, 2, 6), J_point (f, n, 2, 2, 3), r (f, n, 2, 2), z (f, n, 2)
     depth_ok = jnp.all(jnp.where(obs.mask, z > _MIN_DEPTH, True))
-    w = jnp.where(obs.mask, _huber_weight(jnp.linalg.norm(r, axis=-1), cfg.huber_px), 0.0)
+    w = jnp.where(obs.mask, robust_weight("huber", jnp.linalg.norm(r, axis=-1), cfg.huber_px), 0.0)
     wp = jnp.where(obs.free[:, None, None], w, 0.0)
     Jw_point = w[..., None, None] * J_point
     Jw_pose = wp[..., None, None] * J_pose
     # (products and sums written out: XLA fuses them; as einsums they are thousands of tiny
     # batched matrix products)
     outer = lambda a, b: jnp.sum(a[..., :, None] * b[..., None, :], axis=(2, 3))  # noqa: E731
-    H_fn = outer(Jw_pose, J_point)  # (f, n, 6, 3)
+    H_pl = outer(Jw_pose, J_point)  # (f, n, 6, 3)
     H_ll = jnp.sum(outer(J_point, Jw_point), axis=0)
     g_l = jnp.sum(Jw_point * r[..., None], axis=(0, 2, 3))
     H_pp = jnp.sum(outer(J_pose, Jw_pose), axis=1)
     g_p = jnp.sum(Jw_pose * r[..., None], axis=(1, 2, 3))
-    H_pl = H_fn
     # the landmark prior s (X^T M X - 2 b^T X), beside the squared residuals' normal equations
     # (J^T W J, J^T W e: half the cost's Hessian and gradient): s M and s (M X - b)
     s = rig.left.fx * rig.left.fy
@@ -223,7 +219,7 @@ def _normal_equations(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: 
         live = obs.line_weight > 0
         depth_ok = depth_ok & jnp.all(jnp.where(live, zl > _MIN_DEPTH, True))
         wl = jnp.where(obs.free[:, None], obs.line_weight, 0.0)
-        wl = wl * _huber_weight(jnp.abs(d), cfg.huber_px)
+        wl = wl * robust_weight("huber", d, cfg.huber_px)
         H_pp = H_pp + jnp.einsum("fka,fkb->fab", J_line, wl[..., None] * J_line)
         g_p = g_p + jnp.einsum("fka,fk->fa", J_line, wl * d)
     return H_pp, g_p, H_pl, H_ll, g_l, depth_ok
