@@ -214,6 +214,15 @@ def _antenna_term(R, t, sc: _EdgeScene):
     return sc.tau * (1.0 - jnp.sum(val * m) / jnp.maximum(jnp.sum(m), 1.0))
 
 
+def _edge_normal_bins(pix, bins: int):
+    """The orientation bin ``(E,)`` (of ``bins`` over 180 degrees, as in
+    :func:`jaxpose.vision.image_maps.orientation_maps`) of each projected edge's normal, from its
+    samples' pixels ``pix (E, K, 2)`` (first to last sample)."""
+    d = pix[:, -1] - pix[:, 0]
+    phi = jnp.mod(jnp.arctan2(d[:, 1], d[:, 0]) + 0.5 * jnp.pi, jnp.pi)
+    return jnp.mod(jnp.round(phi / (jnp.pi / bins)).astype(jnp.int32), bins)
+
+
 def _orientation_term(R, t, sc: _EdgeScene):
     """``1 -`` the mean LINE-2D similarity (Hinterstoisser et al. 2012) at the projected visible
     model edges, in ``[0, 1]``: each edge sample reads the spread orientation map
@@ -227,9 +236,7 @@ def _orientation_term(R, t, sc: _EdgeScene):
     vis = _visible_edges(R, t, sc.geom)
     pc = samples @ R.T + t
     pix = _project(pc, sc.cam4)  # (E, K, 2)
-    d = pix[:, -1] - pix[:, 0]
-    phi = jnp.mod(jnp.arctan2(d[:, 1], d[:, 0]) + 0.5 * jnp.pi, jnp.pi)
-    o = jnp.mod(jnp.round(phi / (jnp.pi / B)).astype(jnp.int32), B)  # (E,)
+    o = _edge_normal_bins(pix, B)  # (E,)
     uv = (pix - sc.ori_frame[:2]) * sc.ori_frame[2]
     inside = jnp.all((uv >= 0) & (uv <= S - 1), axis=-1)
     ij = jnp.clip(jnp.round(uv).astype(jnp.int32), 0, S - 1)

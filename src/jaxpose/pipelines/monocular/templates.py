@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpose.pipelines.monocular.score import _project, _visible_edges
+from jaxpose.pipelines.monocular.score import _edge_normal_bins, _project, _visible_edges
 
 #: Shift stride of the search, as a share of ``l_ROI`` (also the diameter of the spreading disc
 #: of the orientation maps it reads); the shifts cover ``+-TEMPLATE_STEPS`` strides on both axes.
@@ -52,9 +52,7 @@ def _template_match(R, t, geom, ori, frame, cam4, shifts, scales):
     pts = samples[:, ::TEMPLATE_SAMPLE_STEP]
     pc = pts @ R.T + t  # (E, K, 3)
     pix = _project(pc, cam4)
-    d = pix[:, -1] - pix[:, 0]
-    phi = jnp.mod(jnp.arctan2(d[:, 1], d[:, 0]) + 0.5 * jnp.pi, jnp.pi)  # edge normal
-    o = jnp.mod(jnp.round(phi / (jnp.pi / B)).astype(jnp.int32), B)  # (E,)
+    o = _edge_normal_bins(pix, B)  # (E,): the bin of each edge's normal
     centre = jnp.mean(samples.reshape(-1, 3), axis=0)
     cc = (_project(R @ centre + t, cam4) - frame[:2]) * frame[2]
     rel = (pix - frame[:2]) * frame[2] - cc  # (E, K, 2) cells
