@@ -39,6 +39,16 @@ def _angle_deg(Ra, Rb):
     return np.degrees(Rotation.from_matrix(Ra @ Rb.T).magnitude())
 
 
+def _assert_adjusts_to_truth(win, m, poses, X):
+    """The adjustment runs and returns the window's true poses; the rays moved to the adjusted
+    poses, so the landmarks are the true points."""
+    assert win.adjust(m)
+    for fr, (R, t) in zip(win.frames, poses, strict=True):
+        assert _angle_deg(fr.R, R) < 1e-5
+        np.testing.assert_allclose(fr.t, t, atol=1e-7)
+    np.testing.assert_allclose(m.points.X, X, atol=1e-6)
+
+
 def test_adjustment_recovers_the_true_poses_and_landmarks():
     iterations = 8
     rig, X, poses = _scene()
@@ -63,12 +73,7 @@ def test_adjustment_recovers_the_true_poses_and_landmarks():
     before = max(_angle_deg(fr.R, R) for fr, (R, _) in zip(win.frames, poses, strict=True))
     err_X_before = np.abs(m.points.X - X).max()
     assert before > 0.2 and err_X_before > 1e-3
-    assert win.adjust(m)
-    for fr, (R, t) in zip(win.frames, poses, strict=True):
-        assert _angle_deg(fr.R, R) < 1e-5
-        np.testing.assert_allclose(fr.t, t, atol=1e-7)
-    # the rays moved to the adjusted poses: the landmarks are the true points
-    np.testing.assert_allclose(m.points.X, X, atol=1e-6)
+    _assert_adjusts_to_truth(win, m, poses, X)
 
 
 def test_older_rays_are_a_prior_that_holds_the_landmarks():
@@ -124,11 +129,7 @@ def test_landmark_cap_still_recovers_poses_and_moves_every_landmark():
         left, right = _pixels(rig, R, t, X)
         observe_point_rays(m, rig, ids, left, Pose(Re, te), right=False, log=rec)
         observe_point_rays(m, rig, ids, right, Pose(Re, te), right=True, log=rec)
-    assert win.adjust(m)
-    for fr, (R, t) in zip(win.frames, poses, strict=True):
-        assert _angle_deg(fr.R, R) < 1e-5
-        np.testing.assert_allclose(fr.t, t, atol=1e-7)
-    np.testing.assert_allclose(m.points.X, X, atol=1e-6)
+    _assert_adjusts_to_truth(win, m, poses, X)
 
 
 def test_window_every_and_points_options():
