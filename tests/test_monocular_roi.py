@@ -2,6 +2,8 @@
 of the strong gradients declined, and the sides a ROI reaches (:mod:`jaxpose.vision.roi`,
 :func:`jaxpose.vision.features.detect`)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -44,12 +46,18 @@ def test_detect_declines_a_silhouette_without_strong_gradients():
     check = (uu // 10 + vv // 10) % 2  # a small, sharp, textured target
     img[100:150, 100:160] = (20.0 + 120.0 * check)[100:150, 100:160]
     image = np.clip(img, 0, 255).astype(np.uint8)
-    on = detect(image, cam, 1.0, DetectionOptions(silhouette_min_gradient=0.01))
-    off = detect(image, cam, 1.0, DetectionOptions(silhouette_min_gradient=0.0))
+    by_area = DetectionOptions(silhouette_gradient=False)
+    on = detect(image, cam, 1.0, replace(by_area, silhouette_min_gradient=0.01))
+    off = detect(image, cam, 1.0, replace(by_area, silhouette_min_gradient=0.0))
     assert off.roi_silhouette is not None
     assert off.roi_silhouette[0] > 400  # the blob, far from the target
     assert on.roi_silhouette is None or on.roi_silhouette[0] < 250
     assert on.roi is not None and on.roi[0] < 250 and on.roi[2] < 300
+    # chosen by its strong gradients (the default), the component is the target; the larger free
+    # blob still fails the area test, so the ROI is the gradient one, on the target too
+    sharp = detect(image, cam, 1.0)
+    assert sharp.roi_silhouette is None or sharp.roi_silhouette[0] < 250
+    assert sharp.roi is not None and sharp.roi[0] < 250 and sharp.roi[2] < 300
 
 
 def test_roi_cut_names_the_sides_the_roi_reaches():

@@ -143,6 +143,28 @@ def test_roi_silhouette_beside_an_earth_in_a_corner(rng):
     np.testing.assert_allclose(box, [100, 100, 180, 160], atol=2 * f)
 
 
+def test_roi_silhouette_prefers_the_sharp_target_to_a_soft_earth_piece(rng):
+    # A dim Earth whose limb crosses the top: the threshold keeps a large soft-edged piece of it
+    # touching one side, larger than the small lit target with sharp edges.
+    img = _dark_scene(rng)
+    vv, uu = np.mgrid[:600, :800]
+    piece = ((uu - 250.0) / 200.0) ** 2 + ((vv + 40.0) / 190.0) ** 2 < 1.0
+    img += ndimage_blur(piece * 40.0, 12.0)  # soft edges
+    img[380:440, 560:640] = 220.0  # the target
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    # the strong gradients: the 1% largest central-difference magnitudes (independent of WGE)
+    gy, gx = np.gradient(img.astype(float))
+    g = np.hypot(gx, gy)
+    strong = np.where(g > np.percentile(g, 99), g, 0.0)
+    f = 600 // 150
+    by_area = roi_from_silhouette(img)
+    assert by_area is not None and by_area[1] == 0  # the Earth piece, cut by the top side
+    box = roi_from_silhouette(img, gradient=strong)
+    np.testing.assert_allclose(box, [560, 380, 640, 440], atol=2 * f)
+    with pytest.raises(ValueError, match="gradient"):
+        roi_from_silhouette(img, gradient=strong[:-1])
+
+
 def _target_over_clouds(rng, blur):
     """A dark man-made target (a tilted face and a lit side) in front of sharp-edged clouds
     filling the image (SPEED+ lightbox image 6); its box by construction."""

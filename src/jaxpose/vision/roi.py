@@ -268,6 +268,7 @@ def roi_from_silhouette(
     min_share: float = 0.5,
     max_noise: float = 3.0,
     min_sky: float = 1 / 3,
+    gradient: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """The target's ROI as the box of its silhouette against a dark background, or ``None``.
 
@@ -289,6 +290,17 @@ def roi_from_silhouette(
     other components cut by one frame side do not count against it (pieces of an Earth whose
     limb crosses one side). Its box, back in full-resolution pixels, is returned.
 
+    With ``gradient`` (an ``(H, W)`` map of the strong gradients, e.g. the WGE-filtered one of
+    :func:`jaxpose.vision.wge.weak_gradient_elimination`), the target is the candidate holding
+    the most gradient mass (on the component and a one-pixel border of it on the shrunk image),
+    not the largest one: over a dim Earth whose limb crosses one side, the pieces of the Earth
+    the threshold cuts off the limb are large, soft-edged areas, the lit target a smaller one
+    with the image's sharpest edges (the area test below is unchanged). On 100 renders of the
+    ``lightbox-earth`` domain (seed 2018) this chose the target instead of an Earth piece on 4
+    and an Earth piece instead of declining on 1; on 60 of seed 7 the target on 2; on 100
+    black-sky and Earth renders of the ``space`` domain and on the 24 SPEED+ development images
+    it changed no ROI.
+
     A background whose robust spread on the shrunk image exceeds ``max_noise`` grey levels is not
     flat: the Earth covers much of it. The background level is then the histogram mode (the
     sky, when it covers more of the image than any one level of the Earth) and its spread that
@@ -304,6 +316,10 @@ def roi_from_silhouette(
     img = np.asarray(image)
     if img.ndim != 2:
         raise ValueError(f"image must be (H, W) grayscale; got shape {img.shape}")
+    if gradient is not None and np.shape(gradient) != img.shape:
+        raise ValueError(
+            f"gradient must have the image's shape {img.shape}; got {np.shape(gradient)}"
+        )
     H, W = img.shape
     f = max(1, min(H, W) // int(short_side_px))
     if min(H, W) // f < 8:
@@ -340,6 +356,11 @@ def roi_from_silhouette(
     if not len(cand):
         return None
     best = cand[np.argmax(area[cand])]
+    if gradient is not None:
+        # the target is where the strong gradients are, not the largest bright area
+        mass = _component_gradient(gradient, labels, (ws, hs))[cand + 1]
+        if mass.max() > 0:
+            best = cand[np.argmax(mass)]
     # the other components cut by the frame are background too (pieces of an Earth whose
     # limb crosses one side), not rivals of the target
     rivals = cand[(sides[cand] == 0) | (cand == best)]
@@ -347,6 +368,18 @@ def roi_from_silhouette(
         return None
     box = np.array([x[best], y[best], x[best] + w[best], y[best] + h[best]], dtype=float) * f
     return np.minimum(box, [W, H, W, H])
+
+
+def _component_gradient(gradient, labels, size):
+    """Strong-gradient mass (``gradient``, full resolution) on each component of ``labels``
+    (shrunk image of ``size (w, h)``) and its one-pixel border: index = label."""
+    import cv2
+
+    g = np.asarray(gradient, dtype=np.float32)
+    small = cv2.resize(g, size, interpolation=cv2.INTER_AREA)
+    grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int64)
+    grown = np.where(labels > 0, labels, grown)
+    return np.bincount(grown.ravel(), weights=small.ravel(), minlength=int(labels.max()) + 1)
 
 
 def _sides_touched(stats: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
