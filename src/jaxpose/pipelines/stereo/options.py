@@ -69,16 +69,18 @@ class TrackerOptions:
         keypoint_spacing_px: the ORB budget of a frame is the target's apparent area (its bright
             pixels on the dark sky, measured on the frame) divided by ``spacing^2``: one keypoint
             per ``spacing x spacing`` pixels of target, within ``[keypoint_floor,
-            features.n_points]`` (about 2000 at 2 m for the 1 m target, 700 at 3 m). A far target seen with the full
-            budget gets weak extra corners. ``None``: always ``features.n_points``.
+            features.n_points]`` (about 2000 at 2 m for the 1 m target, 700 at 3 m). A near target
+            seen with more gets weak extra corners. ``None``: always ``features.n_points``.
         keypoint_floor: the least ORB budget a frame gets from ``keypoint_spacing_px`` (at most
-            ``features.n_points``). ORB shares its budget among its eight pyramid levels and keeps
-            the strongest corners of each, so a small budget on a small target keeps a few of
-            many similar corners, a different few every frame: on the 5 m development scene
-            (``d6``, frame 0) a budget of 250 gave 230 keypoints of which 13-34 were found again
-            within 12 px of their true pixels 1-8 frames later, 1000 gave 795 and 174-233
-            (ray-cast truth). 1000 (it acts beyond about 2.5 m for the 1 m target) chosen on the development scenes at 3-5 m against 100, 1500 and ``n_points``
-            (``docs/stereo.md``).
+            ``features.n_points``). ORB shares its budget among its eight pyramid levels and
+            keeps the strongest corners of each, so a small budget on a small target keeps a
+            few of many similar corners, a different few every frame: on the 5 m development
+            scene (``d6``, frame 0) a budget of 250 gave 230 keypoints of which 13-34 were found
+            again within 12 px of their true pixels 1-8 frames later, 1000 gave 795 and 174-233,
+            2000 836 and 176-243 (ray-cast truth; ``bench/stereo_diagnose.py --repeat``): 1000
+            keeps about all the corners the target holds at 5 m. It acts beyond about 2.5 m for
+            the 1 m target; chosen on the development scenes at 3-5 m against 100, 1500 and
+            ``n_points`` (``docs/stereo.md``).
         lsd_area_px: on a target of apparent area ``A`` above this (pixels; the 1 m target at
             about 2 m), LSD runs at ``features.lsd_scale * sqrt(lsd_area_px / A)`` (at least 0.4)
             instead of ``features.lsd_scale``: it then scans about as many pixels of target as
