@@ -87,6 +87,20 @@ def test_image_depths_give_the_same_pose(scene, camera):
         np.testing.assert_array_equal(np.asarray(other.pose.t), np.asarray(res.pose.t))
 
 
+def test_pose_does_not_depend_on_the_callers_precision(scene, camera):
+    """With ``jax_enable_x64`` off outside, the pipeline still runs in float64: the same pose to
+    the last bit as with it on (the scene's), in float64 arrays."""
+    import jax
+
+    r, res = scene
+    with jax.enable_x64(False):
+        other = initialise_pose(r.image, camera)
+    assert other.pose.R.dtype == jnp.float64 and other.pose.t.dtype == jnp.float64
+    assert other.confidence == res.confidence
+    np.testing.assert_array_equal(np.asarray(other.pose.R), np.asarray(res.pose.R))
+    np.testing.assert_array_equal(np.asarray(other.pose.t), np.asarray(res.pose.t))
+
+
 @pytest.mark.parametrize("kind", ["black", "saturated", "noise", "cut"])
 def test_bad_images_do_not_crash(camera, kind):
     rng = np.random.default_rng(0)

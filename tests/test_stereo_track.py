@@ -88,6 +88,22 @@ def test_tracker_follows_a_short_sequence(frames, use_lines):
         assert res.n_lines > 0
 
 
+def test_tracking_does_not_depend_on_the_callers_precision(frames):
+    """Built and run with ``jax_enable_x64`` off outside, the tracker still solves in float64:
+    the same poses to the last bit as with it on."""
+    import jax
+
+    runs = []
+    for x64 in (True, False):
+        with jax.enable_x64(x64):
+            tracker = StereoTracker(RIG, frames[0].pose)
+            runs.append([tracker.process(fr.left, fr.right) for fr in frames[:3]])
+    for a, b in zip(*runs, strict=True):
+        assert a.status == b.status == Status.OK
+        np.testing.assert_array_equal(a.R, b.R)
+        np.testing.assert_array_equal(a.t, b.t)
+
+
 def test_tracker_reports_lost_instead_of_a_pose(frames):
     tracker = StereoTracker(RIG, frames[0].pose)
     tracker.process(frames[0].left, frames[0].right)

@@ -15,7 +15,8 @@ live in :mod:`jaxpose.vision`, pipelines and studies above them; their names her
 first use, so that ``import jaxpose`` stays fast.
 
 Float64 is recommended for navigation work: ``jax.config.update("jax_enable_x64", True)`` (the
-``jaxpose`` command does this itself).
+``jaxpose`` command does this itself; :func:`initialise_pose` and :class:`StereoTracker` run in
+float64 whatever the flag says).
 """
 
 from importlib import import_module as _import_module

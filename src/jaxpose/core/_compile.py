@@ -38,3 +38,18 @@ def eager_jit(fn, static_argnums: tuple[int, ...]):
         return compiled(jax.default_backend())(*args)
 
     return call
+
+
+def in_float64(fn):
+    """Run ``fn`` with ``jax_enable_x64`` on whatever the caller's setting (its arrays come back
+    float64). For the pipelines, whose results must not depend on a global flag set elsewhere:
+    the monocular ranking compares scores that differ in the fourth digit and its confidence
+    rule was calibrated in float64; the stereo solves form normal equations (the condition
+    number squared)."""
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        with jax.enable_x64(True):
+            return fn(*args, **kwargs)
+
+    return call

@@ -45,6 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
 
+from jaxpose.core._compile import in_float64
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.status import Status
@@ -138,6 +139,7 @@ class StereoTracker:
         options: :class:`~jaxpose.pipelines.stereo.TrackerOptions`.
     """
 
+    @in_float64
     def __init__(
         self,
         rig: StereoCamera,
@@ -438,6 +440,7 @@ class StereoTracker:
             cpu_timings=clock.cpu,
         )
 
+    @in_float64
     def process(self, left: np.ndarray, right: np.ndarray, *, roi=None) -> FrameResult:
         """Track one rectified stereo pair (grayscale; ``uint8``, or converted by
         :func:`as_gray_uint8`); returns its :class:`~jaxpose.pipelines.stereo.FrameResult`."""
