@@ -158,6 +158,13 @@ class TrackerOptions:
             candidates (a new draw each frame; at least ``2 N``).
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
+        landmark_point_sigma: weight each point of the all-features solve by its landmark's
+            triangulation covariance, per image: the left and right residuals' noise
+            ``sqrt(sigma_px^2 + trace(J C_X J^T) / 2)`` with that image's projection Jacobian
+            (:func:`~jaxpose.pipelines.stereo.budget.point_sigma_images`). A landmark placed by
+            one stereo pair carries its depth error, ``z^2 sqrt(2) sigma / (f b)``, into its
+            right-image residual at every later frame; weighted, the directions fix the pose
+            and the depths count as much as they are known.
         stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
             StereoMatchOptions`); ranges of 128 disparities or more (a target within about 2 m
             on the 0.3 m, 1024-pixel rig) are searched coarse to fine, which takes 40-55% of the
@@ -222,6 +229,7 @@ class TrackerOptions:
     budget_noise: str = "pixel"
     budget_subsample: float = 1.0
     measured_point_sigma: bool = False
+    landmark_point_sigma: bool = False
 
     def __post_init__(self):
         fb = self.feature_budget
