@@ -299,6 +299,26 @@ def test_effective_whitening_against_a_closed_form():
     np.testing.assert_allclose(Wh[1].T @ Wh[1], np.linalg.inv(C), rtol=1e-10)
 
 
+def test_point_sigma_of_each_image_against_a_closed_form():
+    """A landmark placed by one stereo pair (degenerate ray equations) on the optical axis: its
+    error across the ray moves both images' pixels by sigma, its depth error only the right
+    image's (by sqrt(2) sigma in disparity), so the effective noise is sqrt(2) sigma on the left
+    and sqrt(3) sigma on the right; a landmark seen from many directions keeps about sigma."""
+    cam = PinholeCamera(500.0, 500.0, 320.0, 240.0)
+    rig = SimpleNamespace(left=cam, t_rl=np.array([-0.2, 0.0, 0.0]))
+    z, sig = 2.0, 0.7
+    pts = SimpleNamespace(
+        X=np.array([[0.0, 0.0, z], [0.0, 0.0, z]]),
+        M=np.stack([np.zeros((3, 3)), 1e6 * np.eye(3)]),
+    )
+    o = TrackerOptions(sigma_px=sig)
+    left, right = B.point_sigma_images(
+        SimpleNamespace(points=pts), [0, 1], Pose(np.eye(3), np.zeros(3)), rig, o
+    )
+    np.testing.assert_allclose([left[0], right[0]], [np.sqrt(2) * sig, np.sqrt(3) * sig], rtol=1e-9)
+    np.testing.assert_allclose([left[1], right[1]], [sig, sig], rtol=1e-6)
+
+
 def test_residual_spread_is_the_running_rms():
     """Within its memory the spread is the RMS of the residuals seen (capped); beyond it, an
     exponential average; never-matched landmarks get sigma."""

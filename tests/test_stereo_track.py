@@ -126,17 +126,20 @@ def test_tracker_rejects_unrectified_rigs():
 
 
 def test_keypoint_budget_follows_the_target_area():
-    """One keypoint per spacing^2 pixels of target (rounded to 100, within [100, n_points]); the
-    apparent area is the count of bright pixels (checked on a drawn disc)."""
+    """One keypoint per spacing^2 pixels of target (rounded to 100, within [keypoint_floor,
+    n_points]); the apparent area is the count of bright pixels (checked on a drawn disc)."""
     from jaxpose.pipelines.stereo.tracker import target_area
 
     tracker = StereoTracker(RIG, None)
     assert tracker.feature_options(8.0**2 * 1234).n_points == 1200
     assert tracker.feature_options(8.0**2 * 5000).n_points == 2000  # never above the budget
-    assert tracker.feature_options(10.0).n_points == 100
+    assert tracker.feature_options(10.0).n_points == 1000  # the floor on a small target
+    assert tracker.feature_options(8.0**2 * 640).n_points == 1000
     assert tracker.feature_options(None).n_points == 2000
-    wide = StereoTracker(RIG, None, options=TrackerOptions(keypoint_spacing_px=16.0))
+    opts = TrackerOptions(keypoint_spacing_px=16.0, keypoint_floor=100)
+    wide = StereoTracker(RIG, None, options=opts)
     assert wide.feature_options(8.0**2 * 1234).n_points == 300
+    assert wide.feature_options(10.0).n_points == 100
     fixed = StereoTracker(RIG, None, options=TrackerOptions(keypoint_spacing_px=None))
     assert fixed.feature_options(8.0**2 * 1234).n_points == 2000
     img = np.zeros((768, 1024), np.uint8)
@@ -151,6 +154,8 @@ def test_keypoint_budget_follows_the_target_area():
         TrackerOptions(keypoint_spacing_px=0.0)
     with pytest.raises(ValueError, match="lsd_area_px"):
         TrackerOptions(lsd_area_px=-1.0)
+    with pytest.raises(ValueError, match="keypoint_floor"):
+        TrackerOptions(keypoint_floor=0)
 
 
 def test_search_radius_follows_the_measured_prediction_error(frames):

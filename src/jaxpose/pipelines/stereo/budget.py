@@ -397,6 +397,27 @@ def point_sigma_eff(landmarks, i_m, pose: Pose, rig, o: TrackerOptions, mode: st
     return np.sqrt(s2)
 
 
+def point_sigma_images(landmarks, i_m, pose: Pose, rig, o: TrackerOptions):
+    """``(n,), (n,)``: effective pixel noise of point landmarks ``i_m`` in the left and in the
+    right image, ``sqrt(sigma_px^2 + trace(J C_X J^T) / 2)`` with each image's projection
+    Jacobian ``J`` and the landmark covariance ``C_X`` (:func:`landmark_covariance`): a landmark
+    placed by one stereo pair carries its depth error (``z^2 sqrt(2) sigma / (f b)``) into the
+    right image's residual, where the left one barely sees it."""
+    i_m = np.asarray(i_m, int)
+    _, cov = _noise_terms(landmarks, i_m, pose, rig, o, "landmark")
+    s2 = float(o.sigma_px) ** 2
+    if cov is None:
+        return np.full(len(i_m), float(o.sigma_px)), np.full(len(i_m), float(o.sigma_px))
+    X = landmarks.points.X[i_m]
+    R, t = np.asarray(pose.R, float), np.asarray(pose.t, float)
+    x = X @ R.T + t
+    out = []
+    for shift in (np.zeros(3), np.asarray(rig.t_rl, float)):
+        J = _projection_jacobian(x + shift, R, rig.left)
+        out.append(np.sqrt(s2 + np.einsum("nij,njk,nik->n", J, cov, J) / 2))
+    return out[0], out[1]
+
+
 def _noise_terms(landmarks, i_m, pose: Pose, rig, o: TrackerOptions, mode: str):
     """The two parts of the effective noise of point landmarks ``i_m`` under ``mode``: ``(n,)``
     pixel noise (the measured spread for ``"measured"`` and ``"both"``, else ``sigma_px``) and
@@ -554,6 +575,21 @@ def fit_pose_budgeted(
     The selection runs inside ``stage("budget")`` when ``stage`` is given (a context-manager
     factory that times a named stage, e.g. ``StageClock.stage`` of the tracker)."""
     o = options
+    if o.feature_budget is None and o.landmark_point_sigma:
+        i_m = matches[0]
+        sig_l, sig_r = point_sigma_images(landmarks, i_m, pose_pred, rig, o)
+        return fit_pose(
+            landmarks,
+            feats,
+            stereo,
+            matches,
+            pose_pred,
+            rig,
+            o,
+            line_sigma,
+            point_sigma=sig_l,
+            point_sigma_right=sig_r,
+        )
     if o.feature_budget is None:
         if not o.measured_point_sigma:
             return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)

@@ -93,6 +93,7 @@ def fit_pose(
     line_sigma: float,
     *,
     point_sigma=None,
+    point_sigma_right=None,
 ) -> PoseFit:
     """Fit the pose of the frame from ``matches`` (``(i_m, i_cur, l_m, l_cur)``: landmark and
     feature indices of the matched points and lines), starting at ``pose_pred``.
@@ -104,7 +105,8 @@ def fit_pose(
     of a matched segment with a stereo match. Each pass restarts from the last pose without the
     features it left beyond ``reject_px`` (ORB-SLAM's outlier passes): the robust kernel alone
     still lets mismatches on repetitive texture pull the pose. ``point_sigma``: ``(n_p,)`` pixel
-    noise of each matched point (its left and right residuals; default ``sigma_px``)."""
+    noise of each matched point (its left and right residuals; default ``sigma_px``);
+    ``point_sigma_right``: ``(n_p,)`` the right residuals' own, where they differ."""
     o = options
     i_m, i_cur, l_m, l_cur = matches
     n_p, n_l = len(i_m), len(l_m)
@@ -146,6 +148,8 @@ def fit_pose(
     if point_sigma is not None:
         ps = np.asarray(point_sigma, float)
         sigma[:n_p], sigma[n_p : n_p + n_r] = ps, ps[q_r]
+    if point_sigma_right is not None:
+        sigma[n_p : n_p + n_r] = np.asarray(point_sigma_right, float)[q_r]
     X_l = landmarks.lines.X[l_m]
     uv_all = jnp.asarray(pad(np.concatenate([feats.points[i_cur], uv_r]), o.max_points))
     L_pad = jnp.asarray(pad(L, o.max_lines))

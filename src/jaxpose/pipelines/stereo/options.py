@@ -68,9 +68,19 @@ class TrackerOptions:
             of at most 16.5 mm, at about 2/3 of the frame rate).
         keypoint_spacing_px: the ORB budget of a frame is the target's apparent area (its bright
             pixels on the dark sky, measured on the frame) divided by ``spacing^2``: one keypoint
-            per ``spacing x spacing`` pixels of target, within ``[100, features.n_points]``
-            (about 2000 at 2 m for the 1 m target, 900 at 3 m). A far target seen with the full
-            budget gets weak extra corners. ``None``: always ``features.n_points``.
+            per ``spacing x spacing`` pixels of target, within ``[keypoint_floor,
+            features.n_points]`` (about 2000 at 2 m for the 1 m target, 700 at 3 m). A near target
+            seen with more gets weak extra corners. ``None``: always ``features.n_points``.
+        keypoint_floor: the least ORB budget a frame gets from ``keypoint_spacing_px`` (at most
+            ``features.n_points``). ORB shares its budget among its eight pyramid levels and
+            keeps the strongest corners of each, so a small budget on a small target keeps a
+            few of many similar corners, a different few every frame: on the 5 m development
+            scene (``d6``, frame 0) a budget of 250 gave 230 keypoints of which 13-34 were found
+            again within 12 px of their true pixels 1-8 frames later, 1000 gave 795 and 174-233,
+            2000 836 and 176-243 (ray-cast truth; ``bench/stereo_diagnose.py --repeat``): 1000
+            keeps about all the corners the target holds at 5 m. It acts beyond about 2.5 m for
+            the 1 m target; chosen on the development scenes at 3-5 m against 100, 1500 and
+            ``n_points`` (``docs/stereo.md``).
         lsd_area_px: on a target of apparent area ``A`` above this (pixels; the 1 m target at
             about 2 m), LSD runs at ``features.lsd_scale * sqrt(lsd_area_px / A)`` (at least 0.4)
             instead of ``features.lsd_scale``: it then scans about as many pixels of target as
@@ -148,6 +158,15 @@ class TrackerOptions:
             candidates (a new draw each frame; at least ``2 N``).
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
+        landmark_point_sigma: weight each point of the all-features solve by its landmark's
+            triangulation covariance, per image: the left and right residuals' noise
+            ``sqrt(sigma_px^2 + trace(J C_X J^T) / 2)`` with that image's projection Jacobian
+            (:func:`~jaxpose.pipelines.stereo.budget.point_sigma_images`). A landmark placed by
+            one stereo pair carries its depth error, ``z^2 sqrt(2) sigma / (f b)``, into its
+            right-image residual at every later frame; weighted, the directions fix the pose
+            and the depths count as much as they are known. Off: on the development scenes
+            (noise seeds 0-2) it lowered the 5 m scene's worst axis by up to 20% and raised the
+            2.5 m tumbling scene's on every seed (``docs/stereo.md``).
         stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
             StereoMatchOptions`); ranges of 128 disparities or more (a target within about 2 m
             on the 0.3 m, 1024-pixel rig) are searched coarse to fine, which takes 40-55% of the
@@ -186,6 +205,7 @@ class TrackerOptions:
     stereo_residuals: bool = True
     features: FeatureOptions = field(default_factory=lambda: FeatureOptions(n_points=2000))
     keypoint_spacing_px: float | None = 8.0
+    keypoint_floor: int = 1000
     lsd_area_px: float | None = 120_000.0
     line_planes: bool = True
     line_stereo_residuals: bool = True
@@ -211,6 +231,7 @@ class TrackerOptions:
     budget_noise: str = "pixel"
     budget_subsample: float = 1.0
     measured_point_sigma: bool = False
+    landmark_point_sigma: bool = False
 
     def __post_init__(self):
         fb = self.feature_budget
@@ -232,6 +253,9 @@ class TrackerOptions:
             raise ValueError(
                 f"keypoint_spacing_px must be positive or None; got {self.keypoint_spacing_px}"
             )
+        kf = self.keypoint_floor
+        if isinstance(kf, bool) or not isinstance(kf, int | np.integer) or kf < 1:
+            raise ValueError(f"keypoint_floor must be an integer >= 1; got {kf!r}")
         if not self.search_radius_px > 0:
             raise ValueError(f"search_radius_px must be positive; got {self.search_radius_px}")
         if self.window_frames != 0 and not (

@@ -216,7 +216,9 @@ class StereoTracker:
     def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
         """The feature options of a frame whose target covers ``target_area_px`` pixels: the ORB
         budget at one keypoint per ``keypoint_spacing_px^2`` pixels of target (a constant
-        keypoint density on the target, whatever its range and attitude), and LSD's scale
+        keypoint density on the target, whatever its range and attitude), at least
+        ``keypoint_floor`` (ORB's corners are repeatable from frame to frame only with a budget
+        that keeps most of a small target's corners), and LSD's scale
         reduced by ``sqrt(lsd_area_px / target_area_px)`` on a target larger than
         ``lsd_area_px`` (at least 0.4)."""
         o = self.options
@@ -225,7 +227,7 @@ class StereoTracker:
         f = o.features
         if o.keypoint_spacing_px is not None:
             n = int(round(target_area_px / o.keypoint_spacing_px**2, -2))
-            f = replace(f, n_points=max(100, min(f.n_points, n)))
+            f = replace(f, n_points=min(f.n_points, max(o.keypoint_floor, n)))
         if o.lsd_area_px is not None and target_area_px > o.lsd_area_px:
             # LSD on about lsd_area_px pixels of target at the scale of the options: a near
             # target's edges are long, and LSD's time goes with the pixels it scans
