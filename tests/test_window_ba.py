@@ -190,6 +190,22 @@ def test_a_point_behind_a_camera_is_a_status_and_keeps_the_input(window):
     np.testing.assert_array_equal(np.asarray(res.pose.t), t0)
 
 
+def test_the_adjustment_runs_inside_the_callers_jit(window):
+    """Under a caller's ``jax.jit`` (its own compiler options cannot nest there) the adjustment
+    gives the eager call's landmarks and poses."""
+    obs, R0, t0, X0 = window
+    pose = Pose(jnp.asarray(R0), jnp.asarray(t0))
+    eager = adjust_window(jnp.asarray(X0), obs, pose, RIG)
+    jitted = jax.jit(lambda X: adjust_window(X, obs, pose, RIG))(jnp.asarray(X0))
+    assert int(jitted.status) == int(eager.status) == Status.OK
+    np.testing.assert_allclose(
+        np.asarray(jitted.points_body), np.asarray(eager.points_body), rtol=0, atol=1e-12
+    )
+    np.testing.assert_allclose(
+        np.asarray(jitted.pose.t), np.asarray(eager.pose.t), rtol=0, atol=1e-12
+    )
+
+
 @pytest.mark.typecheck_off
 def test_shapes_and_options_are_checked(window):
     obs, R0, t0, X0 = window

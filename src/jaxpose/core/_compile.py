@@ -17,16 +17,18 @@ compilation is what a user waits for: these options compile ``jp.dop`` several t
 point is traced into the caller's program and compiled with the caller's options."""
 
 
-def eager_jit(fn, static_argnums: tuple[int, ...]):
-    """``jax.jit(fn)`` with :data:`EAGER_COMPILER_OPTIONS_CPU` on a CPU, built on first use for
-    the backend then in use (importing jaxpose picks no backend). Called with traced arguments
-    (inside the caller's ``jit``, ``vmap`` or ``grad``), a plain ``jax.jit(fn)`` takes them:
-    inlined into the caller's ``jit``, and one compiled program under an eager ``grad`` or
-    ``vmap`` instead of a dispatch per operation."""
+def eager_jit(fn, static_argnums: tuple[int, ...], cpu_options: dict | None = None):
+    """``jax.jit(fn)`` with ``cpu_options`` (default :data:`EAGER_COMPILER_OPTIONS_CPU`) on a
+    CPU, built on first use for the backend then in use (importing jaxpose picks no backend).
+    Called with traced arguments (inside the caller's ``jit``, ``vmap`` or ``grad``), a plain
+    ``jax.jit(fn)`` takes them: JAX refuses compiler options on a jit nested in the caller's;
+    this one is inlined into the caller's ``jit``, and one compiled program under an eager
+    ``grad`` or ``vmap`` instead of a dispatch per operation."""
+    cpu = EAGER_COMPILER_OPTIONS_CPU if cpu_options is None else cpu_options
 
     @functools.cache
     def compiled(backend: str):
-        options = EAGER_COMPILER_OPTIONS_CPU if backend == "cpu" else None
+        options = cpu if backend == "cpu" else None
         return jax.jit(fn, static_argnums=static_argnums, compiler_options=options)
 
     traced = jax.jit(fn, static_argnums=static_argnums)

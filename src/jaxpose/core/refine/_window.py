@@ -32,13 +32,13 @@ to one grid size compiles one program.
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose, so3_log
 from jaxpose.core.residuals import robust_weight
@@ -291,12 +291,6 @@ _COMPILER_OPTIONS_CPU = {"xla_cpu_use_fusion_emitters": False}
 the default one and the compiled step is no slower."""
 
 
-@functools.cache
-def _compiled(backend: str):
-    options = _COMPILER_OPTIONS_CPU if backend == "cpu" else None
-    return jax.jit(_adjust, static_argnums=4, compiler_options=options)
-
-
 def _adjust(points_body, obs: WindowObservations, pose: Pose, rig: StereoCamera, cfg):
     def body(_, state):
         R, t, X, depth_ok, solve_ok = state
@@ -369,4 +363,7 @@ def adjust_window(
     for name, (got, want) in shapes.items():
         if tuple(got) != want:
             raise ValueError(f"observations.{name} must have shape {want}; got {tuple(got)}")
-    return _compiled(jax.default_backend())(X, o, Pose(R, t), rig, options)
+    return _adjust_eager(X, o, Pose(R, t), rig, options)
+
+
+_adjust_eager = eager_jit(_adjust, static_argnums=(4,), cpu_options=_COMPILER_OPTIONS_CPU)
