@@ -361,11 +361,22 @@ def _search_rows(L, padded, p, d_max, widths, options: StereoMatchOptions):
     return np.stack([u_right, v], 1), best, ok
 
 
-def _line_samples(segments: np.ndarray, options: StereoMatchOptions):
-    """Sample pixels along each segment: ``(S, 2)`` points and the segment index of each."""
+def _segment_sampling(segments: np.ndarray, options: StereoMatchOptions):
+    """Of segments ``(M, 2, 2)``: their directions ``(M, 2)`` and lengths ``(M,)``, whether each
+    is steep enough for the row search (at least ``min_epipolar_angle_deg`` from the epipolar
+    lines) and how many samples it gets (``(M,)`` bool and int)."""
     d = segments[:, 1] - segments[:, 0]
     length = np.linalg.norm(d, axis=1)
+    steep = np.abs(d[:, 1]) >= np.sin(np.radians(options.min_epipolar_angle_deg)) * np.maximum(
+        length, 1e-12
+    )
     n = np.clip((length / options.line_step_px).astype(int), 3, options.line_max_samples)
+    return d, length, steep, n
+
+
+def _line_samples(segments: np.ndarray, d: np.ndarray, n: np.ndarray):
+    """Sample pixels along each segment (directions ``d``, ``n`` samples each): ``(S, 2)``
+    points and the segment index of each."""
     owner = np.repeat(np.arange(len(segments)), n)
     # fractions in [0.1, 0.9] (endpoints are uncertain, Sec. 3)
     start = np.concatenate([[0], np.cumsum(n)[:-1]])
@@ -398,15 +409,11 @@ def match_lines_stereo(
     ok = np.zeros(M, bool)
     if M == 0:
         return LineMatches(out, fit_error, n_matched, ok)
-    d = seg[:, 1] - seg[:, 0]
-    length = np.linalg.norm(d, axis=1)
-    steep = np.abs(d[:, 1]) >= np.sin(np.radians(options.min_epipolar_angle_deg)) * np.maximum(
-        length, 1e-12
-    )
+    d, length, steep, n = _segment_sampling(seg, options)
     idx = np.nonzero(steep)[0]
     if len(idx) == 0:
         return LineMatches(out, fit_error, n_matched, ok)
-    samples, owner_local = _line_samples(seg[idx], options)
+    samples, owner_local = _line_samples(seg[idx], d[idx], n[idx])
     owner = idx[owner_local]
     pm = match_points_stereo(left, right, samples, d_seg[owner], options=options)
     n_samples = np.bincount(owner, minlength=M)
@@ -441,19 +448,6 @@ def match_lines_stereo(
     return LineMatches(out, fit_error, n_matched, ok)
 
 
-def _n_line_samples(segments: np.ndarray, options: StereoMatchOptions) -> int:
-    """How many samples :func:`match_lines_stereo` searches for ``segments`` ``(M, 2, 2)``."""
-    if len(segments) == 0:
-        return 0
-    d = segments[:, 1] - segments[:, 0]
-    length = np.linalg.norm(d, axis=1)
-    steep = np.abs(d[:, 1]) >= np.sin(np.radians(options.min_epipolar_angle_deg)) * np.maximum(
-        length, 1e-12
-    )
-    n = np.clip((length / options.line_step_px).astype(int), 3, options.line_max_samples)
-    return int(n[steep].sum())
-
-
 def match_stereo(
     left: np.ndarray,
     right: np.ndarray,
@@ -484,7 +478,8 @@ def match_stereo(
     dp = np.asarray(point_disparities)
     if dp.shape == (2,):
         dp = np.broadcast_to(dp, (N, 2))
-    k = int(np.clip((N - _n_line_samples(seg, options)) // 2, 0, N))  # points of the worker
+    _, _, steep, n = _segment_sampling(seg, options)  # the samples match_lines_stereo searches
+    k = int(np.clip((N - int(n[steep].sum())) // 2, 0, N))  # points of the worker
 
     def worker():
         lm = match_lines_stereo(L, Rimg, seg, line_disparities, options=options)
