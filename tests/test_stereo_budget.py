@@ -118,6 +118,7 @@ def test_fewer_candidates_than_the_budget_keeps_all():
         (dict(feature_budget=30, budget_rule=None), "budget_rule"),
         (dict(budget_noise="blur"), "budget_noise"),
         (dict(budget_subsample=0.0), "budget_subsample"),
+        (dict(measured_point_sigma=True, landmark_point_sigma=True), "landmark_point_sigma"),
     ],
 )
 @pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's

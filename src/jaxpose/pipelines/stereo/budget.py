@@ -575,10 +575,14 @@ def fit_pose_budgeted(
     The selection runs inside ``stage("budget")`` when ``stage`` is given (a context-manager
     factory that times a named stage, e.g. ``StageClock.stage`` of the tracker)."""
     o = options
-    if o.feature_budget is None and o.landmark_point_sigma:
+    if o.feature_budget is None:
         i_m = matches[0]
-        sig_l, sig_r = point_sigma_images(landmarks, i_m, pose_pred, rig, o)
-        return fit_pose(
+        sig = sig_r = None  # the points' noise: sigma_px, or one of two weightings
+        if o.landmark_point_sigma:
+            sig, sig_r = point_sigma_images(landmarks, i_m, pose_pred, rig, o)
+        elif o.measured_point_sigma:
+            sig = point_sigma_eff(landmarks, i_m, pose_pred, rig, o, "measured")
+        fit = fit_pose(
             landmarks,
             feats,
             stereo,
@@ -587,18 +591,10 @@ def fit_pose_budgeted(
             rig,
             o,
             line_sigma,
-            point_sigma=sig_l,
+            point_sigma=sig,
             point_sigma_right=sig_r,
         )
-    if o.feature_budget is None:
-        if not o.measured_point_sigma:
-            return fit_pose(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma)
-        i_m = matches[0]
-        sig = point_sigma_eff(landmarks, i_m, pose_pred, rig, o, "measured")
-        fit = fit_pose(
-            landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma, point_sigma=sig
-        )
-        if fit.solver_ok:
+        if o.measured_point_sigma and fit.solver_ok:
             residual_spread(landmarks).update(landmarks.points.ids[i_m], fit.e_points, o.sigma_px)
         return fit
     with stage("budget") if stage is not None else contextlib.nullcontext():

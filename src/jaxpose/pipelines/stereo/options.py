@@ -253,6 +253,11 @@ class TrackerOptions:
             raise ValueError(
                 f"keypoint_spacing_px must be positive or None; got {self.keypoint_spacing_px}"
             )
+        if self.measured_point_sigma and self.landmark_point_sigma:
+            raise ValueError(
+                "measured_point_sigma and landmark_point_sigma are two weightings of the same "
+                "point residuals: set one of them"
+            )
         kf = self.keypoint_floor
         if isinstance(kf, bool) or not isinstance(kf, int | np.integer) or kf < 1:
             raise ValueError(f"keypoint_floor must be an integer >= 1; got {kf!r}")
