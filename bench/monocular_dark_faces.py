@@ -37,7 +37,8 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxpose.core.metrics import rotation_error  # noqa: E402
+from jaxpose.core.geometry import Pose  # noqa: E402
+from jaxpose.core.metrics import rotation_error, success  # noqa: E402
 from jaxpose.io import load_camera, load_image, load_speed_labels  # noqa: E402
 from jaxpose.pipelines.monocular import InitOptions, initialise_pose  # noqa: E402
 from jaxpose.pipelines.monocular.fit import _chamfer_fit  # noqa: E402
@@ -77,11 +78,6 @@ def _cover(R, t, sc):
     return inter / max(float(jnp.sum(val)), 1e-9), inter / max(float(jnp.sum(model)), 1e-9)
 
 
-def _angles(Rs, R):
-    c = (np.einsum("nij,ij->n", Rs, R) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("directory")
@@ -101,13 +97,14 @@ def main() -> None:
             continue
         R, t = np.asarray(lab.pose.R, float), np.asarray(lab.pose.t, float)
         rng = float(np.linalg.norm(t))
+        truth = Pose(jnp.asarray(R), jnp.asarray(t))
         centre = np.asarray(sc.face_poly).reshape(-1, 3).mean(0)
         t0 = np.asarray(det.coarse_t_cam) - R @ centre
         placed = np.asarray(_place_on_silhouette(jnp.asarray(R), jnp.asarray(t0), sc))
         Rg, tg = _placed_attitudes(det, opts, sc, False)
         q = _quick(Rg, tg, sc, det.roi)
         q_truth = _quick(R[None], t[None], sc, det.roi)[0]
-        ang = _angles(Rg, R)
+        ang = np.degrees(np.asarray(rotation_error(Rg, R)))
         near = np.argsort(ang)
         Rf, tf = fit(
             jnp.asarray(np.concatenate([R[None], Rg[near[:6]]])),
@@ -115,15 +112,11 @@ def main() -> None:
             sc,
         )
         Rf, tf = np.asarray(Rf), np.asarray(tf)
-        ok = (_angles(Rf[1:], R) < 10.0) & (np.linalg.norm(tf[1:] - t, axis=1) < 0.30)
+        ok = np.asarray(success(Pose(Rf[1:], tf[1:]), truth))
         cov_t, in_t = _cover(R, t, sc)
         row = dict(
             image=lab.image.name,
-            success=bool(
-                res.pose is not None
-                and float(rotation_error(res.pose.R, jnp.asarray(R))) < np.deg2rad(10.0)
-                and float(np.linalg.norm(np.asarray(res.pose.t) - t)) < 0.30
-            ),
+            success=res.pose is not None and bool(success(res.pose, truth)),
             placed_range=float(np.linalg.norm(placed) / rng),
             fit_range=float(np.linalg.norm(tf[0]) / rng),
             quick_rank_truth=int((q < q_truth).sum()),
