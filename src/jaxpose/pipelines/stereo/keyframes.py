@@ -290,9 +290,7 @@ def update_map(
                 agree = line_disparity_agrees(
                     landmarks, rig, idx, S[has_l], pose, o.refine_disparity_px
                 )
-                observe_line_planes(
-                    landmarks, rig, idx[agree], S[has_l][agree], pose, log=log
-                )
+                observe_line_planes(landmarks, rig, idx[agree], S[has_l][agree], pose, log=log)
         new_l = ~has_l & ~np.isin(il, list(rejected_l))
         ids_l = landmarks.add("lines", Sb[new_l], feats.line_desc[il[new_l]], pose, frame)
         if o.line_planes:

@@ -1,4 +1,4 @@
-"""Windowed joint adjustment of the last keyframes' poses and the point landmarks they see.
+"""Windowed joint adjustment of the last keyframes' poses and the landmarks they see.
 
 The tracker solves each frame's pose against the landmark map and then places the frame's rays
 in the body frame at that pose (:func:`~jaxpose.pipelines.stereo.keyframes.observe_point_rays`),
@@ -15,15 +15,22 @@ the information of its observation rays from frames outside the window as a Gaus
 (the normal equations ``M, b`` of :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe`, in
 pixels: ``f^2 (X^T M X - 2 b^T X)``). Long-lived landmarks are therefore held by all their past
 observations (anchors), and the gauge is fixed by the first frame's pose while it is in the
-window, else by the oldest frame's. The solver is :func:`jaxpose.core.refine.adjust_window`
-(Gauss-Newton with a small Levenberg damping, the Schur complement on the ``3 x 3`` landmark
-blocks, Jacobians by ``jax.jacfwd`` of one observation's residual; compiled once): this module
-gathers the window's observations, priors and line terms into its padded visibility grid
-(``frames`` x ``max_points`` landmarks x two images; ``2 max_lines`` line rows a frame).
+window, else by the oldest frame's. The line landmarks are adjusted the same way
+(``free_lines``): each line seen by the window's stereo planes (the planes through a camera
+centre and an image segment, :func:`~jaxpose.pipelines.stereo.keyframes.observe_line_planes`)
+has its two endpoints free, observed by those planes (Yang et al. 2024 eq. 9 in the plane's
+form, left and right image), and keeps the planes of the frames outside the window as a prior
+(the line's plane normal equations less the window's planes); the other lines' endpoints are
+held where the map has them, their left-image lines in the pose blocks only. The solver is
+:func:`jaxpose.core.refine.adjust_window` (Gauss-Newton with a small Levenberg damping, the Schur
+complement on the ``3 x 3`` landmark and endpoint blocks, Jacobians by ``jax.jacfwd`` of one
+observation's residual; compiled once): this module gathers the window's observations, priors
+and line terms into its padded visibility grid (``frames`` x ``max_points`` landmarks x two
+images; ``2 max_lines`` free lines x two planes; ``2 max_lines`` held line rows a frame).
 
-After the adjustment the rays of the window's frames are moved to the adjusted poses (removed at
-the old pose, added at the new one) and the landmarks re-solved from their rays, so the map stays
-the least-squares intersection of all its rays.
+After the adjustment the rays and line planes of the window's frames are moved to the adjusted
+poses (removed at the old pose, added at the new one) and the landmarks re-solved from them, so
+the map stays the least-squares intersection of all its rays and planes.
 """
 
 from __future__ import annotations
@@ -90,7 +97,13 @@ class FrameRays:
 
     def plane_arrays(self):
         if not self.planes:
-            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, int), np.zeros(0)
+            return (
+                np.zeros(0, np.int64),
+                np.zeros((0, 3)),
+                np.zeros(0),
+                np.zeros(0, int),
+                np.zeros(0),
+            )
         return tuple(np.concatenate(c) for c in zip(*self.planes, strict=True))
 
     def add(self, ids, pixels, right: bool, weights) -> None:
@@ -461,7 +474,6 @@ class WindowAdjuster:
             np.asarray(res.pose.t)[:K],
             np.asarray(res.points_body)[:n],
         )
-
 
     def _free_line_grid(self, f: int, free_lines) -> WindowLines:
         """The free lines padded to ``2 max_lines`` lines and ``f`` frames (two planes a frame:
