@@ -276,7 +276,8 @@ class WindowAdjuster:
         )
         if Rs_new is None:
             return False
-        self._move_planes(landmarks, frames, Rs_new, ts_new)
+        if self.free_lines:
+            self._move_planes(landmarks, frames, Rs_new, ts_new)
         # move the window's rays to the adjusted poses and re-solve the landmarks from all rays
         o_new, d_new = self._rays(Rs_new[jj], ts_new[jj], px, right)
         # (one call: each landmark is re-solved once)
