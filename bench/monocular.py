@@ -49,6 +49,7 @@ from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR  # noqa: E402
 from jaxpose.vision.features import DetectionOptions  # noqa: E402
 from jaxpose.vision.models import tango  # noqa: E402
 from jaxpose.vision.render import lightbox_scene, random_pose, render  # noqa: E402
+from jaxpose.vision.roi import box_iou  # noqa: E402
 
 SPEEDPLUS_CAMERA = PinholeCamera(
     2988.5795163815555,
@@ -153,18 +154,10 @@ def _roi_row(r, camera, model, detection, earth, cover) -> dict:
         "roi_over_true_diagonal": None
         if det.roi is None
         else roi_diagonal(det.roi) / roi_diagonal(r.roi),
-        "roi_iou": 0.0 if det.roi is None else _box_iou(det.roi, r.roi),
+        "roi_iou": 0.0 if det.roi is None else box_iou(det.roi, r.roi),
         "roi_cut": [bool(c) for c in det.roi_cut],
         "detect_s": wall,
     }
-
-
-def _box_iou(a, b) -> float:
-    """Intersection over union of two boxes ``[u0, v0, u1, v1]``."""
-    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - w * h
-    return float(w * h / union) if union > 0 else 0.0
 
 
 def _roi_summary(rows, args) -> None:

@@ -13,6 +13,17 @@ right (IoU >= 0.5) and coarse range within 20%. ``--crops`` writes a quarter-siz
 each image with the true box (green) and the ROI (red), for looking at the misses. For renders
 use ``bench/monocular.py --roi-only``.
 
+    python bench/monocular_roi.py DIR --given-roi
+
+runs the whole monocular pipeline twice on every labelled image: as it is, and with the true box
+(in the image as given, through the camera's distortion) as the caller's ``roi``
+(:func:`jaxpose.pipelines.monocular.initialise_pose`), which replaces the ROI stage and turns the
+silhouette terms off. It counts the successes of both runs, over all images and over those on
+which the pipeline finds no silhouette (an Earth or other background behind the target): how
+much a perfect localisation would give the later stages. With ``--no-silhouette`` the run with
+the given box also searches no silhouette (``DetectionOptions(silhouette_roi=False)``): what the
+silhouette terms give.
+
     python bench/monocular_roi.py --cut-study lightbox --images 40 --seed 11
 
 renders ``--images`` images of a domain (``space``: black sky; ``lightbox``) whose targets lie
@@ -35,6 +46,7 @@ from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR
 from jaxpose.vision.coarse import model_extents
 from jaxpose.vision.features import DetectionOptions, detect
 from jaxpose.vision.models import tango
+from jaxpose.vision.roi import box_iou
 
 
 def true_box(model, pose, camera, shape) -> np.ndarray | None:
@@ -49,13 +61,6 @@ def true_box(model, pose, camera, shape) -> np.ndarray | None:
     uv = np.asarray(camera.project(cam))[front]
     H, W = shape[:2]
     return np.r_[np.clip(uv.min(0), [0, 0], [W, H]), np.clip(uv.max(0), [0, 0], [W, H])]
-
-
-def box_iou(a, b) -> float:
-    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - w * h
-    return float(w * h / union) if union > 0 else 0.0
 
 
 def roi_kind(det) -> str | None:
@@ -116,6 +121,57 @@ def cut_study(domain: str, images: int, seed: int) -> None:
     )
 
 
+def given_roi_study(root: Path, silhouette: bool = True) -> None:
+    """``--given-roi``: the pipeline with its own ROI and with the true box given (module
+    docstring); one line per image and a JSON summary."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from jaxpose.core.metrics import success
+    from jaxpose.pipelines.monocular import InitOptions, initialise_pose
+
+    camera = load_camera(root / "camera.json")
+    model = tango()
+    given_opts = InitOptions(detection=DetectionOptions(silhouette_roi=silhouette))
+    rows = []
+    for lab in load_speed_labels(root):
+        img = load_image(lab.image)
+        own = initialise_pose(img, camera, model)
+        box = true_box(model, lab.pose, camera, img.shape)  # the distorted image's pixels
+        given = initialise_pose(img, camera, model, given_opts, roi=box)
+        ok = [r.pose is not None and bool(success(r.pose, lab.pose)) for r in (own, given)]
+        row = {
+            "image": lab.image.name,
+            "silhouette": own.detection.silhouette is not None,
+            "success_own_roi": ok[0],
+            "success_given_roi": ok[1],
+            "confidence_own_roi": own.confidence,
+            "confidence_given_roi": given.confidence,
+        }
+        rows.append(row)
+        print(
+            f"{row['image']:28s} {'silhouette' if row['silhouette'] else 'none':10s} own "
+            f"{'ok' if ok[0] else '--'} ({own.confidence}) given {'ok' if ok[1] else '--'} "
+            f"({given.confidence})",
+            flush=True,
+        )
+    bare = [r for r in rows if not r["silhouette"]]
+    summary = {
+        "images": len(rows),
+        "success_own_roi": sum(r["success_own_roi"] for r in rows),
+        "success_given_roi": sum(r["success_given_roi"] for r in rows),
+        "without_silhouette": len(bare),
+        "without_silhouette_success_own_roi": sum(r["success_own_roi"] for r in bare),
+        "without_silhouette_success_given_roi": sum(r["success_given_roi"] for r in bare),
+        "high_given_roi": sum(r["confidence_given_roi"] == "high" for r in rows),
+        "high_given_roi_right": sum(
+            r["confidence_given_roi"] == "high" and r["success_given_roi"] for r in rows
+        ),
+    }
+    summary["given_roi_silhouette_search"] = silhouette
+    print(json.dumps(summary))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -126,7 +182,16 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--out", help="write the summary and per-image records (JSON)")
     ap.add_argument("--crops", help="folder for pictures of the true box and the ROI")
+    ap.add_argument(
+        "--given-roi", action="store_true", help="the whole pipeline with the true box as roi"
+    )
+    ap.add_argument(
+        "--no-silhouette", action="store_true", help="--given-roi: no silhouette with the box"
+    )
     args = ap.parse_args()
+    if args.given_roi and args.speedplus:
+        given_roi_study(Path(args.speedplus), silhouette=not args.no_silhouette)
+        return
     if args.cut_study:
         cut_study(args.cut_study, args.images, args.seed)
         return

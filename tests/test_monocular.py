@@ -51,6 +51,26 @@ def test_rendered_image_pose(scene):
     assert abs(np.linalg.norm(js["coarse_t_cam"]) / np.linalg.norm(r.pose.t) - 1) < 0.4
 
 
+def test_given_roi(scene, camera):
+    """A caller's box (here the renderer's box of the target, in the distorted image) replaces the
+    gradient ROI: against the black sky the silhouette found agrees with it and is kept, so the
+    answer is the one without a box; a box elsewhere drops the silhouette (the ROI is then the
+    box, mapped through the distortion); a box outside the image is refused by name."""
+    from jaxpose.vision.undistort import undistort_box
+
+    r, own = scene
+    res = initialise_pose(r.image, camera, roi=r.roi)
+    assert bool(success(res.pose, r.pose)) and res.silhouette_iou is not None
+    np.testing.assert_allclose(res.roi, own.roi)
+    np.testing.assert_allclose(res.pose.t, own.pose.t, atol=1e-9)
+    away = np.array([5.0, 5.0, 60.0, 50.0])  # a corner of empty sky
+    det = initialise_pose(r.image, camera, roi=away).detection
+    assert det.silhouette is None
+    np.testing.assert_allclose(det.roi, undistort_box(away, camera, r.image.shape[:2]))
+    with pytest.raises(ValueError, match="outside"):
+        initialise_pose(r.image, camera, roi=[600, 400, 700, 500])
+
+
 def test_overlay(scene):
     """The image part is the undistorted input where nothing is drawn, the projected model is drawn
     in its legend colour along every projected edge, and a legend strip under the image names the
@@ -195,6 +215,15 @@ def test_cli_init_and_eval(tmp_path, camera, scene, capsys, monkeypatch):
         main(["init", str(tmp_path / "missing.png"), "--camera", str(tmp_path / "camera.json")])
         == 2
     )
+    capsys.readouterr()
+    bad_roi = ["--roi", "600", "400", "700", "500"]  # beyond the 480x300 image
+    assert (
+        main(
+            ["init", str(tmp_path / "img.png"), "--camera", str(tmp_path / "camera.json"), *bad_roi]
+        )
+        == 2
+    )
+    assert "outside" in capsys.readouterr().err
     # eval-speedplus on a one-image labelled folder made of the rendering.
     from jaxpose.core.geometry import dcm_to_quat
 

@@ -80,3 +80,50 @@ def test_silhouette_mask_leaves_out_an_earth_touching_two_sides():
     assert mask is not None
     assert mask[25:50, 50:75].mean() > 0.9  # the target (quarter resolution)
     assert mask[60:, 85:].sum() == 0  # not the Earth
+
+
+def test_given_roi_replaces_the_roi_stage():
+    # The same image as above: the blob would win by area; a caller's box on the blob is kept as
+    # the ROI (no silhouette, gradient or cluster ROI searched), and bad boxes are refused by name.
+    rng = np.random.default_rng(3)
+    cam = PinholeCamera(1000.0, 1000.0, 399.5, 299.5, width=800, height=600)
+    img = 20.0 + 1.0 * rng.standard_normal((600, 800))
+    check = (np.arange(800)[None] // 10 + np.arange(600)[:, None] // 10) % 2
+    img[100:150, 100:160] = (20.0 + 120.0 * check)[100:150, 100:160]
+    image = np.clip(img, 0, 255).astype(np.uint8)
+    box = np.array([500.0, 350.0, 700.0, 500.0])
+    det = detect(image, cam, 1.0, roi=box)
+    np.testing.assert_allclose(det.roi, box)
+    np.testing.assert_allclose(det.roi_given, box)
+    assert det.silhouette is None and det.roi_silhouette is None and det.roi_gradient is None
+    assert detect(image, cam, 1.0).roi[0] < 250  # without it, the textured target
+    # a box reaching past the frame is clipped to it
+    np.testing.assert_allclose(
+        detect(image, cam, 1.0, roi=[-50, 10, 900, 200]).roi, [0, 10, 799, 200]
+    )
+    for bad, word in (
+        ([1, 2, 3], "four"),
+        ([10, 10, 5, 20], "u0 < u1"),
+        ([0, 0, np.nan, 5], "four finite"),
+        ([900, 700, 950, 800], "outside"),
+        ([10, 10, 15, 15], "too small"),
+    ):
+        with pytest.raises(ValueError, match=word):
+            detect(image, cam, 1.0, roi=bad)
+
+
+def test_given_roi_is_mapped_through_the_distortion():
+    # A pixel seen through a distorting camera, boxed there: the box in the undistorted image
+    # holds where the ideal camera sees that point (the camera's own forward model, not OpenCV).
+    from jaxpose.vision.undistort import undistort_box
+
+    cam = PinholeCamera(900.0, 900.0, 399.5, 299.5, [-0.25, 0.08, 0.001, -0.002, 0.0])
+    ideal = cam.without_distortion()
+    p = np.array([0.31, -0.22, 1.0])  # camera frame
+    seen, true = np.asarray(cam.project(p)), np.asarray(ideal.project(p))
+    out = undistort_box(np.r_[seen - 2.0, seen + 2.0], cam, (600, 800))
+    assert out[0] < true[0] < out[2] and out[1] < true[1] < out[3]
+    # the 4-pixel box stays a few pixels wide; without distortion it is the box itself
+    assert 2.0 < out[2] - out[0] < 8.0 and 2.0 < out[3] - out[1] < 8.0
+    assert abs((out[0] + out[2]) / 2 - true[0]) < 0.5 and abs((out[1] + out[3]) / 2 - true[1]) < 0.5
+    np.testing.assert_allclose(undistort_box([1, 2, 30, 40], ideal, (600, 800)), [1, 2, 30, 40])

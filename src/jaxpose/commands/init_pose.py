@@ -1,5 +1,6 @@
-"""``jaxpose init IMAGE --camera CAMERA.json [--model tango|FILE] [--overlay OUT.png]``: the pose of
-the target in one image with no prior (Sharma et al. 2018), printed as one JSON object."""
+"""``jaxpose init IMAGE --camera CAMERA.json [--model tango|FILE] [--overlay OUT.png] [--roi U0 V0
+U1 V1]``: the pose of the target in one image with no prior (Sharma et al. 2018), printed as one
+JSON object."""
 
 from __future__ import annotations
 
@@ -28,6 +29,14 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--detector", choices=("hough", "lsd"), default="hough", help="line detector"
     )
+    parser.add_argument(
+        "--roi",
+        nargs=4,
+        type=float,
+        metavar=("U0", "V0", "U1", "V1"),
+        help="the target's box in pixels of IMAGE (from a detector): replaces the ROI search "
+        "(no silhouette terms then)",
+    )
     add_progress_argument(parser)
 
 
@@ -48,7 +57,7 @@ def run(args) -> int:
     opts = InitOptions(method=args.method, detection=DetectionOptions(detector=args.detector))
     # the first run compiles for about a minute: a ticker on stderr shows it is alive
     with stage("jaxpose init: pose search", enabled=not args.no_progress):
-        result = initialise_pose(image, camera, model, opts)
+        result = initialise_pose(image, camera, model, opts, roi=args.roi)
     if args.overlay:
         if not cv2.imwrite(args.overlay, draw_overlay(image, result, model)):
             raise ValueError(f"cannot write overlay {args.overlay}")

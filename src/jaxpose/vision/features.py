@@ -15,6 +15,7 @@ from jaxpose.vision.hough import sobel_hough, wge_hough
 from jaxpose.vision.lsd import lsd_segments
 from jaxpose.vision.merge import antenna_candidates, merge_streams, merge_truncated
 from jaxpose.vision.roi import (
+    box_iou,
     roi_diagonal,
     roi_from_gradient,
     roi_from_segments,
@@ -23,7 +24,7 @@ from jaxpose.vision.roi import (
     silhouette_mask,
 )
 from jaxpose.vision.synthesis import FeatureGroups, synthesize
-from jaxpose.vision.undistort import undistort_image
+from jaxpose.vision.undistort import undistort_box, undistort_image
 from jaxpose.vision.wge import weak_gradient_elimination
 
 __all__ = [
@@ -189,8 +190,15 @@ class Detection:
     # the image sides (left, top, right, bottom) the ROI reaches: a target cut by the frame, whose
     # coarse range (eq. 6 assumes the whole box) is then read with cut_range
     roi_cut: tuple = (False, False, False, False)
+    # the caller's box (undistorted image), which replaced the ROI stage
+    roi_given: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
     image: np.ndarray | None = None  # the undistorted, smoothed grayscale image
+
+
+#: A silhouette found in the image is kept with a caller's ROI when its box overlaps that ROI at
+#: least this much (intersection over union; the bench's "ROI right").
+_GIVEN_SILHOUETTE_IOU = 0.5
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -459,12 +467,22 @@ def detect(
     options: DetectionOptions = DetectionOptions(),
     *,
     extents: np.ndarray | None = None,
+    roi=None,
 ) -> Detection:
     """Run the image processing on one image; never raises for a bad *image content* (no ROI ->
     ``roi=None``, no segments -> empty arrays). ``extents``: the model's projected boxes
     (:func:`jaxpose.vision.coarse.projected_extents`); with them the coarse range of a ROI cut
     by the frame on one axis is read from the whole target's estimated diagonal
-    (:func:`jaxpose.vision.coarse.cut_diagonal`)."""
+    (:func:`jaxpose.vision.coarse.cut_diagonal`).
+
+    ``roi``: ``[u0, v0, u1, v1]`` (pixels of the given image), a box from elsewhere (an object
+    detector, the previous frame), mapped to the undistorted image
+    (:func:`jaxpose.vision.undistort.undistort_box`). It replaces the gradient and cluster ROIs;
+    a silhouette against a dark background is still searched and kept when its box overlaps the
+    given one (IoU at least 0.5), and the ROI is then the silhouette's as without a given box
+    (on the SPEED+ photographs the silhouette terms make most of the right answers); otherwise
+    the ROI is the given box and there is no silhouette. Raises ``ValueError`` for a malformed box,
+    one outside the image, or one whose diagonal is under ``options.min_roi_px``."""
     import time
 
     if options.detector not in ("hough", "lsd"):
@@ -483,6 +501,12 @@ def detect(
     if min(gray.shape) < 16:
         raise ValueError(f"image too small: {gray.shape[1]}x{gray.shape[0]} pixels")
     und, ideal = undistort_image(gray, camera)
+    given = None if roi is None else undistort_box(roi, camera, und.shape)
+    if given is not None and roi_diagonal(given) < options.min_roi_px:
+        raise ValueError(
+            f"roi {np.asarray(roi, float).tolist()} is too small: its diagonal in the image is "
+            f"{roi_diagonal(given):.1f} px, under options.min_roi_px = {options.min_roi_px}"
+        )
     smooth = (
         cv2.GaussianBlur(und, (0, 0), options.gaussian_sigma_px)
         if options.gaussian_sigma_px > 0
@@ -491,18 +515,22 @@ def detect(
     tm["undistort_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     wge = weak_gradient_elimination(smooth, cdf=options.wge_cdf)
-    roi = roi_from_gradient(wge.filtered)
+    roi = roi_from_gradient(wge.filtered) if given is None else given
     tm["wge_roi_s"] = time.perf_counter() - t0
-    det = Detection(ideal, None, None, timings=tm, image=smooth)
+    det = Detection(ideal, None, None, timings=tm, image=smooth, roi_given=given)
     if roi is None or roi_diagonal(roi) < options.min_roi_px:
         return det
-    det.roi = det.roi_gradient = roi
+    det.roi = roi
+    if given is None:
+        det.roi_gradient = roi
     t0 = time.perf_counter()
     sil = (
         roi_from_silhouette(und, gradient=wge.filtered if options.silhouette_gradient else None)
         if options.silhouette_roi
         else None
     )
+    if sil is not None and given is not None and box_iou(sil, given) < _GIVEN_SILHOUETTE_IOU:
+        sil = None  # a silhouette elsewhere than the caller's box is not the target's
     tm["wge_roi_s"] += time.perf_counter() - t0  # the ROI stage: gradient and silhouette
     t0 = time.perf_counter()
     if sil is not None and options.silhouette_min_gradient > 0:
@@ -522,7 +550,7 @@ def detect(
             )
         if not options.silhouette_shape:
             det.silhouette = None
-    elif options.cluster_roi:
+    elif options.cluster_roi and given is None:
         # Hough lengths and gaps scaled for a target `cluster_scale` times smaller than the
         # gradient ROI: an Earth background inflates the ROI, and the target's edges must not be
         # too short for the streams scaled by it.

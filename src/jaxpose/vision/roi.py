@@ -9,6 +9,7 @@
 - :func:`silhouette_mask`: the target's silhouette itself, at a quarter of the resolution, for
   the silhouette term of the monocular ranking.
 - :func:`silhouette_box`: the silhouette ROI grown to that finer silhouette (faces in shadow).
+- :func:`box_iou`: the overlap of two boxes.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "box_iou",
     "roi_diagonal",
     "roi_from_gradient",
     "roi_from_segments",
@@ -45,6 +47,14 @@ def roi_from_gradient(
     u0, u1 = _quantiles(F.sum(0), lo, hi)
     v0, v1 = _quantiles(F.sum(1), lo, hi)
     return np.array([u0, v0, u1, v1])
+
+
+def box_iou(a, b) -> float:
+    """Intersection over union of two boxes ``[u0, v0, u1, v1]`` (0 when they do not meet)."""
+    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - w * h
+    return float(w * h / union) if union > 0 else 0.0
 
 
 def roi_diagonal(roi) -> float:

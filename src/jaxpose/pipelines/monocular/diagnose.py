@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from jaxpose.core.geometry import Pose
+from jaxpose.vision.roi import box_iou
 
 __all__ = ["STAGES", "stage_breakdown", "stage_counts"]
 
@@ -68,14 +69,6 @@ def true_box(result, truth: Pose, model) -> np.ndarray | None:
     return np.r_[lo, hi]
 
 
-def _iou(a, b) -> float:
-    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = w * h
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / union if union > 0 else 0.0
-
-
 def stage_breakdown(
     result, truth: Pose, model, *, rotation_deg: float = 10.0, translation_m: float = 0.30
 ) -> dict:
@@ -84,7 +77,7 @@ def stage_breakdown(
     truth = Pose(np.asarray(truth.R, float), np.asarray(truth.t, float))
     tr = result.trace or {}
     box = true_box(result, truth, model)
-    iou = 0.0 if result.roi is None or box is None else _iou(np.asarray(result.roi, float), box)
+    iou = 0.0 if result.roi is None or box is None else box_iou(np.asarray(result.roi, float), box)
     out = {"roi_iou": float(iou), "roi_ok": bool(iou >= 0.5)}
     tol = dict(rotation_deg=rotation_deg, translation_m=translation_m)
     if "hypotheses" in tr:

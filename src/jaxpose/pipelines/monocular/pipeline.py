@@ -37,8 +37,16 @@ def initialise_pose(
     camera: PinholeCamera,
     model: WireframeModel | None = None,
     options: InitOptions | None = None,
+    *,
+    roi=None,
 ) -> InitResult:
     """Pose of the target from one image with no prior (see the module docstring).
+
+    ``roi``: optional ``[u0, v0, u1, v1]`` (pixels of ``image``), the target's box from elsewhere
+    (an object detector, as two-stage SPEED+ methods use, or a previous frame):
+    it replaces the detection's ROI stage (:func:`jaxpose.vision.features.detect`), so no
+    silhouette is searched and the silhouette terms are off. Raises ``ValueError`` for a
+    malformed box, one outside the image or one too small.
 
     Never raises for image *content* (black, saturated, noise, cut target): the answer is then a
     position-only or ``"none"`` result with a message. Raises ``ValueError`` for a wrong input type
@@ -78,7 +86,7 @@ def initialise_pose(
     trace = {} if options.trace else None
     t0 = time.perf_counter()
     L_C = model.characteristic_length * ROI_LENGTH_FACTOR
-    det = detect(image, camera, L_C, options.detection, extents=model_extents(model))
+    det = detect(image, camera, L_C, options.detection, extents=model_extents(model), roi=roi)
     timings.update(det.timings)
     base = dict(
         pose=None,
