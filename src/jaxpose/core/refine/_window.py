@@ -166,8 +166,9 @@ class WindowResult(eqx.Module):
             when the status is not ``OK``.
         points_body: ``(n, 3)`` the adjusted landmarks (the given ones when not ``OK``).
         status: ``int32`` :class:`~jaxpose.core.status.Status`: ``OK``, ``BEHIND_CAMERA`` (an
-            observed point at depth ``<= 1e-6`` m at an iterate), ``SINGULAR`` (a landmark's
-            ``3 x 3`` block or the reduced pose system not invertible, or a non-finite step).
+            observed point or free line endpoint at depth ``<= 1e-6`` m at an iterate),
+            ``SINGULAR`` (a landmark's or endpoint's ``3 x 3`` block or the reduced pose system
+            not invertible, or a non-finite step).
         lines_body: ``(m, 2, 3)`` the adjusted free line landmarks' endpoints (the given ones
             when not ``OK``; ``None`` without free lines).
     """
