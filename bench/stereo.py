@@ -210,7 +210,7 @@ def figure(results: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     colours = {"x": "tab:blue", "y": "tab:orange", "z": "tab:green"}
-    markers = {"dev": "o", "check": "^"}
+    markers = {"dev": "o", "check": "^", "held-out": "s"}  # held-out: bench/stereo_heldout.py
     fig, axes = plt.subplots(2, 2, figsize=(10, 7.5))
     for r in results:
         m = r.get("points+lines")
@@ -239,6 +239,7 @@ def figure(results: list[dict], path: Path) -> None:
         + [
             plt.Line2D([], [], color="gray", marker=markers[k], ls="none", label=f"{k} scenes")
             for k in markers
+            if any(r["scene"]["split"] == k for r in results)
         ]
         + [plt.Line2D([], [], color="red", ls="--", lw=0.8, label="target")]
     )
