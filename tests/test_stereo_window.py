@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from jaxpose import PinholeCamera, StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.pipelines.stereo import LandmarkMap
-from jaxpose.pipelines.stereo.keyframes import observe_point_rays
+from jaxpose.pipelines.stereo.keyframes import observe_line_planes, observe_point_rays
 from jaxpose.pipelines.stereo.window import WindowAdjuster
 
 
@@ -176,3 +176,38 @@ def test_motion_prior_weights_only_frames_between_their_neighbours():
     assert not WindowAdjuster(rig, frames=6)._motion_weight(6).any()
     with pytest.raises(ValueError, match="window_motion_sigma"):
         TrackerOptions(window_motion_sigma=(0.5, 0.0))
+
+
+@pytest.mark.parametrize("free_lines", [True, False])
+def test_free_lines_are_moved_onto_the_true_lines(free_lines):
+    """Line landmarks placed 1 cm off and observed by noise-free stereo planes at the frames'
+    (wrong) poses: with the lines free, the adjustment moves the window's planes to the true
+    poses and the map's lines onto the true lines (the lines all the planes meet in); held
+    (``free_lines=False``), the lines keep the planes of the wrong poses."""
+    rig, X, poses = _scene()
+    rng = np.random.default_rng(5)
+    P = rng.uniform(-0.3, 0.3, (6, 2, 3))
+    m = LandmarkMap()
+    win = WindowAdjuster(
+        rig, frames=5, iterations=8, max_points=60, max_lines=4, free_lines=free_lines
+    )
+    ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), Pose(*poses[0]), 0)
+    lids = m.add("lines", P + rng.normal(0, 0.01, P.shape), np.zeros((6, 32)), Pose(*poses[0]), 0)
+    for j, (R, t) in enumerate(poses):
+        Re, te = R, t
+        if j:
+            Re = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R
+            te = t + rng.normal(0, 0.006, 3)
+        rec = win.start(Re, te, fixed=j == 0)
+        left, right = _pixels(rig, R, t, X)
+        observe_point_rays(m, rig, ids, left, Pose(Re, te), right=False, log=rec)
+        observe_point_rays(m, rig, ids, right, Pose(Re, te), right=True, log=rec)
+        observe_line_planes(m, rig, lids, P @ R.T + t, Pose(Re, te), log=rec)  # true segments
+    _assert_adjusts_to_truth(win, m, poses, X)
+    u = (P[:, 1] - P[:, 0]) / np.linalg.norm(P[:, 1] - P[:, 0], axis=1, keepdims=True)
+    r = m.lines.X - P[:, :1]
+    across = np.linalg.norm(r - np.einsum("kei,ki->ke", r, u)[..., None] * u[:, None], axis=-1)
+    if free_lines:
+        assert across.max() < 1e-6
+    else:
+        assert across.max() > 1e-3

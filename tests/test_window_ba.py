@@ -2,7 +2,7 @@
 Jacobians of one observation against central finite differences, and one Gauss-Newton step
 against the dense normal equations of a NumPy residual vector differentiated numerically (no
 Schur complement, no JAX), on a small padded window with a fixed frame, a padded landmark,
-unobserved pixels, line terms and ray priors."""
+unobserved pixels, line terms and ray priors; free line landmarks moved onto the true lines."""
 
 import equinox as eqx
 import jax
@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from jaxpose import PinholeCamera, Pose, StereoCamera
 from jaxpose.core.refine import (
+    WindowLines,
     WindowObservations,
     WindowOptions,
     adjust_window,
@@ -214,6 +215,8 @@ def test_shapes_and_options_are_checked(window):
         adjust_window(jnp.asarray(X0[:, :2]), obs, pose, RIG)
     with pytest.raises(ValueError, match=r"observations.pixels must have shape \(3, 7, 2, 2\)"):
         adjust_window(jnp.asarray(X0[:-1]), obs, pose, RIG)
+    with pytest.raises(ValueError, match="lines_body and observations.lines"):
+        adjust_window(jnp.asarray(X0), obs, pose, RIG, lines_body=jnp.zeros((2, 2, 3)))
     with pytest.raises(ValueError, match="iterations"):
         WindowOptions(iterations=0)
     with pytest.raises(ValueError, match="huber_px"):
@@ -238,3 +241,106 @@ def test_motion_residual_is_zero_for_a_constant_twist_only():
     r = np.asarray(motion(bump, pose))
     a = np.radians(0.3)  # the differences centred at frames 1, 2, 3: (1, -2, 1) a about y
     np.testing.assert_allclose(r[:, 4], [a, -2 * a, a], rtol=0.02)
+
+
+def _planes(R, t, P):
+    """The planes ``(n, d)`` (left camera frame) through the left and the right camera centre
+    and the segment ``P`` (``(2, 3)``, body) seen at ``(R, t)``: ``(2, 4)``."""
+    q = P @ R.T + t
+    out = []
+    for C in (np.zeros(3), -np.asarray(RIG.t_rl)):
+        n = np.cross(q[0] - C, q[1] - C)
+        n /= np.linalg.norm(n)
+        out.append(np.r_[n, n @ C])
+    return np.array(out)
+
+
+def _distance_to_line(X, P):
+    """Distances of points ``X`` (``(..., 3)``) to the infinite line through ``P`` (``(2, 3)``),
+    and their positions along it (metres from ``P[0]``)."""
+    u = (P[1] - P[0]) / np.linalg.norm(P[1] - P[0])
+    r = X - P[0]
+    along = r @ u
+    return np.linalg.norm(r - along[..., None] * u, axis=-1), along
+
+
+def test_free_lines_move_onto_the_true_lines(window):
+    """Noise-free pixels and planes (left and right camera centre through the true segments at
+    the true poses); the poses, points and line endpoints start off the truth (endpoints 1-2 cm
+    across their lines). The adjustment brings the endpoints onto the true lines (the closed
+    form: the lines the planes meet in) and the poses to the truth; a line seen in one window
+    plane only is held by its prior (the planes of a frame outside the window); the positions
+    along the lines stay (the gauge); a padded line is not moved."""
+    obs, R0, t0, X0 = window
+    rng = np.random.default_rng(7)
+    Rs = np.stack([Rotation.from_rotvec([0.1, 0.05 * j, 0.02]).as_matrix() for j in range(F)])
+    ts = np.array([0.02, -0.01, 2.0]) + np.random.default_rng(4).normal(0, 0.01, (F, 3))
+    # the fixture's truth (same generator): exact pixels of its landmarks
+    X = X0  # any body points will do: make their pixels exact at (Rs, ts)
+    Kmat = np.asarray(CAM.K)
+    x = np.einsum("fij,nj->fni", Rs, X) + ts[:, None]
+    left = (x @ Kmat.T)[..., :2] / x[..., 2:]
+    xr = x + np.asarray(RIG.t_rl)
+    right = (xr @ Kmat.T)[..., :2] / xr[..., 2:]
+    m = 4  # the last one padding
+    P_true = rng.uniform(-0.3, 0.3, (m, 2, 3))
+    planes = np.zeros((F, m, 2, 4))
+    weight = np.zeros((F, m, 2))
+    for j in range(F):
+        for i in range(m - 1):
+            planes[j, i] = _planes(Rs[j], ts[j], P_true[i])
+            weight[j, i] = 1.0 / (0.7**2 * 2.0**2)
+    weight[:, 0] = 0.0  # line 0: one left plane in the window, the rest from its prior
+    weight[1, 0, 0] = 1.0 / (0.7**2 * 2.0**2)
+    R_out = Rotation.from_rotvec([0.1, -0.3, 0.05]).as_matrix()  # a frame outside the window
+    pl = _planes(R_out, np.array([0.0, 0.0, 2.0]), P_true[0])
+    n_b = pl[:, :3] @ R_out  # body-frame planes
+    d_b = pl[:, 3] - pl[:, :3] @ np.array([0.0, 0.0, 2.0])
+    w_out = 1.0 / (0.7**2 * 2.0**2)
+    M = np.zeros((m, 3, 3))
+    b = np.zeros((m, 3))
+    M[0] = w_out * n_b.T @ n_b
+    b[0] = w_out * n_b.T @ d_b
+    # start: endpoints moved across (1-2 cm) and along (1 cm) their lines
+    P0 = P_true + rng.normal(0, 0.012, P_true.shape)
+    lines = WindowLines(
+        planes=jnp.asarray(planes),
+        weight=jnp.asarray(weight),
+        prior_M=jnp.asarray(M),
+        prior_b=jnp.asarray(b),
+        mask=jnp.asarray(np.arange(m) < m - 1),
+    )
+    obs = eqx.tree_at(
+        lambda o: (o.pixels, o.prior_M, o.prior_b, o.line_weight, o.lines),
+        obs,
+        (
+            jnp.asarray(np.stack([left, right], 2)),
+            jnp.zeros_like(obs.prior_M),
+            jnp.zeros_like(obs.prior_b),
+            jnp.zeros_like(obs.line_weight),
+            lines,
+        ),
+        is_leaf=lambda v: v is None,
+    )
+    R_start = np.stack([Rotation.from_rotvec(rng.normal(0, 2e-3, 3)).as_matrix() @ R for R in Rs])
+    R_start[0] = Rs[0]
+    t_start = ts + rng.normal(0, 3e-3, ts.shape) * np.array([[0], [1], [1]])
+    res = adjust_window(
+        jnp.asarray(X + rng.normal(0, 5e-3, X.shape)),
+        obs,
+        Pose(jnp.asarray(R_start), jnp.asarray(t_start)),
+        RIG,
+        lines_body=jnp.asarray(P0),
+        options=WindowOptions(iterations=5, damping=0.0),
+    )
+    assert int(res.status) == Status.OK
+    E = np.asarray(res.lines_body)
+    for i in range(m - 1):
+        before, along0 = _distance_to_line(P0[i], P_true[i])
+        after, along1 = _distance_to_line(E[i], P_true[i])
+        assert before.min() > 1e-3  # the start is off the line
+        assert after.max() < 1e-6 * before.max(), (i, before, after)
+        np.testing.assert_allclose(along1, along0, atol=0.2 * before.max())
+    np.testing.assert_array_equal(E[-1], P0[-1])  # padding
+    np.testing.assert_allclose(np.asarray(res.pose.t), ts, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(res.pose.R), Rs, atol=1e-8)

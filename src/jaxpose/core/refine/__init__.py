@@ -59,10 +59,12 @@ from jaxpose.core.refine._solve import refine_pose as refine_pose
 from jaxpose.core.refine._uncertainty import PoseSensitivity as PoseSensitivity
 from jaxpose.core.refine._uncertainty import pose_covariance as pose_covariance
 from jaxpose.core.refine._uncertainty import sensitivity as sensitivity
+from jaxpose.core.refine._window import WindowLines as WindowLines
 from jaxpose.core.refine._window import WindowObservations as WindowObservations
 from jaxpose.core.refine._window import WindowOptions as WindowOptions
 from jaxpose.core.refine._window import WindowResult as WindowResult
 from jaxpose.core.refine._window import adjust_window as adjust_window
 from jaxpose.core.refine._window import line_residual as line_residual
 from jaxpose.core.refine._window import motion_residual as motion_residual
+from jaxpose.core.refine._window import plane_residual as plane_residual
 from jaxpose.core.refine._window import point_residual as point_residual

@@ -11,6 +11,13 @@ Cost (Triggs et al. 2000, a bundle adjustment; the point and line terms of Yang 
 * ``d_l = l . proj(R_j P_l + t_j)``: the signed distance (pixels; ``l`` with a unit normal) of a
   fixed line landmark's endpoint ``P_l`` to the line observed in frame ``j`` (eq. 9), weighted by
   ``w_l = 1 / sigma_l^2``;
+* free line landmarks (:class:`WindowLines`, optional): both endpoints ``P`` of a segment are
+  variables, observed as the planes ``n . x = d`` through a camera centre and an image segment
+  (left camera frame of frame ``j``); the term ``s w (n . (R_j P + t_j) - d)^2`` is eq. 9 in
+  the plane's form (``s w`` turns metres into pixels: ``w = 1 / (sigma^2 z^2)``), and each
+  endpoint keeps the planes from outside the window as a prior ``s (P^T M P - 2 b^T P)``
+  (rank 2 across the line); the position along the line, which no plane sees, is held by a
+  gauge term on the step (``tr(H) (u . dP)^2``, ``u`` the segment's direction);
 * the landmark prior: the normal equations ``M_i = sum w (I - d d^T)``, ``b_i = sum w (I - d
   d^T) o`` of the landmark's observation rays outside the window (angular units), scaled to
   pixels by ``s = f_x f_y``;
@@ -19,8 +26,9 @@ Cost (Triggs et al. 2000, a bundle adjustment; the point and line terms of Yang 
 Gauss-Newton on the tangent of each free frame (:meth:`jaxpose.Pose.retract`: ``t <- t + rho``,
 ``R <- exp([omega]_x) R``) and on the landmarks' positions, with Marquardt's diagonal damping;
 the landmarks are eliminated by their ``3 x 3`` blocks (the Schur complement) and the reduced
-``6F x 6F`` system of the poses solved by Cholesky. The Jacobians of one observation's residual
-are ``jax.jacfwd`` of :func:`point_residual` (and :func:`line_residual`) at zero increments,
+``6F x 6F`` system of the poses solved by Cholesky (a free line's endpoints are two more
+``3 x 3`` blocks). The Jacobians of one observation's residual are ``jax.jacfwd`` of
+:func:`point_residual` (:func:`line_residual`, :func:`plane_residual`) at zero increments,
 under ``vmap``; the observations form a visibility grid (frames x landmarks x the two images)
 and the normal-equation blocks are sums along its axes (no scatter).
 
@@ -45,12 +53,14 @@ from jaxpose.core.residuals import robust_weight
 from jaxpose.core.status import Status
 
 __all__ = [
+    "WindowLines",
     "WindowObservations",
     "WindowOptions",
     "WindowResult",
     "adjust_window",
     "line_residual",
     "motion_residual",
+    "plane_residual",
     "point_residual",
 ]
 
@@ -88,6 +98,30 @@ class WindowOptions:
             raise ValueError(f"WindowOptions.damping must be >= 0; got {self.damping}")
 
 
+class WindowLines(eqx.Module):
+    """The free line landmarks of a window: ``m`` segments whose two endpoints are adjusted, each
+    seen in frame ``j`` as up to ``c`` planes through a camera centre and its image segment
+    (the left and right image of a stereo pair: Yang et al. 2024 eq. 9 in the plane's form).
+
+    Attributes:
+        planes: ``(f, m, c, 4)`` ``(n, d)``: unit normal and offset of the plane ``n . x = d``,
+            left camera frame of frame ``j``, metres.
+        weight: ``(f, m, c)`` ``1 / (sigma^2 z^2)`` (``sigma``: the line's pixel noise, ``z``:
+            its depth, metres; the cost is ``f_x f_y`` times the weight times the squared plane
+            distance, so about the squared pixel distance over ``sigma^2``); 0: not observed.
+        prior_M, prior_b: ``(m, 3, 3)``, ``(m, 3)`` the normal equations ``sum w n n^T``,
+            ``sum w d n`` of the line's planes from outside the window, body frame (the same
+            units as ``weight``; zero for none), applied to each endpoint.
+        mask: ``(m,)`` the line is real.
+    """
+
+    planes: Float[Array, "f m c 4"]
+    weight: Float[Array, "f m c"]
+    prior_M: Float[Array, "m 3 3"]
+    prior_b: Float[Array, "m 3"]
+    mask: Bool[Array, " m"]
+
+
 class WindowObservations(eqx.Module):
     """The observations of one window of ``f`` frames and ``n`` landmarks, as a visibility grid
     (a landmark is seen at most once in each image of a frame), with ``k`` line-endpoint rows a
@@ -108,6 +142,7 @@ class WindowObservations(eqx.Module):
         motion_weight: ``(f, 6)`` the weight ``1 / sigma^2`` (per metre^2 and radian^2, against
             the pixel residuals' unit weight) of the constant-twist prior centred at each frame
             (:func:`motion_residual`; zero: none, and always for the first and last frame).
+        lines: the free line landmarks (:class:`WindowLines`; ``None``: none).
     """
 
     pixels: Float[Array, "f n 2 2"]
@@ -120,6 +155,7 @@ class WindowObservations(eqx.Module):
     line_weight: Float[Array, "f k"]
     free: Bool[Array, " f"]
     motion_weight: Float[Array, "f 6"]
+    lines: WindowLines | None = None
 
 
 class WindowResult(eqx.Module):
@@ -130,13 +166,17 @@ class WindowResult(eqx.Module):
             when the status is not ``OK``.
         points_body: ``(n, 3)`` the adjusted landmarks (the given ones when not ``OK``).
         status: ``int32`` :class:`~jaxpose.core.status.Status`: ``OK``, ``BEHIND_CAMERA`` (an
-            observed point at depth ``<= 1e-6`` m at an iterate), ``SINGULAR`` (a landmark's
-            ``3 x 3`` block or the reduced pose system not invertible, or a non-finite step).
+            observed point or free line endpoint at depth ``<= 1e-6`` m at an iterate),
+            ``SINGULAR`` (a landmark's or endpoint's ``3 x 3`` block or the reduced pose system
+            not invertible, or a non-finite step).
+        lines_body: ``(m, 2, 3)`` the adjusted free line landmarks' endpoints (the given ones
+            when not ``OK``; ``None`` without free lines).
     """
 
     pose: Pose
     points_body: Float[Array, "n 3"]
     status: Int[Array, ""]
+    lines_body: Float[Array, "m 2 3"] | None = None
 
 
 def point_residual(xi, dX, pose: Pose, point_body, pixels, rig: StereoCamera):
@@ -159,6 +199,15 @@ def line_residual(xi, pose: Pose, point_body, line, camera):
     x = p.R @ point_body + p.t
     uv = camera.project(x)
     return line[0] * uv[0] + line[1] * uv[1] + line[2], x[2]
+
+
+def plane_residual(xi, dP, pose: Pose, point_body, plane):
+    """Signed distance (metres) of a body point moved by ``dP`` (``(3,)``), at
+    ``pose.retract(xi)``, to the plane ``plane = (n, d)`` (``n . x = d``, camera frame, unit
+    ``n``), and its depth."""
+    p = pose.retract(xi)
+    x = p.R @ (point_body + dP) + p.t
+    return jnp.dot(plane[:3], x) - plane[3], x[2]
 
 
 def _with_value(fn):
@@ -225,6 +274,49 @@ def _normal_equations(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: 
     return H_pp, g_p, H_pl, H_ll, g_l, depth_ok
 
 
+def _line_equations(R, t, E, lines: WindowLines, free, rig: StereoCamera, cfg: WindowOptions):
+    """The free line endpoints' blocks (the points' of :func:`_normal_equations`, ``2m``
+    endpoints ``E``, line ``i``'s at ``2i, 2i + 1``): ``H_pp, g_p`` to add, ``H_pe (f, 2m, 6,
+    3)``, ``H_ee (2m, 3, 3)`` (with the prior and the along-line gauge), ``g_e (2m, 3)``, and
+    whether every observed depth is positive."""
+    dtype = E.dtype
+    zero6, zero3 = jnp.zeros(6, dtype), jnp.zeros(3, dtype)
+    pose = Pose(R, t)
+    planes = jnp.repeat(lines.planes, 2, axis=1)  # (f, 2m, c, 4)
+    weight = jnp.repeat(lines.weight, 2, axis=1)  # (f, 2m, c)
+    jac = jax.jacfwd(_with_value(plane_residual), argnums=(0, 1), has_aux=True)
+    cams = jax.vmap(jac, in_axes=(None, None, None, None, 0))
+    one = jax.vmap(cams, in_axes=(None, None, None, 0, 0))  # the endpoints
+    grid = jax.vmap(one, in_axes=(None, None, 0, None, 0))  # the frames
+    (J_pose, J_pt), (r, z) = grid(zero6, zero3, pose, E, planes)
+    # J_pose (f, 2m, c, 6), J_pt (f, 2m, c, 3), r, z (f, 2m, c)
+    seen = weight > 0
+    depth_ok = jnp.all(jnp.where(seen, z > _MIN_DEPTH, True))
+    s = rig.left.fx * rig.left.fy
+    sw = s * weight
+    px = jnp.sqrt(sw) * jnp.abs(r)  # about the pixel distance over sigma
+    w = jnp.where(seen, sw * robust_weight("huber", px, cfg.huber_px), 0.0)
+    wp = jnp.where(free[:, None, None], w, 0.0)
+    outer = lambda a, b: a[..., :, None] * b[..., None, :]  # noqa: E731
+    H_pe = jnp.sum(outer(wp[..., None] * J_pose, J_pt), axis=2)  # (f, 2m, 6, 3)
+    H_ee = jnp.sum(outer(w[..., None] * J_pt, J_pt), axis=(0, 2))
+    g_e = jnp.sum((w * r)[..., None] * J_pt, axis=(0, 2))
+    H_pp = jnp.sum(outer(wp[..., None] * J_pose, J_pose), axis=(1, 2))
+    g_p = jnp.sum((wp * r)[..., None] * J_pose, axis=(1, 2))
+    M = jnp.repeat(lines.prior_M, 2, axis=0)
+    b = jnp.repeat(lines.prior_b, 2, axis=0)
+    H_ee = H_ee + s * M
+    g_e = g_e + s * (jnp.einsum("nab,nb->na", M, E) - b)
+    # the gauge: the step along the segment held with the block's own scale
+    P = E.reshape(-1, 2, 3)
+    u = P[:, 1] - P[:, 0]
+    u = u / jnp.maximum(jnp.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
+    u = jnp.repeat(u, 2, axis=0)
+    tr = jnp.trace(H_ee, axis1=1, axis2=2)
+    H_ee = H_ee + tr[:, None, None] * outer(u, u)
+    return H_pp, g_p, H_pe, H_ee, g_e, depth_ok
+
+
 def motion_residual(xi, pose: Pose):
     """Second differences ``(f - 2, 6)`` of the frames' relative motions ``T_j T_{j-1}^-1``
     (translation, rotation vector; metres, radians) at the increments ``xi`` (``(f, 6)``): zero
@@ -253,13 +345,25 @@ def _motion_equations(R, t, obs: WindowObservations):
 
 
 def _step(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: WindowOptions):
-    """One damped Gauss-Newton step, landmarks eliminated (Schur complement); ``ok`` flags."""
+    """One damped Gauss-Newton step, landmarks eliminated (Schur complement); ``ok`` flags.
+    ``X``: ``(n + 2m, 3)``, the points then the free lines' endpoints."""
     f, n = R.shape[0], X.shape[0]
     dtype = X.dtype
-    H_pp, g_p, H_pl, H_ll, g_l, depth_ok = _normal_equations(R, t, X, obs, rig, cfg)
+    n_pts = obs.points_mask.shape[0]
+    H_pp, g_p, H_pl, H_ll, g_l, depth_ok = _normal_equations(R, t, X[:n_pts], obs, rig, cfg)
+    real = obs.points_mask
+    if obs.lines is not None:
+        Hp, gp, H_pe, H_ee, g_e, d_ok = _line_equations(
+            R, t, X[n_pts:], obs.lines, obs.free, rig, cfg
+        )
+        H_pp, g_p, depth_ok = H_pp + Hp, g_p + gp, depth_ok & d_ok
+        H_pl = jnp.concatenate([H_pl, H_pe], 1)
+        H_ll = jnp.concatenate([H_ll, H_ee], 0)
+        g_l = jnp.concatenate([g_l, g_e], 0)
+        real = jnp.concatenate([real, jnp.repeat(obs.lines.mask, 2)])
     lam = cfg.damping
     eye3 = jnp.eye(3, dtype=dtype)
-    pad = jnp.where(obs.points_mask[:, None, None], 0.0, eye3)  # a padded landmark: identity
+    pad = jnp.where(real[:, None, None], 0.0, eye3)  # a padded landmark: identity
     H_ll_d = H_ll + lam * jnp.diagonal(H_ll, axis1=1, axis2=2)[:, :, None] * eye3 + pad
     L_inv, det = _inv3(H_ll_d + 1e-9 * eye3)
     blocks_ok = jnp.all(jnp.isfinite(det) & (det != 0))
@@ -278,7 +382,7 @@ def _step(R, t, X, obs: WindowObservations, rig: StereoCamera, cfg: WindowOption
     chol = jnp.linalg.cholesky(S)
     dxi = -jax.scipy.linalg.cho_solve((chol, True), rhs)
     dX = -jnp.einsum("nab,nb->na", L_inv, g_l + (B.T @ dxi).reshape(n, 3))
-    dX = jnp.where(obs.points_mask[:, None], dX, 0.0)
+    dX = jnp.where(real[:, None], dX, 0.0)
     d = jnp.where(obs.free[:, None], dxi.reshape(f, 6), 0.0)
     stepped = Pose(R, t).retract(d)
     finite = jnp.all(jnp.isfinite(dxi)) & jnp.all(jnp.isfinite(dX))
@@ -291,7 +395,11 @@ _COMPILER_OPTIONS_CPU = {"xla_cpu_use_fusion_emitters": False}
 the default one and the compiled step is no slower."""
 
 
-def _adjust(points_body, obs: WindowObservations, pose: Pose, rig: StereoCamera, cfg):
+def _adjust(points_body, lines_body, obs: WindowObservations, pose: Pose, rig: StereoCamera, cfg):
+    n = points_body.shape[0]
+    if lines_body is not None:
+        points_body = jnp.concatenate([points_body, lines_body.reshape(-1, 3)], 0)
+
     def body(_, state):
         R, t, X, depth_ok, solve_ok = state
         R1, t1, X1, d_ok, s_ok = _step(R, t, X, obs, rig, cfg)
@@ -308,7 +416,9 @@ def _adjust(points_body, obs: WindowObservations, pose: Pose, rig: StereoCamera,
     ).astype(jnp.int32)
     good = status == Status.OK
     keep = lambda new, old: jnp.where(good, new, old)  # noqa: E731
-    return WindowResult(Pose(keep(R, pose.R), keep(t, pose.t)), keep(X, points_body), status)
+    X = keep(X, points_body)
+    lines = None if lines_body is None else X[n:].reshape(lines_body.shape)
+    return WindowResult(Pose(keep(R, pose.R), keep(t, pose.t)), X[:n], status, lines)
 
 
 def adjust_window(
@@ -317,6 +427,7 @@ def adjust_window(
     pose: Pose,
     rig: StereoCamera,
     *,
+    lines_body: Float[Array, "m 2 3"] | None = None,
     options: WindowOptions = WindowOptions(),
 ) -> WindowResult:
     """Adjust the poses of a window of frames and the point landmarks they observe (module
@@ -328,6 +439,8 @@ def adjust_window(
         pose: the frames' poses, a batched ``Pose`` (``(f, 3, 3)``, ``(f, 3)``), body to left
             camera.
         rig: the stereo rig (the right image's pixels through ``R_rl, t_rl``).
+        lines_body: ``(m, 2, 3)`` the free line landmarks' endpoints, body frame, metres (with
+            ``observations.lines``; ``None`` without).
         options: :class:`WindowOptions`.
 
     Returns:
@@ -360,10 +473,26 @@ def adjust_window(
         "free": (o.free.shape, (f,)),
         "motion_weight": (o.motion_weight.shape, (f, 6)),
     }
+    E = None
+    if (lines_body is None) != (o.lines is None):
+        raise ValueError("lines_body and observations.lines must be given together")
+    if o.lines is not None:
+        E = jnp.asarray(lines_body)
+        m = E.shape[0] if E.ndim == 3 else -1
+        if E.shape != (m, 2, 3):
+            raise ValueError(f"lines_body must have shape (m, 2, 3); got {E.shape}")
+        c = o.lines.planes.shape[2] if o.lines.planes.ndim == 4 else -1
+        shapes |= {
+            "lines.planes": (o.lines.planes.shape, (f, m, c, 4)),
+            "lines.weight": (o.lines.weight.shape, (f, m, c)),
+            "lines.prior_M": (o.lines.prior_M.shape, (m, 3, 3)),
+            "lines.prior_b": (o.lines.prior_b.shape, (m, 3)),
+            "lines.mask": (o.lines.mask.shape, (m,)),
+        }
     for name, (got, want) in shapes.items():
         if tuple(got) != want:
             raise ValueError(f"observations.{name} must have shape {want}; got {tuple(got)}")
-    return _adjust_eager(X, o, Pose(R, t), rig, options)
+    return _adjust_eager(X, E, o, Pose(R, t), rig, options)
 
 
-_adjust_eager = eager_jit(_adjust, static_argnums=(4,), cpu_options=_COMPILER_OPTIONS_CPU)
+_adjust_eager = eager_jit(_adjust, static_argnums=(5,), cpu_options=_COMPILER_OPTIONS_CPU)

@@ -182,19 +182,25 @@ def observe_point_rays(
         log.add(landmarks.points.ids[np.asarray(idx, int)], pixels, right, w)
 
 
-def observe_line_planes(landmarks: LandmarkMap, rig: StereoCamera, idx, S, pose: Pose) -> None:
+def observe_line_planes(
+    landmarks: LandmarkMap, rig: StereoCamera, idx, S, pose: Pose, *, log=None
+) -> None:
     """Observation planes (body frame) of line landmarks ``idx`` from their stereo triangulations
     ``S`` (``(n, 2, 3)``, left camera at ``pose``): the planes through each camera centre and the
     segment, weighted by ``1 / depth^2`` (pixel-error weighting), into the landmarks' multi-view
-    line fit (:meth:`LandmarkMap.observe_lines`)."""
+    line fit (:meth:`LandmarkMap.observe_lines`). ``log``: a
+    :class:`~jaxpose.pipelines.stereo.window.FrameRays` that records the planes (camera frame;
+    the windowed adjustment moves them when it moves the frame's pose)."""
     if len(idx) == 0:
         return
     R, t = rt(pose)
     w = 1.0 / np.maximum(S[..., 2].mean(1), 1e-3) ** 2
-    for C in (np.zeros(3), -np.asarray(rig.t_rl, float)):
+    for cam, C in enumerate((np.zeros(3), -np.asarray(rig.t_rl, float))):
         n = np.cross(S[:, 0] - C, S[:, 1] - C)
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
         landmarks.observe_lines(idx, n @ R, n @ (C - t), w)
+        if log is not None:
+            log.add_planes(landmarks.lines.ids[np.asarray(idx, int)], n, n @ C, cam, w)
 
 
 def line_disparity_agrees(
@@ -284,9 +290,9 @@ def update_map(
                 agree = line_disparity_agrees(
                     landmarks, rig, idx, S[has_l], pose, o.refine_disparity_px
                 )
-                observe_line_planes(landmarks, rig, idx[agree], S[has_l][agree], pose)
+                observe_line_planes(landmarks, rig, idx[agree], S[has_l][agree], pose, log=log)
         new_l = ~has_l & ~np.isin(il, list(rejected_l))
         ids_l = landmarks.add("lines", Sb[new_l], feats.line_desc[il[new_l]], pose, frame)
         if o.line_planes:
-            observe_line_planes(landmarks, rig, ids_l, S[new_l], pose)
+            observe_line_planes(landmarks, rig, ids_l, S[new_l], pose, log=log)
     landmarks.cull()

@@ -146,6 +146,10 @@ class TrackerOptions:
             seen from a camera at rest), the second difference of consecutive frames' relative
             motions with these standard deviations against 1 px of the pixel residuals
             (:func:`jaxpose.core.refine.motion_residual`); ``None``: no motion prior.
+        window_free_lines: the windowed adjustment adjusts the line landmarks with the poses
+            (their endpoints free, observed by the stereo planes of the window's frames, the
+            planes of older frames as a prior; the adjusted planes re-solve the lines); off,
+            the lines' endpoints are held where they were placed.
         feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
             points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
             dilution of precision at the predicted pose), ``"random"`` or ``"response"``
@@ -225,6 +229,7 @@ class TrackerOptions:
     window_depth_m: float | None = 6.0
     window_points: int = 300
     window_motion_sigma: tuple[float, float] | None = None
+    window_free_lines: bool = True
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
     budget_rule: str = "dop"

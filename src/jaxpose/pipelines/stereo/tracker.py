@@ -202,6 +202,7 @@ class StereoTracker:
                 max_points=options.window_points,
                 max_lines=options.max_lines,
                 motion_sigma=options.window_motion_sigma,
+                free_lines=options.window_free_lines and options.use_lines,
             )
             if options.window_frames
             else None

@@ -1,4 +1,4 @@
-"""Windowed joint adjustment of the last keyframes' poses and the point landmarks they see.
+"""Windowed joint adjustment of the last keyframes' poses and the landmarks they see.
 
 The tracker solves each frame's pose against the landmark map and then places the frame's rays
 in the body frame at that pose (:func:`~jaxpose.pipelines.stereo.keyframes.observe_point_rays`),
@@ -15,15 +15,22 @@ the information of its observation rays from frames outside the window as a Gaus
 (the normal equations ``M, b`` of :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe`, in
 pixels: ``f^2 (X^T M X - 2 b^T X)``). Long-lived landmarks are therefore held by all their past
 observations (anchors), and the gauge is fixed by the first frame's pose while it is in the
-window, else by the oldest frame's. The solver is :func:`jaxpose.core.refine.adjust_window`
-(Gauss-Newton with a small Levenberg damping, the Schur complement on the ``3 x 3`` landmark
-blocks, Jacobians by ``jax.jacfwd`` of one observation's residual; compiled once): this module
-gathers the window's observations, priors and line terms into its padded visibility grid
-(``frames`` x ``max_points`` landmarks x two images; ``2 max_lines`` line rows a frame).
+window, else by the oldest frame's. The line landmarks are adjusted the same way
+(``free_lines``): each line seen by the window's stereo planes (the planes through a camera
+centre and an image segment, :func:`~jaxpose.pipelines.stereo.keyframes.observe_line_planes`)
+has its two endpoints free, observed by those planes (Yang et al. 2024 eq. 9 in the plane's
+form, left and right image), and keeps the planes of the frames outside the window as a prior
+(the line's plane normal equations less the window's planes); the other lines' endpoints are
+held where the map has them, their left-image lines in the pose blocks only. The solver is
+:func:`jaxpose.core.refine.adjust_window` (Gauss-Newton with a small Levenberg damping, the Schur
+complement on the ``3 x 3`` landmark and endpoint blocks, Jacobians by ``jax.jacfwd`` of one
+observation's residual; compiled once): this module gathers the window's observations, priors
+and line terms into its padded visibility grid (``frames`` x ``max_points`` landmarks x two
+images; ``2 max_lines`` free lines x two planes; ``2 max_lines`` held line rows a frame).
 
-After the adjustment the rays of the window's frames are moved to the adjusted poses (removed at
-the old pose, added at the new one) and the landmarks re-solved from their rays, so the map stays
-the least-squares intersection of all its rays.
+After the adjustment the rays and line planes of the window's frames are moved to the adjusted
+poses (removed at the old pose, added at the new one) and the landmarks re-solved from them, so
+the map stays the least-squares intersection of all its rays and planes.
 """
 
 from __future__ import annotations
@@ -36,7 +43,7 @@ import numpy as np
 
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
-from jaxpose.core.refine import WindowObservations, WindowOptions, adjust_window
+from jaxpose.core.refine import WindowLines, WindowObservations, WindowOptions, adjust_window
 from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo._arrays import find
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
@@ -57,6 +64,9 @@ class FrameRays:
         index: the frame's number.
         line_ids, lines: stable ids of the line landmarks matched in the left image and the
             observed homogeneous image lines ``(k, 3)``; ``line_weight``: ``1 / line_sigma^2``.
+        planes: the line landmarks' observation planes the frame added to the map (stable
+            ids, unit normals ``(k, 3)`` and offsets ``(k,)`` in the left camera frame, the
+            camera ``0`` left or ``1`` right, weights ``1 / depth^2``; :meth:`add_planes`).
     """
 
     R: np.ndarray
@@ -70,6 +80,31 @@ class FrameRays:
     line_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     lines: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     line_weight: float = 1.0
+    planes: list = field(default_factory=list)
+
+    def add_planes(self, ids, normals, offsets, cam: int, weights) -> None:
+        n = len(ids)
+        if n:
+            self.planes.append(
+                (
+                    np.asarray(ids, np.int64),
+                    np.asarray(normals, float).reshape(n, 3),
+                    np.asarray(offsets, float).reshape(n),
+                    np.full(n, int(cam)),
+                    np.asarray(weights, float).reshape(n),
+                )
+            )
+
+    def plane_arrays(self):
+        if not self.planes:
+            return (
+                np.zeros(0, np.int64),
+                np.zeros((0, 3)),
+                np.zeros(0),
+                np.zeros(0, int),
+                np.zeros(0),
+            )
+        return tuple(np.concatenate(c) for c in zip(*self.planes, strict=True))
 
     def add(self, ids, pixels, right: bool, weights) -> None:
         n = len(ids)
@@ -112,6 +147,10 @@ class WindowAdjuster:
         max_lines: most line observations a frame (the tracker's ``max_lines``).
         motion_sigma: ``(deg, mm)`` of the constant-twist prior on consecutive frames
             (:func:`jaxpose.core.refine.motion_residual`), or ``None`` (no prior).
+        free_lines: the line landmarks observed by the window's stereo planes are adjusted
+            with the poses (:class:`jaxpose.core.refine.WindowLines`: their endpoints free,
+            the planes from outside the window as a prior; at most ``2 max_lines``); off, or
+            for the others, the lines' endpoints are held where the map has them.
     """
 
     anchor_oldest = True
@@ -125,6 +164,7 @@ class WindowAdjuster:
         max_points: int = 600,
         max_lines: int = 96,
         motion_sigma: tuple[float, float] | None = None,
+        free_lines: bool = True,
     ):
         if frames < 2:
             raise ValueError(f"window frames must be >= 2; got {frames}")
@@ -137,6 +177,7 @@ class WindowAdjuster:
         )
         self.max_points = int(max_points)
         self.max_lines = int(max_lines)
+        self.free_lines = bool(free_lines)
         self.motion_sigma = motion_sigma  # (deg, mm), or None
         c = rig.left
         self.f = (float(c.fx), float(c.fy))
@@ -227,10 +268,16 @@ class WindowAdjuster:
             sj, sli, spx, sright = jj[keep], new_index[li[keep]], px[keep], right[keep]
             lm, M_out, b_out = lm[sel], M_out[sel], b_out[sel]
         X = s.X[lm].copy()
-        lines = self._line_terms(landmarks, frames)
-        Rs_new, ts_new, X = self._solve(Rs, ts, X, sj, sli, spx, sright, M_out, b_out, free, lines)
+        free_lines = self._free_line_terms(landmarks, frames) if self.free_lines else None
+        held = None if free_lines is None else free_lines["ids"]
+        lines = self._line_terms(landmarks, frames, held)
+        Rs_new, ts_new, X = self._solve(
+            Rs, ts, X, sj, sli, spx, sright, M_out, b_out, free, lines, free_lines
+        )
         if Rs_new is None:
             return False
+        if self.free_lines:
+            self._move_planes(landmarks, frames, Rs_new, ts_new)
         # move the window's rays to the adjusted poses and re-solve the landmarks from all rays
         o_new, d_new = self._rays(Rs_new[jj], ts_new[jj], px, right)
         # (one call: each landmark is re-solved once)
@@ -244,10 +291,86 @@ class WindowAdjuster:
             fr.R, fr.t = R, t
         return True
 
+    def _free_line_terms(self, landmarks: LandmarkMap, frames):
+        """The free line landmarks of the window: those with observation planes in the window's
+        frames whose planes in the map cross at a line (the map's own test,
+        :meth:`LandmarkMap.observe_lines`), at most ``2 max_lines`` (the most planes in the
+        window first). A dict of the plane rows (frame, line, camera-frame plane, weight), the
+        lines' stable ids and endpoints, and their priors: the map's plane normal equations
+        less the window's planes at the poses they were placed at; ``None`` without any."""
+        s = landmarks.lines
+        if len(s) == 0:
+            return None
+        rows = []
+        for j, fr in enumerate(frames):
+            ids, n, d, cam, w = fr.plane_arrays()
+            q, at = find(s.ids, ids)
+            if len(q):
+                rows.append((np.full(len(q), j), at, n[q], d[q], cam[q], w[q]))
+        if not rows:
+            return None
+        jj, at, n, d, cam, w = (np.concatenate(c) for c in zip(*rows, strict=True))
+        lu, li = np.unique(at, return_inverse=True)
+        ev = np.linalg.eigvalsh(s.M[lu])
+        count = np.bincount(li, minlength=len(lu))
+        ok = ev[:, 1] > 1e-4 * ev[:, 2]
+        order = np.lexsort((lu, -count))
+        sel = np.sort(order[ok[order]][: 2 * self.max_lines])
+        if len(sel) == 0:
+            return None
+        new_index = np.full(len(lu), -1)
+        new_index[sel] = np.arange(len(sel))
+        keep = new_index[li] >= 0
+        jj, li, n, d, cam, w = jj[keep], new_index[li[keep]], n[keep], d[keep], cam[keep], w[keep]
+        lu = lu[sel]
+        Rs = np.stack([fr.R for fr in frames])
+        ts = np.stack([fr.t for fr in frames])
+        n_b = np.einsum("ki,kij->kj", n, Rs[jj])  # body-frame planes at the frames' poses
+        d_b = d - np.einsum("ki,ki->k", n, ts[jj])
+        M_out, b_out = s.M[lu].copy(), s.b[lu].copy()
+        np.subtract.at(M_out, li, w[:, None, None] * n_b[:, :, None] * n_b[:, None, :])
+        np.subtract.at(b_out, li, (w * d_b)[:, None] * n_b)
+        return {
+            "ids": s.ids[lu],
+            "X": s.X[lu].copy(),
+            "rows": (jj, li, np.concatenate([n, d[:, None]], 1), cam, w),
+            "M": M_out,
+            "b": b_out,
+            "weight": float(frames[-1].line_weight),
+        }
+
     @staticmethod
-    def _line_terms(landmarks: LandmarkMap, frames):
+    def _move_planes(landmarks: LandmarkMap, frames, Rs_new, ts_new) -> None:
+        """Move the window's line planes to the adjusted poses (removed at the old pose, added
+        at the new one) and re-solve the lines from all their planes."""
+        s = landmarks.lines
+        if len(s) == 0:
+            return
+        idx, normals, offsets, weights = [], [], [], []
+        for fr, R, t in zip(frames, Rs_new, ts_new, strict=True):
+            ids, n, d, _, w = fr.plane_arrays()
+            q, at = find(s.ids, ids)
+            if len(q) == 0:
+                continue
+            n, d, w = n[q], d[q], w[q]
+            for RR, tt, sign in ((fr.R, fr.t, -1.0), (R, t, 1.0)):
+                idx.append(at)
+                normals.append(n @ RR)
+                offsets.append(d - n @ tt)
+                weights.append(sign * w)
+        if idx:
+            landmarks.observe_lines(
+                np.concatenate(idx),
+                np.concatenate(normals),
+                np.concatenate(offsets),
+                np.concatenate(weights),
+            )
+
+    @staticmethod
+    def _line_terms(landmarks: LandmarkMap, frames, held=None):
         """The window's line observations: frame, the landmark segment's endpoints (fixed in
-        the adjustment), the unit-normal image line and the weight, one row per endpoint."""
+        the adjustment), the unit-normal image line and the weight, one row per endpoint; the
+        free lines (stable ids ``held``) are left out."""
         s = landmarks.lines
         if len(s) == 0:
             return None
@@ -255,7 +378,11 @@ class WindowAdjuster:
         for j, fr in enumerate(frames):
             if len(fr.line_ids) == 0:
                 continue
-            q, at = find(s.ids, np.asarray(fr.line_ids))
+            line_ids = np.asarray(fr.line_ids)
+            q, at = find(s.ids, line_ids)
+            if held is not None and len(q):
+                fixed = ~np.isin(line_ids[q], held)
+                q, at = q[fixed], at[fixed]
             if len(q) == 0:
                 continue
             Xl = s.X[at]  # (k, 2, 3)
@@ -283,7 +410,7 @@ class WindowAdjuster:
         d = np.einsum("nj,nji->ni", d, R)
         return origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
-    def _solve(self, Rs, ts, X, jj, li, px, right, M_out, b_out, free, lines=None):
+    def _solve(self, Rs, ts, X, jj, li, px, right, M_out, b_out, free, lines=None, free_lines=None):
         """The adjustment (:func:`jaxpose.core.refine.adjust_window`) on the visibility grid,
         padded to ``frames`` frames, ``max_points`` landmarks and ``max_lines`` lines a frame
         (one compiled size); ``None`` poses when it fails."""
@@ -322,12 +449,23 @@ class WindowAdjuster:
             line_weight=jnp.asarray(Lw),
             free=jnp.asarray(free_p),
             motion_weight=jnp.asarray(self._motion_weight(f)),
+            lines=self._free_line_grid(f, free_lines) if self.free_lines else None,
         )
+        E = None
+        if self.free_lines:
+            m_pad = 2 * self.max_lines
+            E = np.zeros((m_pad, 2, 3))
+            E[:, :, 2] = 1.0
+            E[:, 1, 0] = 0.1
+            if free_lines is not None:
+                E[: len(free_lines["X"])] = free_lines["X"]
+            E = jnp.asarray(E)
         res = adjust_window(
             jnp.asarray(X_pad),
             obs,
             Pose(jnp.asarray(Rp), jnp.asarray(tp)),
             self.rig,
+            lines_body=E,
             options=self.options,
         )
         if int(res.status) != Status.OK:
@@ -336,6 +474,30 @@ class WindowAdjuster:
             np.asarray(res.pose.R)[:K],
             np.asarray(res.pose.t)[:K],
             np.asarray(res.points_body)[:n],
+        )
+
+    def _free_line_grid(self, f: int, free_lines) -> WindowLines:
+        """The free lines padded to ``2 max_lines`` lines and ``f`` frames (two planes a frame:
+        left and right), weights times the line weight ``1 / line_sigma^2``."""
+        m_pad = 2 * self.max_lines
+        planes = np.zeros((f, m_pad, 2, 4))
+        planes[..., 2] = 1.0
+        weight = np.zeros((f, m_pad, 2))
+        M, b = np.zeros((m_pad, 3, 3)), np.zeros((m_pad, 3))
+        m = 0
+        if free_lines is not None:
+            jj, li, nd, cam, w = free_lines["rows"]
+            lw = free_lines["weight"]
+            planes[jj, li, cam] = nd  # (a repeated observation: one of them)
+            weight[jj, li, cam] = lw * w
+            m = len(free_lines["X"])
+            M[:m], b[:m] = lw * free_lines["M"], lw * free_lines["b"]
+        return WindowLines(
+            planes=jnp.asarray(planes),
+            weight=jnp.asarray(weight),
+            prior_M=jnp.asarray(M),
+            prior_b=jnp.asarray(b),
+            mask=jnp.asarray(np.arange(m_pad) < m),
         )
 
 
