@@ -11,12 +11,12 @@ an estimate with geometry the estimate never saw:
   matched keypoint and the projection is how far one corner's keypoints move between views, for
   ``cv2.cornerSubPix`` half-windows 3 and 7.
 
-* drift (``--drift SCENE``, a scene of ``bench/stereo.py``): the tracker run twice on the same
-  frames, as it is and with its landmark map updated at the *true* poses (an oracle map; the
-  poses are still estimated from it). Reported per axis: the error of the target position in the
-  camera, ``t_est - t_true``; of the chaser position in the target frame, ``c = -R^T t`` (the
-  stereo-track metric); of the attitude, and the attitude error split into the rotation about the
-  spin axis (spin phase) and across it.
+* drift (``--drift SCENE``, a scene of ``bench/stereo.py`` or ``hNN``): the tracker run twice
+  on the same frames, as it is and with its landmark map updated at the *true* poses (an
+  oracle map; the poses are still estimated from it). Reported per axis: the error of the
+  target position in the camera, ``t_est - t_true``; of the chaser position in the target
+  frame, ``c = -R^T t`` (the stereo-track metric); of the attitude, and the attitude error
+  split into the rotation about the spin axis (spin phase) and across it.
 * repeatability (``--repeat SCENE``): per ORB budget, frame 0's keypoints (``cornerSubPix``
   refined, in the target's box), how many get a stereo match, and how many are found again in
   frames 1, 4 and 8 (matched by descriptor within 12 px of their ray-cast pixel there; median
@@ -126,13 +126,10 @@ def drift(name: str, frames: int, window_frames: int | None = None) -> dict:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
-    from stereo import scene_of  # bench/stereo.py
-
     import jaxpose.pipelines.stereo.tracker as tracker_module
     from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
 
-    scene = scene_of(name, frames, 0)
+    scene = _scene_by_name(name, frames, 0)
     rig = default_rig()
     seq = list(render_sequence(scene, rig))
     R0 = np.asarray(seq[0].pose.R)
