@@ -11,21 +11,41 @@ an estimate with geometry the estimate never saw:
   matched keypoint and the projection is how far one corner's keypoints move between views, for
   ``cv2.cornerSubPix`` half-windows 3 and 7.
 
-* drift (``--drift SCENE``, a scene of ``bench/stereo.py``): the tracker run twice on the same
-  frames, as it is and with its landmark map updated at the *true* poses (an oracle map; the
-  poses are still estimated from it). Reported per axis: the error of the target position in the
-  camera, ``t_est - t_true``; of the chaser position in the target frame, ``c = -R^T t`` (the
-  stereo-track metric); of the attitude, and the attitude error split into the rotation about the
-  spin axis (spin phase) and across it.
+* drift (``--drift SCENE``, a scene of ``bench/stereo.py`` or ``hNN``): the tracker run twice
+  on the same frames, as it is and with its landmark map updated at the *true* poses (an
+  oracle map; the poses are still estimated from it). Reported per axis: the error of the
+  target position in the camera, ``t_est - t_true``; of the chaser position in the target
+  frame, ``c = -R^T t`` (the stereo-track metric); of the attitude, and the attitude error
+  split into the rotation about the spin axis (spin phase) and across it.
 * repeatability (``--repeat SCENE``): per ORB budget, frame 0's keypoints (``cornerSubPix``
   refined, in the target's box), how many get a stereo match, and how many are found again in
   frames 1, 4 and 8 (matched by descriptor within 12 px of their ray-cast pixel there; median
   distance to it).
+* disparity bias (``--disparity-bias SCENE``, a scene of ``bench/stereo.py`` or a held-out
+  ``hNN`` of ``bench/stereo_heldout.py``): is the sub-pixel disparity biased ("pixel locking",
+  the parabola through integer-disparity ZNCC scores pulled toward whole pixels)? Two parts.
+  Estimator: the left image of frame 0 against itself shifted by ``80 + s`` px (``s`` = 0,
+  0.1, ..., 0.9, cubic interpolation): the error of the tracker's search at its ORB keypoints
+  binned by the fractional part of the true right column (the integer grid the parabola is
+  fitted on), and the same for a two-phase estimate (the mean of the search on the right image
+  and on it shifted by half a pixel, whose locking has the opposite sign). Rendered pairs:
+  frames 0-2 against ray-cast truth, binned the same way and by image column and row
+  quintiles, and a plane fitted to the error over the target, read as the depth tilt it
+  would give a map (``Z * slope / baseline``); the points whose 15 x 7 window lies on one
+  plane (ray-cast at its corners) and those whose window spans a change of depth (an edge, a
+  crease, an occluding boundary) apart.
+* disparity oracle (``--disparity-oracle SCENE``, ``--frames``, ``--seed``, ``--points-only``):
+  the tracker run as it is and with every matched point's disparity replaced by the ray-cast
+  truth at the true pose (lines as they are); the signed mean and the RMS of the camera-frame
+  attitude error over frames 1.. and the chaser position RMS. If the attitude offsets came from
+  the stereo disparities, the second run would lose them.
 
     python bench/stereo_diagnose.py               # 2 m; --range-m 3 for the far scene
     python bench/stereo_diagnose.py --drift d2-blur-3m-fast --frames 60
     python bench/stereo_diagnose.py --drift d6-blur-5m-slow --frames 40 --window-frames 0
     python bench/stereo_diagnose.py --repeat d6-blur-5m-slow
+    python bench/stereo_diagnose.py --disparity-bias d4-glints-4m-slow
+    python bench/stereo_diagnose.py --disparity-oracle h04 --frames 16 --points-only
 """
 
 from __future__ import annotations
@@ -106,13 +126,10 @@ def drift(name: str, frames: int, window_frames: int | None = None) -> dict:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
-    from stereo import scene_of  # bench/stereo.py
-
     import jaxpose.pipelines.stereo.tracker as tracker_module
     from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
 
-    scene = scene_of(name, frames, 0)
+    scene = _scene_by_name(name, frames, 0)
     rig = default_rig()
     seq = list(render_sequence(scene, rig))
     R0 = np.asarray(seq[0].pose.R)
@@ -194,6 +211,215 @@ def repeatability(name: str, budgets=(250, 640, 1000, 2000), seed: int = 0) -> N
         print(line, flush=True)
 
 
+def _scene_by_name(name: str, frames: int, seed: int):
+    """A scene of ``bench/stereo.py``, or ``hNN`` of ``bench/stereo_heldout.py`` (draw 2026)."""
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+    import stereo  # bench/stereo.py
+
+    if name in stereo.SCENES:
+        return stereo.scene_of(name, frames, seed)
+    from stereo_heldout import draw_scenes
+
+    drawn = {k.split("-")[0]: v for k, v in draw_scenes(12, 2026).items()}
+    return StereoScene(frames=frames, seed=seed, **drawn[name.split("-")[0]])
+
+
+def _two_phase(left, right, pixels, disparities, options):
+    """Right columns: the mean of the search on ``right`` and on ``right`` shifted left by half
+    a pixel (cubic), whose parabola locks on the other half-integers; ok where both match."""
+    import cv2
+
+    R = np.asarray(right, np.float32)
+    shifted = cv2.warpAffine(
+        R,
+        np.float32([[1, 0, -0.5], [0, 1, 0]]),
+        R.shape[::-1],
+        flags=cv2.INTER_CUBIC,
+        borderMode=cv2.BORDER_REPLICATE,
+    )  # shifted(x) = right(x + 0.5)
+    a = match_points_stereo(left, R, pixels, disparities, options=options)
+    b = match_points_stereo(left, shifted, pixels, disparities, options=options)
+    return 0.5 * (a.pixels_right[:, 0] + b.pixels_right[:, 0] + 0.5), a.ok & b.ok
+
+
+def _binned(e, key, bins=10) -> list:
+    b = np.minimum((key * bins).astype(int), bins - 1)
+    return [round(float(np.mean(e[b == i])), 3) if np.any(b == i) else None for i in range(bins)]
+
+
+def disparity_bias(name: str, seed: int = 0) -> dict:
+    """Sub-pixel disparity bias of the epipolar search (module docstring)."""
+    import cv2
+
+    from jaxpose.pipelines.stereo import TrackerOptions
+
+    scene = _scene_by_name(name, 3, seed)
+    rig, model = default_rig(), tumbler_model()
+    cam, B = rig.left, float(rig.baseline)
+    fb = float(cam.fx) * B
+    to = TrackerOptions()
+    fo = replace(to.features, n_points=to.keypoint_floor or to.features.n_points)
+    frames = [render_stereo_frame(scene, rig, k) for k in (0, 1, 2)]
+    out = {"scene": name, "seed": seed}
+    # 1. the estimator alone: known sub-pixel shifts of frame 0's left image
+    L = np.asarray(frames[0].left, np.float32)
+    p0 = extract(frames[0].left, roi=target_roi(frames[0].left), lines=False, options=fo).points
+    flat = replace(to.stereo, coarse_min_range=None)
+    e1, e2, key = [], [], []
+    for s in np.arange(10) / 10:
+        D = 80.0 + s
+        R = cv2.warpAffine(
+            L,
+            np.float32([[1, 0, -D], [0, 1, 0]]),
+            L.shape[::-1],
+            flags=cv2.INTER_CUBIC,
+            borderMode=cv2.BORDER_REPLICATE,
+        )  # R(x) = L(x + D): disparity D everywhere
+        pm = match_points_stereo(L, R, p0, (74, 86), options=flat)
+        ur2, ok2 = _two_phase(L, R, p0, (74, 86), flat)
+        ok = pm.ok & ok2
+        e1.append(p0[ok, 0] - pm.pixels_right[ok, 0] - D)
+        e2.append(p0[ok, 0] - ur2[ok] - D)
+        key.append((p0[ok, 0] - D) % 1.0)
+    e1, e2, key = map(np.concatenate, (e1, e2, key))
+    out["shift_test"] = {
+        "n": len(e1),
+        "error_by_frac_right_col_px": _binned(e1, key),
+        "two_phase_by_frac_right_col_px": _binned(e2, key),
+        "mad_std_px": round(float(1.4826 * np.median(np.abs(e1 - np.median(e1)))), 3),
+    }
+    # 2. rendered pairs against ray-cast truth
+    disp = disparity_range(rig, *to.depth_range_m)
+    cols = {k: [] for k in ("e", "e2", "fr", "fd", "u", "v", "Z", "planar")}
+    for fr in frames:
+        Rt, tt = np.asarray(fr.pose.R), np.asarray(fr.pose.t)
+        p = extract(fr.left, roi=target_roi(fr.left), lines=False, options=fo).points
+        pm = match_points_stereo(fr.left, fr.right, p, disp, options=to.stereo)
+        ur2, ok2 = _two_phase(fr.left, fr.right, p, disp, to.stereo)
+        # true disparity at the window's centre and corners: a window on one plane has the
+        # corners' mean at the centre (disparity is affine over a plane) and equal diagonals
+        dw = np.array(
+            [
+                fb / (raycast(p + o, Rt, tt, cam, model) @ Rt.T + tt)[:, 2]
+                for o in ((0, 0), (-7, -3), (7, -3), (-7, 3), (7, 3))
+            ]
+        )
+        Z = fb / dw[0]
+        with np.errstate(invalid="ignore"):
+            planar = (np.abs(dw[1:].mean(0) - dw[0]) < 0.05) & (
+                np.abs(dw[1] + dw[4] - dw[2] - dw[3]) < 0.1
+            )
+        good = pm.ok & ok2 & np.isfinite(Z)
+        dt = fb / Z[good]
+        q = p[good]
+        cols["e"].append(q[:, 0] - pm.pixels_right[good, 0] - dt)
+        cols["e2"].append(q[:, 0] - ur2[good] - dt)
+        cols["fr"].append((q[:, 0] - dt) % 1.0)
+        cols["fd"].append(dt % 1.0)
+        cols["u"].append(q[:, 0])
+        cols["v"].append(q[:, 1])
+        cols["Z"].append(Z[good])
+        cols["planar"].append(planar[good])
+    c = {k: np.concatenate(v) for k, v in cols.items()}
+    # gross mismatches out (and points where the two phases found different peaks)
+    inl = (np.abs(c["e"] - np.median(c["e"])) < 1.0) & (np.abs(c["e2"] - c["e"]) < 0.5)
+    c = {k: v[inl] for k, v in c.items()}
+    e, Zm = c["e"], float(np.median(c["Z"]))
+    rendered = {
+        "n": int(len(e)),
+        "range_m": round(Zm, 2),
+        "median_px": round(float(np.median(e)), 3),
+        "mad_std_px": round(float(1.4826 * np.median(np.abs(e - np.median(e)))), 3),
+        "by_frac_right_col_px": _binned(e, c["fr"]),
+        "by_frac_disparity_px": _binned(e, c["fd"]),
+    }
+    for axis in ("u", "v"):
+        edges = np.quantile(c[axis], np.linspace(0, 1, 6))
+        rendered[f"by_{axis}_quintile_px"] = [
+            round(float(np.mean(e[(c[axis] >= lo) & (c[axis] <= hi)])), 3)
+            for lo, hi in zip(edges[:-1], edges[1:], strict=True)
+        ]
+    pl = c["planar"]
+    M0 = np.stack([np.ones(len(e)), c["u"] - c["u"].mean(), c["v"] - c["v"].mean()], 1)
+    rendered["planar_window"] = {"n": int(pl.sum()), "median_px": round(float(np.median(e[pl])), 3)}
+    rendered["window_across_depth_change"] = {
+        "n": int((~pl).sum()),
+        "median_px": round(float(np.median(e[~pl])), 3),
+    }
+    for label, err, sel in (
+        ("parabola", e, np.ones(len(e), bool)),
+        ("two_phase", c["e2"], np.ones(len(e), bool)),
+        ("parabola_planar_windows", e, pl),
+    ):
+        M, err = M0[sel], err[sel]
+        coef, *_ = np.linalg.lstsq(M, err, rcond=None)
+        r = err - M @ coef
+        # x3 on the standard error: frames 0-2 see mostly the same corners (not independent)
+        se = 3 * np.sqrt(np.diag(np.linalg.inv(M.T @ M)) * r.var())
+        rendered[f"plane_{label}"] = {
+            "slope_px_per_100px_u_v": np.round(100 * coef[1:], 4).tolist(),
+            "tilt_deg_about_v_u": np.round(np.degrees(coef[1:] * Zm / B), 2).tolist(),
+            "tilt_se_deg": np.round(np.degrees(se[1:] * Zm / B), 2).tolist(),
+        }
+    out["rendered_frames_0_2"] = rendered
+    print(json.dumps(out), flush=True)
+    return out
+
+
+def disparity_oracle(name: str, frames: int, seed: int = 0, points_only: bool = False) -> dict:
+    """The tracker with true point disparities against as it is (module docstring)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import jaxpose.pipelines.stereo.keyframes as keyframes
+    from jaxpose.core.geometry import so3_log
+    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
+
+    scene = _scene_by_name(name, frames, seed)
+    rig, model = default_rig(), tumbler_model()
+    cam = rig.left
+    fb = float(cam.fx) * float(rig.baseline)
+    seq = list(render_sequence(scene, rig))
+    truth = [None]
+    search_points, search_both = keyframes.match_points_stereo, keyframes.match_stereo
+
+    def true_points(left, right, p, disp, *, options):
+        pm = search_points(left, right, p, disp, options=options)
+        R, t = np.asarray(truth[0].R), np.asarray(truth[0].t)
+        Z = (raycast(p, R, t, cam, model) @ R.T + t)[:, 2]
+        g = pm.ok & np.isfinite(Z)
+        pm.pixels_right[g, 0] = p[g, 0] - fb / Z[g]
+        return pm
+
+    def true_both(left, right, p, dp, seg, dl, *, options, executor=None):
+        _, lm = search_both(left, right, p[:0], np.zeros((0, 2)), seg, dl, options=options)
+        return true_points(left, right, p, dp, options=options), lm
+
+    out = {"scene": name, "seed": seed, "frames": frames, "points_only": points_only}
+    for label in ("as is", "true point disparities"):
+        if label != "as is":
+            keyframes.match_points_stereo, keyframes.match_stereo = true_points, true_both
+        try:
+            tr = StereoTracker(rig, seq[0].pose, options=TrackerOptions(use_lines=not points_only))
+            w, c = [], []
+            for fr in seq:
+                truth[0] = fr.pose
+                r = tr.process(fr.left, fr.right)
+                Rt, tt = np.asarray(fr.pose.R), np.asarray(fr.pose.t)
+                w.append(np.degrees(np.asarray(so3_log(np.asarray(r.R) @ Rt.T))))
+                c.append((-np.asarray(r.R).T @ np.asarray(r.t) + Rt.T @ tt) * 1000)
+        finally:
+            keyframes.match_points_stereo, keyframes.match_stereo = search_points, search_both
+        w, c = np.array(w[1:]), np.array(c[1:])
+        out[label] = {
+            "attitude_error_camera_mean_deg": np.round(w.mean(0), 2).tolist(),
+            "attitude_error_camera_rms_deg": np.round(np.sqrt((w**2).mean(0)), 2).tolist(),
+            "chaser_position_rms_mm": np.round(np.sqrt((c**2).mean(0)), 1).tolist(),
+        }
+    print(json.dumps(out), flush=True)
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--range-m", type=float, default=2.0)
@@ -206,7 +432,21 @@ def main(argv=None) -> int:
         help="drift diagnosis with this window_frames (0: no windowed adjustment)",
     )
     p.add_argument("--repeat", default=None, help="a scene of bench/stereo.py: repeatability")
+    p.add_argument(
+        "--disparity-bias", default=None, help="a scene (or hNN): sub-pixel disparity bias"
+    )
+    p.add_argument("--seed", type=int, default=0, help="scene seed of --disparity-bias/oracle")
+    p.add_argument(
+        "--disparity-oracle", default=None, help="a scene (or hNN): true point disparities"
+    )
+    p.add_argument("--points-only", action="store_true", help="--disparity-oracle without lines")
     args = p.parse_args(argv)
+    if args.disparity_oracle:
+        disparity_oracle(args.disparity_oracle, args.frames, args.seed, args.points_only)
+        return 0
+    if args.disparity_bias:
+        disparity_bias(args.disparity_bias, args.seed)
+        return 0
     if args.repeat:
         repeatability(args.repeat)
         return 0
