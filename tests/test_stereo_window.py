@@ -35,6 +35,19 @@ def _pixels(rig, R, t, X):
     return out
 
 
+def _perturbed(rng, R, t):
+    """The pose as a tracker would have it: off by up to about 0.5 degree and 1 cm."""
+    Re = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R
+    return Re, t + rng.normal(0, 0.006, 3)
+
+
+def _observe(m, rig, ids, R, t, X, estimate: Pose, rec):
+    """The rays of both images of the true pose ``(R, t)``, placed at the ``estimate``."""
+    left, right = _pixels(rig, R, t, X)
+    observe_point_rays(m, rig, ids, left, estimate, right=False, log=rec)
+    observe_point_rays(m, rig, ids, right, estimate, right=True, log=rec)
+
+
 def _angle_deg(Ra, Rb):
     return np.degrees(Rotation.from_matrix(Ra @ Rb.T).magnitude())
 
@@ -58,18 +71,12 @@ def test_adjustment_recovers_the_true_poses_and_landmarks():
     ids = None
     for j, (R, t) in enumerate(poses):
         # the frames' poses as a tracker would have them: off by up to 0.5 degree and 1 cm
-        if j == 0:
-            Re, te = R, t
-        else:
-            Re = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R
-            te = t + rng.normal(0, 0.006, 3)
+        Re, te = (R, t) if j == 0 else _perturbed(rng, R, t)
         pose = Pose(Re, te)
         if ids is None:
             ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), pose, 0)
         rec = win.start(Re, te, fixed=j == 0)
-        left, right = _pixels(rig, R, t, X)
-        observe_point_rays(m, rig, ids, left, pose, right=False, log=rec)
-        observe_point_rays(m, rig, ids, right, pose, right=True, log=rec)
+        _observe(m, rig, ids, R, t, X, pose, rec)
     before = max(_angle_deg(fr.R, R) for fr, (R, _) in zip(win.frames, poses, strict=True))
     err_X_before = np.abs(m.points.X - X).max()
     assert before > 0.2 and err_X_before > 1e-3
@@ -87,14 +94,10 @@ def test_older_rays_are_a_prior_that_holds_the_landmarks():
     ids = m.add("points", X, np.zeros((60, 32)), Pose(*poses[0]), 0)
     rng = np.random.default_rng(2)
     for j, (R, t) in enumerate(poses):
-        Re, te = R, t
-        if j >= 3:  # the window's frames: off by up to 0.5 degree
-            Re = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R
-            te = t + rng.normal(0, 0.006, 3)
+        # the window's frames off by up to 0.5 degree
+        Re, te = _perturbed(rng, R, t) if j >= 3 else (R, t)
         rec = win.start(Re, te)
-        left, right = _pixels(rig, R, t, X)
-        observe_point_rays(m, rig, ids, left, Pose(Re, te), right=False, log=rec)
-        observe_point_rays(m, rig, ids, right, Pose(Re, te), right=True, log=rec)
+        _observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
     assert [fr.fixed for fr in win.frames] == [False] * 3
     assert win.adjust(m)
     for fr, (R, t) in zip(win.frames, poses[3:], strict=True):
@@ -121,14 +124,9 @@ def test_landmark_cap_still_recovers_poses_and_moves_every_landmark():
     win = WindowAdjuster(rig, frames=5, iterations=8, max_points=20)
     ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), Pose(*poses[0]), 0)
     for j, (R, t) in enumerate(poses):
-        Re, te = R, t
-        if j:
-            Re = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R
-            te = t + rng.normal(0, 0.006, 3)
+        Re, te = _perturbed(rng, R, t) if j else (R, t)
         rec = win.start(Re, te, fixed=j == 0)
-        left, right = _pixels(rig, R, t, X)
-        observe_point_rays(m, rig, ids, left, Pose(Re, te), right=False, log=rec)
-        observe_point_rays(m, rig, ids, right, Pose(Re, te), right=True, log=rec)
+        _observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
     _assert_adjusts_to_truth(win, m, poses, X)
 
 
@@ -194,14 +192,9 @@ def test_free_lines_are_moved_onto_the_true_lines(free_lines):
     ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), Pose(*poses[0]), 0)
     lids = m.add("lines", P + rng.normal(0, 0.01, P.shape), np.zeros((6, 32)), Pose(*poses[0]), 0)
     for j, (R, t) in enumerate(poses):
-        Re, te = R, t
-        if j:
-            Re = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R
-            te = t + rng.normal(0, 0.006, 3)
+        Re, te = _perturbed(rng, R, t) if j else (R, t)
         rec = win.start(Re, te, fixed=j == 0)
-        left, right = _pixels(rig, R, t, X)
-        observe_point_rays(m, rig, ids, left, Pose(Re, te), right=False, log=rec)
-        observe_point_rays(m, rig, ids, right, Pose(Re, te), right=True, log=rec)
+        _observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
         observe_line_planes(m, rig, lids, P @ R.T + t, Pose(Re, te), log=rec)  # true segments
     _assert_adjusts_to_truth(win, m, poses, X)
     u = (P[:, 1] - P[:, 0]) / np.linalg.norm(P[:, 1] - P[:, 0], axis=1, keepdims=True)
