@@ -53,34 +53,49 @@ __all__ = ["FrameRays", "WindowAdjuster"]
 
 @dataclass
 class FrameRays:
-    """The point rays one frame added to the map, and the pose they were placed at.
+    """The point rays and line planes one frame added to the map, and the pose they were placed at.
 
     Attributes:
         R, t: the frame's pose (body to left camera), NumPy.
-        ids: ``(n,)`` stable landmark ids (:attr:`LandmarkSet.ids`).
-        pixels: ``(n, 2)`` observed pixels; ``right``: ``(n,)`` bool, right-image pixel.
-        weights: ``(n,)`` the rays' weights (``1 / depth^2``).
+        rays: the point rays, one chunk per :meth:`add` (stable landmark ids
+            :attr:`LandmarkSet.ids` ``(n,)``, observed pixels ``(n, 2)``, right-image flags
+            ``(n,)``, weights ``1 / depth^2`` ``(n,)``); :meth:`arrays` concatenates them.
         fixed: the frame's pose is a gauge anchor (the given first pose).
         index: the frame's number.
         line_ids, lines: stable ids of the line landmarks matched in the left image and the
             observed homogeneous image lines ``(k, 3)``; ``line_weight``: ``1 / line_sigma^2``.
-        planes: the line landmarks' observation planes the frame added to the map (stable
-            ids, unit normals ``(k, 3)`` and offsets ``(k,)`` in the left camera frame, the
-            camera ``0`` left or ``1`` right, weights ``1 / depth^2``; :meth:`add_planes`).
+        planes: the line landmarks' observation planes the frame added to the map, one chunk per
+            :meth:`add_planes` (stable ids, unit normals ``(k, 3)`` and offsets ``(k,)`` in the
+            left camera frame, the camera ``0`` left or ``1`` right, weights ``1 / depth^2``);
+            :meth:`plane_arrays` concatenates them.
     """
 
     R: np.ndarray
     t: np.ndarray
-    ids: list = field(default_factory=list)
-    pixels: list = field(default_factory=list)
-    right: list = field(default_factory=list)
-    weights: list = field(default_factory=list)
+    rays: list = field(default_factory=list)
     fixed: bool = False
     index: int = -1
     line_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     lines: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     line_weight: float = 1.0
     planes: list = field(default_factory=list)
+
+    def add(self, ids, pixels, right: bool, weights) -> None:
+        n = len(ids)
+        if n:
+            self.rays.append(
+                (
+                    np.asarray(ids, np.int64),
+                    np.asarray(pixels, float).reshape(n, 2),
+                    np.full(n, bool(right)),
+                    np.asarray(weights, float).reshape(n),
+                )
+            )
+
+    def arrays(self):
+        """``(ids, pixels, right, weights)`` of all the frame's rays."""
+        empty = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0, bool), np.zeros(0))
+        return _columns(self.rays, empty)
 
     def add_planes(self, ids, normals, offsets, cam: int, weights) -> None:
         n = len(ids)
@@ -96,33 +111,23 @@ class FrameRays:
             )
 
     def plane_arrays(self):
-        if not self.planes:
-            return (
-                np.zeros(0, np.int64),
-                np.zeros((0, 3)),
-                np.zeros(0),
-                np.zeros(0, int),
-                np.zeros(0),
-            )
-        return tuple(np.concatenate(c) for c in zip(*self.planes, strict=True))
-
-    def add(self, ids, pixels, right: bool, weights) -> None:
-        n = len(ids)
-        if n:
-            self.ids.append(np.asarray(ids, np.int64))
-            self.pixels.append(np.asarray(pixels, float).reshape(n, 2))
-            self.right.append(np.full(n, bool(right)))
-            self.weights.append(np.asarray(weights, float))
-
-    def arrays(self):
-        if not self.ids:
-            return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0, bool), np.zeros(0)
-        return (
-            np.concatenate(self.ids),
-            np.concatenate(self.pixels),
-            np.concatenate(self.right),
-            np.concatenate(self.weights),
+        """``(ids, normals, offsets, cameras, weights)`` of all the frame's line planes."""
+        empty = (
+            np.zeros(0, np.int64),
+            np.zeros((0, 3)),
+            np.zeros(0),
+            np.zeros(0, int),
+            np.zeros(0),
         )
+        return _columns(self.planes, empty)
+
+
+def _columns(chunks: list, empty: tuple) -> tuple:
+    """The columns of ``chunks`` (equal-length tuples of arrays) concatenated; ``empty`` when
+    there is none."""
+    if not chunks:
+        return empty
+    return tuple(np.concatenate(c) for c in zip(*chunks, strict=True))
 
 
 def ray_geometry(rig: StereoCamera, R, t, pixels, right):
@@ -438,6 +443,7 @@ class WindowAdjuster:
         X_pad = np.zeros((n_pad, 3))
         X_pad[:, 2] = 1.0
         X_pad[:n] = X
+        grid, E = self._free_line_grid(f, free_lines) if self.free_lines else (None, None)
         obs = WindowObservations(
             pixels=jnp.asarray(pixels),
             mask=jnp.asarray(mask),
@@ -449,17 +455,8 @@ class WindowAdjuster:
             line_weight=jnp.asarray(Lw),
             free=jnp.asarray(free_p),
             motion_weight=jnp.asarray(self._motion_weight(f)),
-            lines=self._free_line_grid(f, free_lines) if self.free_lines else None,
+            lines=grid,
         )
-        E = None
-        if self.free_lines:
-            m_pad = 2 * self.max_lines
-            E = np.zeros((m_pad, 2, 3))
-            E[:, :, 2] = 1.0
-            E[:, 1, 0] = 0.1
-            if free_lines is not None:
-                E[: len(free_lines["X"])] = free_lines["X"]
-            E = jnp.asarray(E)
         res = adjust_window(
             jnp.asarray(X_pad),
             obs,
@@ -476,29 +473,36 @@ class WindowAdjuster:
             np.asarray(res.points_body)[:n],
         )
 
-    def _free_line_grid(self, f: int, free_lines) -> WindowLines:
+    def _free_line_grid(self, f: int, free_lines):
         """The free lines padded to ``2 max_lines`` lines and ``f`` frames (two planes a frame:
-        left and right), weights times the line weight ``1 / line_sigma^2``."""
+        left and right), weights times the line weight ``1 / line_sigma^2``: the
+        :class:`WindowLines` and the endpoints ``(2 max_lines, 2, 3)`` (padded lines: a 0.1 m
+        segment 1 m ahead)."""
         m_pad = 2 * self.max_lines
         planes = np.zeros((f, m_pad, 2, 4))
         planes[..., 2] = 1.0
         weight = np.zeros((f, m_pad, 2))
         M, b = np.zeros((m_pad, 3, 3)), np.zeros((m_pad, 3))
+        E = np.zeros((m_pad, 2, 3))
+        E[:, :, 2] = 1.0
+        E[:, 1, 0] = 0.1
         m = 0
         if free_lines is not None:
+            E[: len(free_lines["X"])] = free_lines["X"]
             jj, li, nd, cam, w = free_lines["rows"]
             lw = free_lines["weight"]
             planes[jj, li, cam] = nd  # (a repeated observation: one of them)
             weight[jj, li, cam] = lw * w
             m = len(free_lines["X"])
             M[:m], b[:m] = lw * free_lines["M"], lw * free_lines["b"]
-        return WindowLines(
+        lines = WindowLines(
             planes=jnp.asarray(planes),
             weight=jnp.asarray(weight),
             prior_M=jnp.asarray(M),
             prior_b=jnp.asarray(b),
             mask=jnp.asarray(np.arange(m_pad) < m),
         )
+        return lines, jnp.asarray(E)
 
 
 def _pad(a: np.ndarray, n: int) -> np.ndarray:
