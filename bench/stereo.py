@@ -202,6 +202,25 @@ def run_scene(name: str, frames: int | None, modes=MODES, seed: int = 0, options
     return out
 
 
+def run_scenes(names, frames, modes, seed, options, out: Path) -> list[dict]:
+    """:func:`run_scene` on each scene in turn, ``out/results.json`` rewritten after each (a run
+    cut short keeps what it did) and a progress line on stderr."""
+    results = []
+    for name in names:
+        r = run_scene(name, frames, modes, seed=seed, options=options)
+        results.append(r)
+        (out / "results.json").write_text(json.dumps(results, indent=1))
+        m = r["points+lines"]
+        print(
+            f"done {name}: {m['rms_position_mm']} mm, {m['rms_attitude_deg']} deg, "
+            f"lost {m['lost_frames']}, targets {m['meets_targets']}, {m['fps']} fps, "
+            f"{m['mean_frame_cpu_s']} CPU s a frame",
+            file=sys.stderr,
+            flush=True,
+        )
+    return results
+
+
 def figure(results: list[dict], path: Path) -> None:
     """Per-axis RMS position per metre of range and attitude against range and spin rate."""
     import matplotlib
@@ -332,18 +351,7 @@ def main(argv=None) -> int:
                 options = replace(options, **{group: inner})
             else:
                 options = replace(options, **{key: ast.literal_eval(value)})
-    results = []
-    for name in names:
-        r = run_scene(name, args.frames, modes, seed=args.seed, options=options)
-        results.append(r)
-        (args.out / "results.json").write_text(json.dumps(results, indent=1))
-        m = r["points+lines"]
-        print(
-            f"done {name}: {m['rms_position_mm']} mm, {m['rms_attitude_deg']} deg, "
-            f"lost {m['lost_frames']}, {m['fps']} fps, {m['mean_frame_cpu_s']} CPU s a frame",
-            file=sys.stderr,
-            flush=True,
-        )
+    results = run_scenes(names, args.frames, modes, args.seed, options, args.out)
     report(results, modes, args.out, args.frames, load0, timing=args.timing_only)
     return 0
 

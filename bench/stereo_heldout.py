@@ -85,18 +85,7 @@ def main(argv=None) -> int:
     modes = stereo.MODES if args.both_modes else ("points+lines",)
     args.out.mkdir(parents=True, exist_ok=True)
     load0 = os.getloadavg()
-    results = []
-    for name in drawn:
-        r = stereo.run_scene(name, args.frames, modes, seed=args.seed)
-        results.append(r)
-        (args.out / "results.json").write_text(json.dumps(results, indent=1))
-        m = r["points+lines"]
-        print(
-            f"done {name}: {m['rms_position_mm']} mm, {m['rms_attitude_deg']} deg, "
-            f"lost {m['lost_frames']}, targets {m['meets_targets']}",
-            file=sys.stderr,
-            flush=True,
-        )
+    results = stereo.run_scenes(list(drawn), args.frames, modes, args.seed, None, args.out)
     for line in stereo.table(results, modes):
         print(line)
     stereo.figure(results, args.out / "rms_vs_range_rate.png")
