@@ -28,6 +28,17 @@ RIG = StereoCamera.from_baseline(CAM, 0.3)
 F, N, K = 3, 8, 2  # frames, landmarks (the last one padding), line rows a frame
 
 
+def _stereo_pixels(Rs, ts, X):
+    """Exact left and right pixels ``(F, N, 2, 2)`` of body points ``X`` at the poses ``(Rs,
+    ts)`` (NumPy pinhole projection of the rectified rig)."""
+    Kmat = np.asarray(CAM.K)
+    x = np.einsum("fij,nj->fni", Rs, X) + ts[:, None]
+    left = (x @ Kmat.T)[..., :2] / x[..., 2:]
+    xr = x + np.asarray(RIG.t_rl)
+    right = (xr @ Kmat.T)[..., :2] / xr[..., 2:]
+    return np.stack([left, right], 2)
+
+
 @pytest.fixture(scope="module")
 def window():
     rng = np.random.default_rng(4)
@@ -35,11 +46,7 @@ def window():
     Rs = np.stack([Rotation.from_rotvec([0.1, 0.05 * j, 0.02]).as_matrix() for j in range(F)])
     ts = np.array([0.02, -0.01, 2.0]) + rng.normal(0, 0.01, (F, 3))
     Kmat = np.asarray(CAM.K)
-    x = np.einsum("fij,nj->fni", Rs, X) + ts[:, None]
-    left = (x @ Kmat.T)[..., :2] / x[..., 2:]
-    xr = x + np.asarray(RIG.t_rl)
-    right = (xr @ Kmat.T)[..., :2] / xr[..., 2:]
-    pixels = np.stack([left, right], 2) + rng.normal(0, 0.7, (F, N, 2, 2))
+    pixels = _stereo_pixels(Rs, ts, X) + rng.normal(0, 0.7, (F, N, 2, 2))
     mask = rng.random((F, N, 2)) < 0.8
     mask[:, -1] = False  # the padded landmark
     A = rng.normal(size=(N, 3, 3)) * 0.05
@@ -275,13 +282,7 @@ def test_free_lines_move_onto_the_true_lines(window):
     rng = np.random.default_rng(7)
     Rs = np.stack([Rotation.from_rotvec([0.1, 0.05 * j, 0.02]).as_matrix() for j in range(F)])
     ts = np.array([0.02, -0.01, 2.0]) + np.random.default_rng(4).normal(0, 0.01, (F, 3))
-    # the fixture's truth (same generator): exact pixels of its landmarks
-    X = X0  # any body points will do: make their pixels exact at (Rs, ts)
-    Kmat = np.asarray(CAM.K)
-    x = np.einsum("fij,nj->fni", Rs, X) + ts[:, None]
-    left = (x @ Kmat.T)[..., :2] / x[..., 2:]
-    xr = x + np.asarray(RIG.t_rl)
-    right = (xr @ Kmat.T)[..., :2] / xr[..., 2:]
+    X = X0  # the fixture's landmarks; their pixels made exact at this test's (Rs, ts)
     m = 4  # the last one padding
     P_true = rng.uniform(-0.3, 0.3, (m, 2, 3))
     planes = np.zeros((F, m, 2, 4))
@@ -314,7 +315,7 @@ def test_free_lines_move_onto_the_true_lines(window):
         lambda o: (o.pixels, o.prior_M, o.prior_b, o.line_weight, o.lines),
         obs,
         (
-            jnp.asarray(np.stack([left, right], 2)),
+            jnp.asarray(_stereo_pixels(Rs, ts, X)),
             jnp.zeros_like(obs.prior_M),
             jnp.zeros_like(obs.prior_b),
             jnp.zeros_like(obs.line_weight),
