@@ -168,13 +168,10 @@ def _project(Xb, pose, cam) -> np.ndarray:
 
 def repeatability(name: str, budgets=(250, 640, 1000, 2000), seed: int = 0) -> None:
     """ORB keypoints of frame 0 found again in later frames, per budget (module docstring)."""
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
-    from stereo import scene_of  # bench/stereo.py
-
     from jaxpose.vision.stereo_features import detect_points
     from jaxpose.vision.stereo_match import StereoMatchOptions
 
-    scene = scene_of(name, 9, seed)
+    scene = _scene_by_name(name, 9, seed)
     rig, model = default_rig(), tumbler_model()
     cam = rig.left
     fb = float(cam.fx) * float(rig.baseline)
@@ -200,7 +197,7 @@ def repeatability(name: str, budgets=(250, 640, 1000, 2000), seed: int = 0) -> N
         e = ((p0[:, 0] - pm.pixels_right[:, 0]) - fb / Z)[pm.ok]
         e = e[np.isfinite(e)]
         line = f"{name} budget {n}: {len(p0)} keypoints, {len(e)} stereo (disparity MAD-std "
-        line += f"{1.4826 * np.median(np.abs(e - np.median(e))):.3f} px); found again:"
+        line += f"{_mad_std(e):.3f} px); found again:"
         for k in (1, 4, 8):
             pk, dk = feats[k]
             pred = _project(Xb, frames[k].pose, cam)
@@ -212,31 +209,40 @@ def repeatability(name: str, budgets=(250, 640, 1000, 2000), seed: int = 0) -> N
 
 
 def _scene_by_name(name: str, frames: int, seed: int):
-    """A scene of ``bench/stereo.py``, or ``hNN`` of ``bench/stereo_heldout.py`` (draw 2026)."""
+    """A scene of ``bench/stereo.py``, or ``hNN`` of ``bench/stereo_heldout.py`` (its default
+    draw)."""
     sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
     import stereo  # bench/stereo.py
 
     if name in stereo.SCENES:
         return stereo.scene_of(name, frames, seed)
-    from stereo_heldout import draw_scenes
+    from stereo_heldout import DRAW_SEED, N_SCENES, draw_scenes
 
-    drawn = {k.split("-")[0]: v for k, v in draw_scenes(12, 2026).items()}
+    drawn = {k.split("-")[0]: v for k, v in draw_scenes(N_SCENES, DRAW_SEED).items()}
     return StereoScene(frames=frames, seed=seed, **drawn[name.split("-")[0]])
+
+
+def _mad_std(e) -> float:
+    """Robust standard deviation: 1.4826 times the median absolute deviation."""
+    return float(1.4826 * np.median(np.abs(e - np.median(e))))
+
+
+def _shifted(image, dx: float) -> np.ndarray:
+    """``out(x) = image(x + dx)`` (float32, cubic interpolation, edges replicated)."""
+    import cv2
+
+    im = np.asarray(image, np.float32)
+    M = np.float32([[1, 0, -dx], [0, 1, 0]])
+    return cv2.warpAffine(
+        im, M, im.shape[::-1], flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE
+    )
 
 
 def _two_phase(left, right, pixels, disparities, options):
     """Right columns: the mean of the search on ``right`` and on ``right`` shifted left by half
     a pixel (cubic), whose parabola locks on the other half-integers; ok where both match."""
-    import cv2
-
     R = np.asarray(right, np.float32)
-    shifted = cv2.warpAffine(
-        R,
-        np.float32([[1, 0, -0.5], [0, 1, 0]]),
-        R.shape[::-1],
-        flags=cv2.INTER_CUBIC,
-        borderMode=cv2.BORDER_REPLICATE,
-    )  # shifted(x) = right(x + 0.5)
+    shifted = _shifted(R, 0.5)
     a = match_points_stereo(left, R, pixels, disparities, options=options)
     b = match_points_stereo(left, shifted, pixels, disparities, options=options)
     return 0.5 * (a.pixels_right[:, 0] + b.pixels_right[:, 0] + 0.5), a.ok & b.ok
@@ -249,7 +255,6 @@ def _binned(e, key, bins=10) -> list:
 
 def disparity_bias(name: str, seed: int = 0) -> dict:
     """Sub-pixel disparity bias of the epipolar search (module docstring)."""
-    import cv2
 
     from jaxpose.pipelines.stereo import TrackerOptions
 
@@ -268,13 +273,7 @@ def disparity_bias(name: str, seed: int = 0) -> dict:
     e1, e2, key = [], [], []
     for s in np.arange(10) / 10:
         D = 80.0 + s
-        R = cv2.warpAffine(
-            L,
-            np.float32([[1, 0, -D], [0, 1, 0]]),
-            L.shape[::-1],
-            flags=cv2.INTER_CUBIC,
-            borderMode=cv2.BORDER_REPLICATE,
-        )  # R(x) = L(x + D): disparity D everywhere
+        R = _shifted(L, D)  # R(x) = L(x + D): disparity D everywhere
         pm = match_points_stereo(L, R, p0, (74, 86), options=flat)
         ur2, ok2 = _two_phase(L, R, p0, (74, 86), flat)
         ok = pm.ok & ok2
@@ -286,7 +285,7 @@ def disparity_bias(name: str, seed: int = 0) -> dict:
         "n": len(e1),
         "error_by_frac_right_col_px": _binned(e1, key),
         "two_phase_by_frac_right_col_px": _binned(e2, key),
-        "mad_std_px": round(float(1.4826 * np.median(np.abs(e1 - np.median(e1)))), 3),
+        "mad_std_px": round(_mad_std(e1), 3),
     }
     # 2. rendered pairs against ray-cast truth
     disp = disparity_range(rig, *to.depth_range_m)
@@ -329,7 +328,7 @@ def disparity_bias(name: str, seed: int = 0) -> dict:
         "n": int(len(e)),
         "range_m": round(Zm, 2),
         "median_px": round(float(np.median(e)), 3),
-        "mad_std_px": round(float(1.4826 * np.median(np.abs(e - np.median(e)))), 3),
+        "mad_std_px": round(_mad_std(e), 3),
         "by_frac_right_col_px": _binned(e, c["fr"]),
         "by_frac_disparity_px": _binned(e, c["fd"]),
     }
@@ -469,7 +468,7 @@ def main(argv=None) -> int:
         Z = (raycast(pl, R, t, cam, model) @ R.T + t)[:, 2]
         e = (pl[:, 0] - pr[:, 0]) - fb / Z
         e = e[np.isfinite(e)]
-        mad = 1.4826 * np.median(np.abs(e - np.median(e)))
+        mad = _mad_std(e)
         print(
             f"stereo frame {k}: {len(e)} points, disparity error median {np.median(e):+.3f} px, "
             f"MAD-std {mad:.3f} px, beyond 1 px {np.mean(np.abs(e) > 1):.1%}"

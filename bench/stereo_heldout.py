@@ -33,6 +33,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import stereo  # noqa: E402  (bench/stereo.py: the suite's runner, table and figure)
 
+#: The default draw: how many scenes and the seed of their parameters.
+N_SCENES, DRAW_SEED = 12, 2026
+
 
 def draw_scenes(n: int, seed: int) -> dict[str, dict]:
     """``n`` scene parameter sets (``StereoScene`` fields) from the issue's ranges, by name."""
@@ -68,8 +71,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    ap.add_argument("--scenes", type=int, default=12, help="scenes to draw (>= 1)")
-    ap.add_argument("--draw-seed", type=int, default=2026, help="seed of the scene parameters")
+    ap.add_argument("--scenes", type=int, default=N_SCENES, help="scenes to draw (>= 1)")
+    ap.add_argument("--draw-seed", type=int, default=DRAW_SEED, help="seed of the scene parameters")
     ap.add_argument("--frames", type=int, default=30, help="frames per scene (>= 3)")
     ap.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
     ap.add_argument("--both-modes", action="store_true", help="also run points-only")
