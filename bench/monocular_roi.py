@@ -7,7 +7,7 @@ characteristic length) on every labelled image of ``DIR`` (a SPEED+ root or a fo
 ``labels.csv``) and reports per image: the ROI's kind (silhouette, gradient, cluster), its IoU
 with the true box (the model's vertices and antenna tips projected at the label in the
 undistorted image, clipped to it: the definition of
-:func:`jaxpose.pipelines.monocular.diagnose.true_box`), the coarse range over the label's, which
+:func:`jaxpose.pipelines.monocular.diagnose.model_box`), the coarse range over the label's, which
 image sides the ROI reaches (``roi_cut``) and the CPU time of ``detect``. The summary counts ROI
 right (IoU >= 0.5) and coarse range within 20%. ``--crops`` writes a quarter-size picture of
 each image with the true box (green) and the ROI (red), for looking at the misses. For renders
@@ -42,25 +42,12 @@ from pathlib import Path
 import numpy as np
 
 from jaxpose.io import load_camera, load_image, load_speed_labels
+from jaxpose.pipelines.monocular.diagnose import model_box
 from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR
 from jaxpose.vision.coarse import model_extents
 from jaxpose.vision.features import DetectionOptions, detect
 from jaxpose.vision.models import tango
 from jaxpose.vision.roi import box_iou
-
-
-def true_box(model, pose, camera, shape) -> np.ndarray | None:
-    """Box of the model's vertices and antenna tips at ``pose`` in the ideal ``camera``."""
-    pts = np.asarray(model.vertices, float)
-    if len(model.antennas):
-        pts = np.concatenate([pts, np.asarray(model.antenna_points, float).reshape(-1, 3)])
-    cam = np.asarray(pose.apply(pts))
-    front = cam[:, 2] > 1e-6
-    if not front.any():
-        return None
-    uv = np.asarray(camera.project(cam))[front]
-    H, W = shape[:2]
-    return np.r_[np.clip(uv.min(0), [0, 0], [W, H]), np.clip(uv.max(0), [0, 0], [W, H])]
 
 
 def roi_kind(det) -> str | None:
@@ -137,7 +124,7 @@ def given_roi_study(root: Path, silhouette: bool = True) -> None:
     for lab in load_speed_labels(root):
         img = load_image(lab.image)
         own = initialise_pose(img, camera, model)
-        box = true_box(model, lab.pose, camera, img.shape)  # the distorted image's pixels
+        box = model_box(model, lab.pose, camera, img.shape)  # the distorted image's pixels
         given = initialise_pose(img, camera, model, given_opts, roi=box)
         ok = [r.pose is not None and bool(success(r.pose, lab.pose)) for r in (own, given)]
         row = {
@@ -210,7 +197,7 @@ def main() -> None:
             img, camera, model.characteristic_length * ROI_LENGTH_FACTOR, opts, extents=extents
         )
         cpu = time.process_time() - t0
-        box = true_box(model, lab.pose, det.camera, det.image.shape)
+        box = model_box(model, lab.pose, det.camera, det.image.shape)
         rng = float(np.linalg.norm(np.asarray(lab.pose.t)))
         ratio = None if det.coarse_t_cam is None else float(np.linalg.norm(det.coarse_t_cam)) / rng
         iou = 0.0 if det.roi is None or box is None else box_iou(det.roi, box)

@@ -51,22 +51,30 @@ def _stack(poses):
     )
 
 
-def true_box(result, truth: Pose, model) -> np.ndarray | None:
-    """``[u0, v0, u1, v1]`` of the model's vertices and antenna tips projected at ``truth`` in the
-    undistorted image of ``result`` (clipped to it); ``None`` when nothing is in front."""
-    det = result.detection
+def model_box(model, pose: Pose, camera, shape) -> np.ndarray | None:
+    """``[u0, v0, u1, v1]`` of the model's vertices and antenna tips projected at ``pose`` by
+    ``camera`` (with its distortion, if any), clipped to an image of ``shape (H, W)``; ``None``
+    when nothing is in front."""
     pts = np.asarray(model.vertices, float)
     if len(model.antennas):
         pts = np.concatenate([pts, np.asarray(model.antenna_points, float).reshape(-1, 3)])
-    cam = truth.apply(pts)
-    front = np.asarray(cam)[:, 2] > 1e-6
-    if not front.any() or det.image is None:
+    cam = np.asarray(pose.apply(pts))
+    front = cam[:, 2] > 1e-6
+    if not front.any():
         return None
-    uv = np.asarray(det.camera.project(cam))[front]
-    H, W = det.image.shape[:2]
-    lo = np.clip(uv.min(0), [0, 0], [W, H])
-    hi = np.clip(uv.max(0), [0, 0], [W, H])
-    return np.r_[lo, hi]
+    uv = np.asarray(camera.project(cam))[front]
+    H, W = shape[:2]
+    return np.r_[np.clip(uv.min(0), [0, 0], [W, H]), np.clip(uv.max(0), [0, 0], [W, H])]
+
+
+def true_box(result, truth: Pose, model) -> np.ndarray | None:
+    """``[u0, v0, u1, v1]`` of the model's vertices and antenna tips projected at ``truth`` in the
+    undistorted image of ``result`` (clipped to it, :func:`model_box`); ``None`` when nothing is
+    in front."""
+    det = result.detection
+    if det.image is None:
+        return None
+    return model_box(model, truth, det.camera, det.image.shape)
 
 
 def stage_breakdown(
