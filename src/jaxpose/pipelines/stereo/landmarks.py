@@ -80,6 +80,13 @@ class LandmarkSet:
             setattr(self, name, getattr(self, name)[keep])
 
 
+def planes_meet(ev: np.ndarray) -> np.ndarray:
+    """Whether a line landmark's observation planes meet in a line, from the ascending
+    eigenvalues ``ev (k, 3)`` of their summed ``sum w n n^T``: the second at least ``1e-4`` of
+    the largest (nearly parallel planes leave the line undetermined)."""
+    return ev[:, 1] > 1e-4 * ev[:, 2]
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     return v / np.where(n > 0, n, 1.0)
@@ -201,8 +208,8 @@ class LandmarkMap:
         re-solve them: the line is the weighted least-squares intersection of all its planes
         (``sum w n n^T``, ``sum w d n`` kept in ``M``, ``b``), and each endpoint moves
         perpendicularly to that line onto it (the planes say nothing of where a segment ends).
-        A line whose planes are still nearly parallel (a second eigenvalue below ``1e-4`` of the
-        largest) keeps its endpoints."""
+        A line whose planes are still nearly parallel (:func:`planes_meet`) keeps its
+        endpoints."""
         s = self.lines
         idx = np.asarray(idx, int)
         if len(idx) == 0:
@@ -216,7 +223,7 @@ class LandmarkMap:
         np.add.at(s.b, idx, (w * d)[:, None] * n)
         u = np.unique(idx)
         ev, V = np.linalg.eigh(s.M[u])
-        ok = ev[:, 1] > 1e-4 * ev[:, 2]
+        ok = planes_meet(ev)
         u, ev, V = u[ok], ev[ok], V[ok]
         if len(u):
             V2 = V[:, :, 1:]  # the two directions across the line

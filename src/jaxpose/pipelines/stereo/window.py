@@ -46,7 +46,7 @@ from jaxpose.core.geometry import Pose
 from jaxpose.core.refine import WindowLines, WindowObservations, WindowOptions, adjust_window
 from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo._arrays import find
-from jaxpose.pipelines.stereo.landmarks import LandmarkMap
+from jaxpose.pipelines.stereo.landmarks import LandmarkMap, planes_meet
 
 __all__ = ["FrameRays", "WindowAdjuster"]
 
@@ -318,7 +318,7 @@ class WindowAdjuster:
         lu, li = np.unique(at, return_inverse=True)
         ev = np.linalg.eigvalsh(s.M[lu])
         count = np.bincount(li, minlength=len(lu))
-        ok = ev[:, 1] > 1e-4 * ev[:, 2]
+        ok = planes_meet(ev)
         order = np.lexsort((lu, -count))
         sel = np.sort(order[ok[order]][: 2 * self.max_lines])
         if len(sel) == 0:
