@@ -262,7 +262,7 @@ def figure(results: list[dict], path: Path) -> None:
         ]
         + [plt.Line2D([], [], color="red", ls="--", lw=0.8, label="target")]
     )
-    fig.suptitle("Stereo tracking, points+lines: per-axis RMS over the scene suite", y=0.99)
+    fig.suptitle("Stereo tracking, points+lines: per-axis RMS per scene", y=0.99)
     fig.legend(handles=handles, loc="upper center", ncol=6, fontsize=8, bbox_to_anchor=(0.5, 0.955))
     fig.tight_layout(rect=(0, 0, 1, 0.91))
     fig.savefig(path, dpi=110)
