@@ -7,6 +7,7 @@ runs them as ``bench/stereo.py`` runs its suite (rendered once, the first pose f
 truth, frames 0-1 left out of the timings) and reports the same figures:
 
     python bench/stereo_heldout.py --scenes 12 --frames 30 [--draw-seed 2026] [--both-modes]
+    python bench/stereo_heldout.py --only h08 --frames 30 --both-modes   # one scene of the draw
 
 Each scene draws: range 1.5-5 m and spin 5-20 deg/s (uniform), camera rate 5-15 Hz, sensor
 noise 0.01-0.02 of full scale; blur and glints each absent on half the scenes, else 0.25-1.5;
@@ -76,6 +77,14 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=30, help="frames per scene (>= 3)")
     ap.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
     ap.add_argument("--both-modes", action="store_true", help="also run points-only")
+    ap.add_argument(
+        "--only",
+        nargs="+",
+        default=None,
+        metavar="PREFIX",
+        help="run only the drawn scenes whose name starts with one of these (e.g. h08); the draw "
+        "is the same, so a scene keeps its parameters",
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/bench-stereo-heldout"))
     args = ap.parse_args(argv)
     if args.scenes < 1:
@@ -83,6 +92,10 @@ def main(argv=None) -> int:
     if args.frames < 3:
         ap.error(f"--frames must be >= 3 (two are left out of the timings); got {args.frames}")
     drawn = draw_scenes(args.scenes, args.draw_seed)
+    if args.only:
+        drawn = {k: v for k, v in drawn.items() if k.startswith(tuple(args.only))}
+        if not drawn:
+            ap.error(f"--only {' '.join(args.only)} names none of the {args.scenes} drawn scenes")
     for name, params in drawn.items():
         stereo.SCENES[name] = ("held-out", params)
     modes = stereo.MODES if args.both_modes else ("points+lines",)
