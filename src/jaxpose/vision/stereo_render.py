@@ -296,6 +296,31 @@ def _glints(face_ids, rays, model, R, sun, strength, shininess):
     return out
 
 
+def _target_window(camera: PinholeCamera, model: WireframeModel, poses):
+    """The image window ``(v0, v1, u0, u1)`` that holds the target at every pose ``(R, t)``
+    (camera frame) and a camera that sees only it (the principal point moved by the window's
+    corner): pixels outside it are background at every pose, so rendering the window alone
+    gives the same pixels for less. The projected faces lie within their vertices' box for an
+    ideal pinhole (a margin covers the antennas' width); with distortion, the whole image."""
+    H, W = camera.height, camera.width
+    whole = (0, H, 0, W), camera
+    if np.any(np.asarray(camera.dist) != 0):
+        return whole
+    pts = np.concatenate([model.vertices @ R.T + t for R, t in poses])
+    if np.any(pts[:, 2] <= 1e-6):
+        return whole
+    pix = project_points(camera, pts)
+    margin = 4 + int(np.ceil(float(camera.fx) * 0.05 / pts[:, 2].min()))
+    u0, v0 = np.floor(pix.min(0)).astype(int) - margin
+    u1, v1 = np.ceil(pix.max(0)).astype(int) + margin + 1
+    u0, u1, v0, v1 = max(u0, 0), min(u1, W), max(v0, 0), min(v1, H)
+    if u1 - u0 < 2 or v1 - v0 < 2:
+        return whole
+    fx, fy, cx, cy = (float(v) for v in (camera.fx, camera.fy, camera.cx, camera.cy))
+    view = PinholeCamera(fx, fy, cx - u0, cy - v0, width=u1 - u0, height=v1 - v0)
+    return (v0, v1, u0, u1), view
+
+
 def exposure_offsets(
     scene: StereoScene,
     rig: StereoCamera,
@@ -364,15 +389,16 @@ def render_stereo_frame(
     for cam_index, (camera, R_c, t_c) in enumerate(
         [(rig.left, np.eye(3), np.zeros(3)), (rig.right, R_rl, t_rl)]
     ):
+        poses = [scene_pose(scene, time_s + off) for off in offsets]
+        poses = [(R_c @ R, R_c @ t + t_c) for R, t in poses]
+        (v0, v1, u0, u1), view = _target_window(camera, model, poses)
+        sun_c = R_c @ sun
         acc = None
-        for off in offsets:
-            R, t = scene_pose(scene, time_s + off)
-            Rc, tc = R_c @ R, R_c @ t + t_c
-            sun_c = R_c @ sun
+        for Rc, tc in poses:
             radiance, face_ids = render_layers(
                 model,
                 Pose(Rc, tc),
-                camera,
+                view,
                 sun_dir_cam=sun_c,
                 ambient=scene.ambient,
                 textures=textures,
@@ -380,9 +406,8 @@ def render_stereo_frame(
             if scene.glints > 0:
                 if cam_index not in rays_cache:
                     rays_cache[cam_index] = _pixel_rays(camera)
-                g = _glints(
-                    face_ids, rays_cache[cam_index], model, Rc, sun_c, scene.glints, scene.shininess
-                )
+                rays = rays_cache[cam_index][v0:v1, u0:u1]
+                g = _glints(face_ids, rays, model, Rc, sun_c, scene.glints, scene.shininess)
                 radiance = np.where(np.isnan(radiance), radiance, radiance + g)
             radiance = np.nan_to_num(radiance, nan=0.0)
             acc = radiance if acc is None else acc + radiance
@@ -390,11 +415,14 @@ def render_stereo_frame(
                 vv, uu = np.nonzero(face_ids != BACKGROUND)
                 if len(uu):
                     box = np.array([uu.min(), vv.min(), uu.max(), vv.max()], float)
+                    box += [u0, v0, u0, v0]  # the window's pixels to the image's
                     if not np.isnan(roi[0]):  # the union of the boxes over the exposure
                         box = np.r_[np.minimum(roi, box)[:2], np.maximum(roi, box)[2:]]
                     roi = box
+        full = np.zeros((camera.height, camera.width), acc.dtype)
+        full[v0:v1, u0:u1] = acc
         img = apply_sensor(
-            acc / len(offsets), rng, blur_sigma_px=scene.defocus_px, noise_sigma=scene.noise_sigma
+            full / len(offsets), rng, blur_sigma_px=scene.defocus_px, noise_sigma=scene.noise_sigma
         )
         images.append(img)
     R, t = scene_pose(scene, time_s)
