@@ -154,3 +154,20 @@ def test_exposure_offsets_keep_every_vertex_within_the_step():
     for bad in (dict(blur=-0.5), dict(blur_step_px=0.0), dict(blur_samples=0)):
         with pytest.raises(ValueError, match=next(iter(bad))):
             StereoScene(**bad)
+
+
+def test_rendering_the_target_window_gives_the_whole_image_pixels(monkeypatch):
+    import jaxpose.vision.stereo_render as sr
+
+    rig = default_rig(320, 240)
+    scene = StereoScene(frames=2, range_m=2.5, rate_deg_s=20.0, blur=1.0, glints=1.0)
+    windowed = render_stereo_frame(scene, rig, 1)
+    (v0, v1, u0, u1), _ = sr._target_window(rig.left, sr.tumbler_model(), [scene_pose(scene, 0.2)])
+    assert (v1 - v0) * (u1 - u0) < 0.5 * 240 * 320  # the window is a part of the image
+    monkeypatch.setattr(sr, "_target_window", lambda camera, *_: ((0, 240, 0, 320), camera))
+    whole = render_stereo_frame(scene, rig, 1)
+    np.testing.assert_array_equal(windowed.left, whole.left)
+    np.testing.assert_array_equal(windowed.right, whole.right)
+    np.testing.assert_array_equal(windowed.roi, whole.roi)
+    assert u0 < windowed.roi[0] < windowed.roi[2] < u1  # the target inside the window
+    assert v0 < windowed.roi[1] < windowed.roi[3] < v1

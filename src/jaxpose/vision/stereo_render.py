@@ -313,7 +313,7 @@ def _target_window(camera: PinholeCamera, model: WireframeModel, poses):
     margin = 4 + int(np.ceil(float(camera.fx) * 0.05 / pts[:, 2].min()))
     u0, v0 = np.floor(pix.min(0)).astype(int) - margin
     u1, v1 = np.ceil(pix.max(0)).astype(int) + margin + 1
-    u0, u1, v0, v1 = max(u0, 0), min(u1, W), max(v0, 0), min(v1, H)
+    u0, u1, v0, v1 = int(max(u0, 0)), int(min(u1, W)), int(max(v0, 0)), int(min(v1, H))
     if u1 - u0 < 2 or v1 - v0 < 2:
         return whole
     fx, fy, cx, cy = (float(v) for v in (camera.fx, camera.fy, camera.cx, camera.cy))
