@@ -85,6 +85,11 @@ def main(argv=None) -> int:
         help="run only the drawn scenes whose name starts with one of these (e.g. h08); the draw "
         "is the same, so a scene keeps its parameters",
     )
+    ap.add_argument(
+        "--frame-rows",
+        action="store_true",
+        help="keep each frame's row (features, inliers, post-fit RMS, errors) in results.json",
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/bench-stereo-heldout"))
     args = ap.parse_args(argv)
     if args.scenes < 1:
@@ -101,7 +106,9 @@ def main(argv=None) -> int:
     modes = stereo.MODES if args.both_modes else ("points+lines",)
     args.out.mkdir(parents=True, exist_ok=True)
     load0 = os.getloadavg()
-    results = stereo.run_scenes(list(drawn), args.frames, modes, args.seed, None, args.out)
+    results = stereo.run_scenes(
+        list(drawn), args.frames, modes, args.seed, None, args.out, rows=args.frame_rows
+    )
     for line in stereo.table(results, modes):
         print(line)
     stereo.figure(results, args.out / "rms_vs_range_rate.png")
