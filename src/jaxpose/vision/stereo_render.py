@@ -166,7 +166,8 @@ class StereoScene:
             sub-frame renderings of the blur (pixels of the left camera): the number of
             renderings follows the motion over the exposure (:func:`exposure_offsets`).
         blur_samples: most sub-frame renderings averaged for the blur (cost: one rendering of
-            each camera each, about 15-110 ms at 1024 x 768 on one core from 5 to 1.5 m).
+            each camera each, about 15-80 ms of CPU at 1024 x 768 from 5 to 1.5 m, up to about
+            150 ms with glints).
         glints: per-pixel specular strength (0: none); ``shininess`` its exponent.
         noise_sigma: sensor noise (fraction of full scale); ``defocus_px`` the optics blur.
         seed: noise seed.
@@ -301,7 +302,8 @@ def _target_window(camera: PinholeCamera, model: WireframeModel, poses):
     (camera frame) and a camera that sees only it (the principal point moved by the window's
     corner): pixels outside it are background at every pose, so rendering the window alone
     gives the same pixels for less. The projected faces lie within their vertices' box for an
-    ideal pinhole (a margin covers the antennas' width); with distortion, the whole image."""
+    ideal pinhole (a margin of 4 px plus 5 cm at the nearest vertex's depth covers the
+    antennas' 1.5 cm width); with distortion, or a vertex behind the camera, the whole image."""
     H, W = camera.height, camera.width
     whole = (0, H, 0, W), camera
     if np.any(np.asarray(camera.dist) != 0):
@@ -337,7 +339,8 @@ def exposure_offsets(
     in the left image: ``n = ceil(L / blur_step_px)``, ``L`` the image path a vertex would
     cover over the exposure at its fastest (the largest displacement of any vertex between
     ``probes`` poses through the exposure, times ``probes - 1``), ``2 <= n <= blur_samples``.
-    The faces' points move no faster than the vertices that bound them, so the copies of every
+    A face's points move no faster than the vertices that bound it (a rotation's speed grows
+    with the distance from its axis; up to perspective in the image), so the copies of every
     edge and texture corner are at most about ``blur_step_px`` apart; after the defocus of 1 px
     (Gaussian sigma) a staircase of 1.5 px steps is a ramp (its slope ripples by 0.1%, 2 px
     steps by 3%), where 3 copies 5 px apart leave plateaus.
