@@ -13,7 +13,8 @@ from the frame rate. The first tracked frame compiles the solver and is left out
     python bench/stereo.py --budget-sweep --frames 20       # feature budget: stereo_budget.py
 
 Writes ``runs/bench-stereo/results.json`` (per scene and mode: the stereo-track summary and the
-mean time per stage; with ``--frame-rows`` each frame's row too), ``rms_vs_range_rate.png`` (per-axis RMS against range and spin rate),
+mean time per stage; with ``--frame-rows`` each frame's row too), ``rms_vs_range_rate.png``
+(per-axis RMS against range and spin rate),
 prints a Markdown table and, last, one JSON line: scenes run, how many meet the targets of
 issue 16 (per-axis RMS position <= 5 mm per metre of range, attitude <= 1 deg, no lost frame)
 per split, the median wall frame rate (``median_fps``) and CPU seconds a frame
