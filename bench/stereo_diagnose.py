@@ -39,6 +39,13 @@ an estimate with geometry the estimate never saw:
   truth at the true pose (lines as they are); the signed mean and the RMS of the camera-frame
   attitude error over frames 1.. and the chaser position RMS. If the attitude offsets came from
   the stereo disparities, the second run would lose them.
+* full bundle adjustment (``--full-ba SCENE``, ``--frames``, ``--seed``): the tracker as it
+  is, then one adjustment of the whole sequence as the tracker left it (every tracked frame's
+  rays and line planes in one window, frame 0's given pose the gauge, every landmark free;
+  ``--ba-rounds`` calls of ``--ba-iterations`` steps): what all the data the tracker gathered
+  allow, against what its causal window made of them. ``--ba-points-only``: without any line
+  term; ``--ba-from-truth``: started from the true poses (the same optimum, or another?);
+  ``--ba-drop K``: frames 1..K's rays and planes taken out of the map first.
 
     python bench/stereo_diagnose.py               # 2 m; --range-m 3 for the far scene
     python bench/stereo_diagnose.py --drift d2-blur-3m-fast --frames 60
@@ -46,6 +53,7 @@ an estimate with geometry the estimate never saw:
     python bench/stereo_diagnose.py --repeat d6-blur-5m-slow
     python bench/stereo_diagnose.py --disparity-bias d4-glints-4m-slow
     python bench/stereo_diagnose.py --disparity-oracle h04 --frames 16 --points-only
+    python bench/stereo_diagnose.py --full-ba d6-blur-5m-slow --frames 30 --seed 1 --ba-drop 5
 """
 
 from __future__ import annotations
