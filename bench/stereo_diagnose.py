@@ -437,6 +437,7 @@ def full_ba(
     lines: bool = True,
     drop: int = 0,
     from_truth: bool = False,
+    right_only: bool = False,
 ) -> dict:
     """The tracker as it is, then one bundle adjustment of the whole sequence (module
     docstring): every tracked frame's rays and line planes, as the tracker left them, in one
@@ -445,7 +446,8 @@ def full_ba(
     ``iterations`` Gauss-Newton steps (the rays moved and the landmarks re-solved between
     calls). ``lines=False``: the adjustment without any line term (the poses from the points'
     rays alone); ``drop``: the rays and planes of frames 1..``drop`` taken out of the map first
-    (their landmarks then rest on the later frames' observations); ``from_truth``: the
+    (their landmarks then rest on the later frames' observations; ``right_only``: only their
+    right-image rays and planes, the frames kept with their left-image ones); ``from_truth``: the
     adjustment started from the true poses (every frame's rays and planes moved there, the
     landmarks re-solved) instead of the tracker's."""
     import copy
@@ -494,6 +496,7 @@ def full_ba(
         }
 
     out = {"scene": name, "seed": seed, "frames": frames, "lines": lines, "drop": drop}
+    out["drop_right_only"] = right_only
     out["tracker"] = report(results)
     m = tr.map
     if drop:
@@ -502,12 +505,20 @@ def full_ba(
                 continue
             ids, px, right, w = fr.arrays()
             q, at = find(m.points.ids, ids)
+            q, at = (q[right[q]], at[right[q]]) if right_only else (q, at)
             o, d = ray_geometry(rig, fr.R, fr.t, px[q], right[q])
             m.observe(at, o, d, -w[q])
-            ids, n, dd, _, w = fr.plane_arrays()
+            ids, n, dd, cam, w = fr.plane_arrays()
             q, at = find(m.lines.ids, ids)
+            q, at = (q[cam[q] == 1], at[cam[q] == 1]) if right_only else (q, at)
             m.observe_lines(at, n[q] @ fr.R, dd[q] - n[q] @ fr.t, -w[q])
-        logs = [fr for fr in logs if not 1 <= fr.index <= drop]
+            if right_only:  # the frame stays, with its left-image rays and planes only
+                ids, px, right, w = fr.arrays()
+                fr.rays = [(ids[~right], px[~right], right[~right], w[~right])]
+                ids, n, dd, cam, w = fr.plane_arrays()
+                fr.planes = [(ids[cam == 0], n[cam == 0], dd[cam == 0], cam[cam == 0], w[cam == 0])]
+        if not right_only:
+            logs = [fr for fr in logs if not 1 <= fr.index <= drop]
     if from_truth:  # move every frame's rays and planes to its true pose
         true_R = [np.asarray(truths[fr.index].R, float) for fr in logs]
         true_t = [np.asarray(truths[fr.index].t, float) for fr in logs]
@@ -576,6 +587,9 @@ def main(argv=None) -> int:
     p.add_argument("--ba-iterations", type=int, default=4, help="--full-ba: steps a call")
     p.add_argument("--ba-points-only", action="store_true", help="--full-ba without line terms")
     p.add_argument("--ba-from-truth", action="store_true", help="--full-ba from the true poses")
+    p.add_argument(
+        "--ba-drop-right", action="store_true", help="--ba-drop: the right-image rays only"
+    )
     p.add_argument("--ba-drop", type=int, default=0, help="--full-ba: frames 1..K taken out")
     args = p.parse_args(argv)
     if args.full_ba:
@@ -588,6 +602,7 @@ def main(argv=None) -> int:
             lines=not args.ba_points_only,
             drop=args.ba_drop,
             from_truth=args.ba_from_truth,
+            right_only=args.ba_drop_right,
         )
         return 0
     if args.disparity_oracle:
