@@ -150,13 +150,15 @@ class TrackerOptions:
             (their endpoints free, observed by the stereo planes of the window's frames, the
             planes of older frames as a prior; the adjusted planes re-solve the lines); off,
             the lines' endpoints are held where they were placed.
-        window_anchors, window_anchor_every, window_anchor_points: every
-            ``window_anchor_every``-th tracked frame the adjustment is a global one: the
-            recent window together with up to ``window_anchors`` past frames spread over the
-            whole run (the given first frame among them; :class:`~jaxpose.pipelines.stereo.
-            window.WindowAdjuster` ``anchors``), at most ``window_anchor_points`` landmarks, so
+        window_anchors, window_anchor_every, window_anchor_points: the first adjustment at
+            least ``window_anchor_every`` tracked frames after the last global one is a global
+            one: the recent window together with up to ``window_anchors`` past frames spread
+            over the whole run (the given first frame among them; the ``anchors`` of
+            :class:`~jaxpose.pipelines.stereo.window.WindowAdjuster`), at most
+            ``window_anchor_points`` landmarks, so
             the first frames' poses and the landmarks placed at them keep being re-estimated
-            with the later frames' rays. ``window_anchors=0``: off.
+            with the later frames' rays. ``window_anchors=0``: off (measured on the development
+            scenes, ``docs/stereo.md``: better at 4 m, worse at 5 m).
         feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
             points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
             dilution of precision at the predicted pose), ``"random"`` or ``"response"``
