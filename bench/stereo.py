@@ -13,7 +13,8 @@ from the frame rate. The first tracked frame compiles the solver and is left out
     python bench/stereo.py --budget-sweep --frames 20       # feature budget: stereo_budget.py
 
 Writes ``runs/bench-stereo/results.json`` (per scene and mode: the stereo-track summary and the
-mean time per stage), ``rms_vs_range_rate.png`` (per-axis RMS against range and spin rate),
+mean time per stage; with ``--frame-rows`` each frame's row too), ``rms_vs_range_rate.png``
+(per-axis RMS against range and spin rate),
 prints a Markdown table and, last, one JSON line: scenes run, how many meet the targets of
 issue 16 (per-axis RMS position <= 5 mm per metre of range, attitude <= 1 deg, no lost frame)
 per split, the median wall frame rate (``median_fps``) and CPU seconds a frame
@@ -136,7 +137,11 @@ def meets_targets(summary: dict, range_m: float) -> bool:
     return max(pos) <= 5.0 * range_m and max(att) <= 1.0 and summary["lost_frames"] == 0
 
 
-def run_scene(name: str, frames: int | None, modes=MODES, seed: int = 0, options=None) -> dict:
+def run_scene(
+    name: str, frames: int | None, modes=MODES, seed: int = 0, options=None, *, rows=False
+) -> dict:
+    """One scene rendered once and tracked in each mode; ``rows``: keep the per-frame rows of
+    :func:`~jaxpose.studies.stereo_track.summarize` (features, inliers, post-fit RMS, errors)."""
     scene = scene_of(name, frames, seed)
     rig = default_rig()
     depth = (0.3, max(8.0, 3 * scene.range_m))
@@ -190,6 +195,8 @@ def run_scene(name: str, frames: int | None, modes=MODES, seed: int = 0, options
             # a shared machine, for ratios between versions
             "mean_frame_cpu_s": float(np.mean(cpu[mode][2:])) if len(seconds) > 2 else None,
         }
+        if rows:
+            out[mode]["rows"] = rep["rows"]
     if set(MODES) <= set(modes):
         a, b = out["points+lines"], out["points-only"]
         if a["rms_position_mm"] and b["rms_position_mm"]:
@@ -202,12 +209,12 @@ def run_scene(name: str, frames: int | None, modes=MODES, seed: int = 0, options
     return out
 
 
-def run_scenes(names, frames, modes, seed, options, out: Path) -> list[dict]:
+def run_scenes(names, frames, modes, seed, options, out: Path, *, rows=False) -> list[dict]:
     """:func:`run_scene` on each scene in turn, ``out/results.json`` rewritten after each (a run
     cut short keeps what it did) and a progress line on stderr."""
     results = []
     for name in names:
-        r = run_scene(name, frames, modes, seed=seed, options=options)
+        r = run_scene(name, frames, modes, seed=seed, options=options, rows=rows)
         results.append(r)
         (out / "results.json").write_text(json.dumps(results, indent=1))
         m = r["points+lines"]
@@ -313,6 +320,11 @@ def main(argv=None) -> int:
         help="a TrackerOptions field for every scene (a Python literal), e.g. window_frames=0; "
         "a field of its feature or stereo options as features.mu=0.03, stereo.window=11",
     )
+    p.add_argument(
+        "--frame-rows",
+        action="store_true",
+        help="keep each frame's row (features, inliers, post-fit RMS, errors) in results.json",
+    )
     p.add_argument("--out", type=Path, default=Path("runs/bench-stereo"))
     p.add_argument(
         "--from-results",
@@ -351,7 +363,9 @@ def main(argv=None) -> int:
                 options = replace(options, **{group: inner})
             else:
                 options = replace(options, **{key: ast.literal_eval(value)})
-    results = run_scenes(names, args.frames, modes, args.seed, options, args.out)
+    results = run_scenes(
+        names, args.frames, modes, args.seed, options, args.out, rows=args.frame_rows
+    )
     report(results, modes, args.out, args.frames, load0, timing=args.timing_only)
     return 0
 

@@ -7,6 +7,7 @@ runs them as ``bench/stereo.py`` runs its suite (rendered once, the first pose f
 truth, frames 0-1 left out of the timings) and reports the same figures:
 
     python bench/stereo_heldout.py --scenes 12 --frames 30 [--draw-seed 2026] [--both-modes]
+    python bench/stereo_heldout.py --only h08 --frames 30 --both-modes   # one scene of the draw
 
 Each scene draws: range 1.5-5 m and spin 5-20 deg/s (uniform), camera rate 5-15 Hz, sensor
 noise 0.01-0.02 of full scale; blur and glints each absent on half the scenes, else 0.25-1.5;
@@ -76,6 +77,19 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=30, help="frames per scene (>= 3)")
     ap.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
     ap.add_argument("--both-modes", action="store_true", help="also run points-only")
+    ap.add_argument(
+        "--only",
+        nargs="+",
+        default=None,
+        metavar="PREFIX",
+        help="run only the drawn scenes whose name starts with one of these (e.g. h08); the draw "
+        "is the same, so a scene keeps its parameters",
+    )
+    ap.add_argument(
+        "--frame-rows",
+        action="store_true",
+        help="keep each frame's row (features, inliers, post-fit RMS, errors) in results.json",
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/bench-stereo-heldout"))
     args = ap.parse_args(argv)
     if args.scenes < 1:
@@ -83,12 +97,18 @@ def main(argv=None) -> int:
     if args.frames < 3:
         ap.error(f"--frames must be >= 3 (two are left out of the timings); got {args.frames}")
     drawn = draw_scenes(args.scenes, args.draw_seed)
+    if args.only:
+        drawn = {k: v for k, v in drawn.items() if k.startswith(tuple(args.only))}
+        if not drawn:
+            ap.error(f"--only {' '.join(args.only)} names none of the {args.scenes} drawn scenes")
     for name, params in drawn.items():
         stereo.SCENES[name] = ("held-out", params)
     modes = stereo.MODES if args.both_modes else ("points+lines",)
     args.out.mkdir(parents=True, exist_ok=True)
     load0 = os.getloadavg()
-    results = stereo.run_scenes(list(drawn), args.frames, modes, args.seed, None, args.out)
+    results = stereo.run_scenes(
+        list(drawn), args.frames, modes, args.seed, None, args.out, rows=args.frame_rows
+    )
     for line in stereo.table(results, modes):
         print(line)
     stereo.figure(results, args.out / "rms_vs_range_rate.png")

@@ -59,3 +59,115 @@ def test_the_light_sweep_changes_the_shading_over_the_sequence():
     np.testing.assert_array_equal(a0, a4)  # nothing moves
     np.testing.assert_array_equal(a0, b0)  # the sweep starts where the still light is
     assert np.abs(b4 - b0).mean() > 1.0  # and has moved the shading by the last frame
+
+
+# -------------------------------------------------------------------------- motion blur
+# A stripe edge on the face that looks at the camera (face 2, body y-) moves across the image as
+# the target spins: 90 deg/s and a full exposure at 5 Hz sweep it ~13 px in a 320 x 240 image.
+_BLUR = dict(frames=2, rate_deg_s=90.0, blur=1.0, noise_sigma=0.0, defocus_px=0.0)
+
+
+def _stripe(points_body):
+    return np.where(points_body[:, 0] < 0.05, 0.25, 0.85)
+
+
+@pytest.fixture(scope="module")
+def smear():
+    """The blurred left image with the default sampling and with 3 samples, and the exposure's
+    integral as 96 sub-frame radiances averaged (midpoint rule), one row through the stripe."""
+    from jaxpose.core.geometry import Pose
+    from jaxpose.vision.render import apply_sensor, render_layers
+    from jaxpose.vision.stereo_render import tumbler_model
+
+    rig, model, tex = default_rig(320, 240), tumbler_model(), {2: _stripe}
+    scene = StereoScene(**_BLUR)
+    new = render_stereo_frame(scene, rig, 0, model=model, textures=tex).left
+    three = StereoScene(**_BLUR, blur_samples=3)
+    old = render_stereo_frame(three, rig, 0, model=model, textures=tex).left
+    sun = np.asarray(scene.sun_dir_cam) / np.linalg.norm(scene.sun_dir_cam)
+    n, exposure = 96, scene.blur / scene.frame_rate_hz
+    acc = np.zeros((240, 320))
+    for off in ((np.arange(n) + 0.5) / n - 0.5) * exposure:
+        R, t = scene_pose(scene, off)
+        radiance, _ = render_layers(
+            model, Pose(R, t), rig.left, sun_dir_cam=sun, ambient=scene.ambient, textures=tex
+        )
+        acc += np.nan_to_num(radiance)
+    ref = apply_sensor(acc / n, np.random.default_rng(0), blur_sigma_px=0.0, noise_sigma=0.0)
+    return new.astype(int), old.astype(int), ref.astype(int)
+
+
+def _ramp(row):
+    """Indices of the longest strictly increasing run of ``row``."""
+    up = np.diff(row) > 0
+    best, start = (0, 0), None
+    for i, u in enumerate(np.r_[up, False]):
+        if u and start is None:
+            start = i
+        elif not u and start is not None:
+            best = max(best, (i - start, start))
+            start = None
+    return np.arange(best[1], best[1] + best[0] + 1)
+
+
+def test_motion_blur_is_a_smear_not_copies(smear):
+    new, old, ref = smear
+    for v in (105, 120, 135):  # rows through the stripe, below the antenna
+        ramp = _ramp(ref[v])
+        assert len(ramp) >= 10  # the exposure's integral: a ramp of ~13 px
+        # the default sampling: a ramp over the same pixels (no plateau inside it), close to
+        # the integral
+        assert np.all(np.diff(new[v, ramp[1:-1]]) > 0), v
+        assert np.abs(new[v, ramp] - ref[v, ramp]).max() <= 6, v
+        # three samples leave three copies of the edge: plateaus of several pixels
+        assert np.sum(np.diff(old[v, ramp]) == 0) >= 4, v
+    # over the whole image: the smear is within a few grey levels of the integral
+    assert np.percentile(np.abs(new - ref), 99.9) <= 6
+    assert np.percentile(np.abs(old - ref), 99.9) >= 20
+
+
+def test_exposure_offsets_keep_every_vertex_within_the_step():
+    from jaxpose.vision.stereo_render import exposure_offsets, tumbler_model
+
+    rig, model = default_rig(320, 240), tumbler_model()
+    scene = StereoScene(**_BLUR)
+    off = exposure_offsets(scene, rig, 0.0, model=model)
+    exposure = scene.blur / scene.frame_rate_hz
+    n = len(off)
+    # midpoints of n equal parts of the exposure
+    np.testing.assert_allclose(off, (np.arange(n) + 0.5) / n * exposure - exposure / 2)
+
+    def pixels(times):  # the vertices through the JAX projection (not the renderer's NumPy one)
+        out = []
+        for s in times:
+            R, t = scene_pose(scene, s)
+            out.append(np.asarray(rig.left.project(model.vertices @ R.T + t)))
+        return np.stack(out)
+
+    step = np.linalg.norm(np.diff(pixels(off), axis=0), axis=-1).max()
+    assert step <= 1.01 * scene.blur_step_px  # the speed is probed at 17 poses: within 1%
+    # and no fewer samples would do: with n - 1 the fastest vertex moves more than the step
+    fewer = ((np.arange(n - 1) + 0.5) / (n - 1) - 0.5) * exposure
+    assert np.linalg.norm(np.diff(pixels(fewer), axis=0), axis=-1).max() > scene.blur_step_px
+    assert len(exposure_offsets(StereoScene(**{**_BLUR, "blur_samples": 5}), rig, 0.0)) == 5
+    np.testing.assert_array_equal(exposure_offsets(StereoScene(), rig, 0.0), [0.0])
+    for bad in (dict(blur=-0.5), dict(blur_step_px=0.0), dict(blur_samples=0)):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            StereoScene(**bad)
+
+
+def test_rendering_the_target_window_gives_the_whole_image_pixels(monkeypatch):
+    import jaxpose.vision.stereo_render as sr
+
+    rig = default_rig(320, 240)
+    scene = StereoScene(frames=2, range_m=2.5, rate_deg_s=20.0, blur=1.0, glints=1.0)
+    windowed = render_stereo_frame(scene, rig, 1)
+    (v0, v1, u0, u1), _ = sr._target_window(rig.left, sr.tumbler_model(), [scene_pose(scene, 0.2)])
+    assert (v1 - v0) * (u1 - u0) < 0.5 * 240 * 320  # the window is a part of the image
+    monkeypatch.setattr(sr, "_target_window", lambda camera, *_: ((0, 240, 0, 320), camera))
+    whole = render_stereo_frame(scene, rig, 1)
+    np.testing.assert_array_equal(windowed.left, whole.left)
+    np.testing.assert_array_equal(windowed.right, whole.right)
+    np.testing.assert_array_equal(windowed.roi, whole.roi)
+    assert u0 < windowed.roi[0] < windowed.roi[2] < u1  # the target inside the window
+    assert v0 < windowed.roi[1] < windowed.roi[3] < v1
