@@ -39,6 +39,13 @@ an estimate with geometry the estimate never saw:
   truth at the true pose (lines as they are); the signed mean and the RMS of the camera-frame
   attitude error over frames 1.. and the chaser position RMS. If the attitude offsets came from
   the stereo disparities, the second run would lose them.
+* full bundle adjustment (``--full-ba SCENE``, ``--frames``, ``--seed``): the tracker as it
+  is, then one adjustment of the whole sequence as the tracker left it (every tracked frame's
+  rays and line planes in one window, frame 0's given pose the gauge, every landmark free;
+  ``--ba-rounds`` calls of ``--ba-iterations`` steps): what all the data the tracker gathered
+  allow, against what its causal window made of them. ``--ba-points-only``: without any line
+  term; ``--ba-from-truth``: started from the true poses (the same optimum, or another?);
+  ``--ba-drop K``: frames 1..K's rays and planes taken out of the map first.
 
     python bench/stereo_diagnose.py               # 2 m; --range-m 3 for the far scene
     python bench/stereo_diagnose.py --drift d2-blur-3m-fast --frames 60
@@ -46,6 +53,7 @@ an estimate with geometry the estimate never saw:
     python bench/stereo_diagnose.py --repeat d6-blur-5m-slow
     python bench/stereo_diagnose.py --disparity-bias d4-glints-4m-slow
     python bench/stereo_diagnose.py --disparity-oracle h04 --frames 16 --points-only
+    python bench/stereo_diagnose.py --full-ba d6-blur-5m-slow --frames 30 --seed 1 --ba-drop 5
 """
 
 from __future__ import annotations
@@ -419,6 +427,141 @@ def disparity_oracle(name: str, frames: int, seed: int = 0, points_only: bool = 
     return out
 
 
+def full_ba(
+    name: str,
+    frames: int,
+    seed: int = 0,
+    *,
+    rounds: int = 3,
+    iterations: int = 4,
+    lines: bool = True,
+    drop: int = 0,
+    from_truth: bool = False,
+    right_only: bool = False,
+) -> dict:
+    """The tracker as it is, then one bundle adjustment of the whole sequence (module
+    docstring): every tracked frame's rays and line planes, as the tracker left them, in one
+    window (:class:`~jaxpose.pipelines.stereo.window.WindowAdjuster` with ``frames`` = the
+    tracked frames and every landmark), frame 0's given pose the gauge, ``rounds`` calls of
+    ``iterations`` Gauss-Newton steps (the rays moved and the landmarks re-solved between
+    calls). ``lines=False``: the adjustment without any line term (the poses from the points'
+    rays alone); ``drop``: the rays and planes of frames 1..``drop`` taken out of the map first
+    (their landmarks then rest on the later frames' observations; ``right_only``: only their
+    right-image rays and planes, the frames kept with their left-image ones); ``from_truth``: the
+    adjustment started from the true poses (every frame's rays and planes moved there, the
+    landmarks re-solved) instead of the tracker's."""
+    import copy
+
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from jaxpose.core.geometry import Pose, so3_log
+    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
+    from jaxpose.pipelines.stereo._arrays import find
+    from jaxpose.pipelines.stereo.window import WindowAdjuster, ray_geometry
+    from jaxpose.studies.stereo_track import summarize
+
+    scene = _scene_by_name(name, frames, seed)
+    rig = default_rig()
+    seq = list(render_sequence(scene, rig))
+    opts = TrackerOptions(depth_range_m=(0.3, max(8.0, 3 * scene.range_m)))
+    tr = StereoTracker(rig, seq[0].pose, options=opts)
+    logs = []
+    start = tr._window.start
+
+    def logged(*a, **k):  # keep every frame's ray record, not only the window's
+        fr = start(*a, **k)
+        logs.append(fr)
+        return fr
+
+    tr._window.start = logged
+    results = [tr.process(fr.left, fr.right) for fr in seq]
+    truths = [fr.pose for fr in seq]
+
+    def report(res):
+        s = summarize(res, truths, [0.0] * len(res))["summary"]
+        w = [
+            np.degrees(np.asarray(so3_log(r.R @ np.asarray(t.R).T)))
+            for r, t in zip(res[1:], truths[1:], strict=True)
+            if r.status == 0
+        ]
+        return {
+            "rms_position_mm": np.round(s["rms_position_mm"], 1).tolist(),
+            "rms_attitude_deg": np.round(s["rms_attitude_deg"], 2).tolist(),
+            "meets": bool(
+                max(s["rms_position_mm"]) <= 5 * scene.range_m and max(s["rms_attitude_deg"]) <= 1
+            ),
+            "attitude_error_camera_mean_deg": np.round(np.mean(w, 0), 2).tolist(),
+            "attitude_error_per_frame_deg": np.round(np.linalg.norm(w, axis=1), 2).tolist(),
+        }
+
+    out = {"scene": name, "seed": seed, "frames": frames, "lines": lines, "drop": drop}
+    out["drop_right_only"] = right_only
+    out["tracker"] = report(results)
+    m = tr.map
+    if drop:
+        for fr in logs:
+            if not 1 <= fr.index <= drop:
+                continue
+            ids, px, right, w = fr.arrays()
+            q, at = find(m.points.ids, ids)
+            q, at = (q[right[q]], at[right[q]]) if right_only else (q, at)
+            o, d = ray_geometry(rig, fr.R, fr.t, px[q], right[q])
+            m.observe(at, o, d, -w[q])
+            ids, n, dd, cam, w = fr.plane_arrays()
+            q, at = find(m.lines.ids, ids)
+            q, at = (q[cam[q] == 1], at[cam[q] == 1]) if right_only else (q, at)
+            m.observe_lines(at, n[q] @ fr.R, dd[q] - n[q] @ fr.t, -w[q])
+            if right_only:  # the frame stays, with its left-image rays and planes only
+                ids, px, right, w = fr.arrays()
+                fr.rays = [(ids[~right], px[~right], right[~right], w[~right])]
+                ids, n, dd, cam, w = fr.plane_arrays()
+                fr.planes = [(ids[cam == 0], n[cam == 0], dd[cam == 0], cam[cam == 0], w[cam == 0])]
+        if not right_only:
+            logs = [fr for fr in logs if not 1 <= fr.index <= drop]
+    if from_truth:  # move every frame's rays and planes to its true pose
+        true_R = [np.asarray(truths[fr.index].R, float) for fr in logs]
+        true_t = [np.asarray(truths[fr.index].t, float) for fr in logs]
+        idx, o, d, w = [], [], [], []
+        for fr, R, t in zip(logs, true_R, true_t, strict=True):
+            ids, px, right, wr = fr.arrays()
+            q, at = find(m.points.ids, ids)
+            for RR, tt, sign in ((fr.R, fr.t, -1.0), (R, t, 1.0)):
+                oo, dd = ray_geometry(rig, RR, tt, px[q], right[q])
+                idx.append(at), o.append(oo), d.append(dd), w.append(sign * wr[q])
+        m.observe(*(np.concatenate(c) for c in (idx, o, d, w)))
+        WindowAdjuster._move_planes(m, logs, true_R, true_t)
+        for fr, R, t in zip(logs, true_R, true_t, strict=True):
+            fr.R, fr.t = R, t
+        out["started from the true poses"] = True
+    adj = WindowAdjuster(
+        rig,
+        frames=len(logs),
+        iterations=iterations,
+        max_points=len(m.points),
+        max_lines=max(opts.max_lines, (len(m.lines) + 1) // 2),
+        free_lines=lines,
+    )
+    adj.anchor_oldest = False  # frame 0 (fixed) is the gauge
+    if not lines:
+        adj._line_terms = lambda *a, **k: None
+    adj.frames.extend(logs)
+    by_index = {fr.index: fr for fr in logs}
+    for r in range(rounds):
+        ran = adj.adjust(m)
+        res = []
+        for k, orig in enumerate(results):
+            rr = copy.copy(orig)
+            if k in by_index and orig.status == 0:
+                rr.pose = Pose(by_index[k].R, by_index[k].t)
+            elif k:
+                rr.status = 1 if drop and 1 <= k <= drop else orig.status
+            res.append(rr)
+        out[f"full BA, {(r + 1) * iterations} iterations"] = {"ran": ran, **report(res)}
+    print(json.dumps(out), flush=True)
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--range-m", type=float, default=2.0)
@@ -439,7 +582,29 @@ def main(argv=None) -> int:
         "--disparity-oracle", default=None, help="a scene (or hNN): true point disparities"
     )
     p.add_argument("--points-only", action="store_true", help="--disparity-oracle without lines")
+    p.add_argument("--full-ba", default=None, help="a scene (or hNN): whole-sequence adjustment")
+    p.add_argument("--ba-rounds", type=int, default=3, help="--full-ba: adjustment calls")
+    p.add_argument("--ba-iterations", type=int, default=4, help="--full-ba: steps a call")
+    p.add_argument("--ba-points-only", action="store_true", help="--full-ba without line terms")
+    p.add_argument("--ba-from-truth", action="store_true", help="--full-ba from the true poses")
+    p.add_argument(
+        "--ba-drop-right", action="store_true", help="--ba-drop: the right-image rays only"
+    )
+    p.add_argument("--ba-drop", type=int, default=0, help="--full-ba: frames 1..K taken out")
     args = p.parse_args(argv)
+    if args.full_ba:
+        full_ba(
+            args.full_ba,
+            args.frames,
+            args.seed,
+            rounds=args.ba_rounds,
+            iterations=args.ba_iterations,
+            lines=not args.ba_points_only,
+            drop=args.ba_drop,
+            from_truth=args.ba_from_truth,
+            right_only=args.ba_drop_right,
+        )
+        return 0
     if args.disparity_oracle:
         disparity_oracle(args.disparity_oracle, args.frames, args.seed, args.points_only)
         return 0

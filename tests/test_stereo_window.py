@@ -106,6 +106,36 @@ def test_older_rays_are_a_prior_that_holds_the_landmarks():
     np.testing.assert_allclose(m.points.X, X, atol=1e-6)
 
 
+def test_anchors_keep_past_frames_spread_over_the_run_and_adjust_them():
+    """``anchors``: a frame leaving the recent window is kept when it is ``spacing`` frames
+    after the last kept one (the fixed first frame always), every other one dropped and the
+    spacing doubled beyond ``anchors``; the global adjustment (``spanning=True``) returns the
+    kept frames' true poses with the recent ones', the ordinary one leaves the kept frames."""
+    rig, X, poses = _scene(n_frames=9)
+    rng = np.random.default_rng(4)
+    m = LandmarkMap()
+    win = WindowAdjuster(rig, frames=3, iterations=8, max_points=60, anchors=3, anchor_points=60)
+    ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), Pose(*poses[0]), 0)
+    for j, (R, t) in enumerate(poses):
+        # off: the frames that will be in the global window (not the dropped 2-4)
+        Re, te = _perturbed(rng, R, t) if j in (1, 5, 6, 7, 8) else (R, t)
+        rec = win.start(Re, te, fixed=j == 0, index=j)
+        _observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
+    # left the window: 0-5; kept 0, 1, 2, 3 -> 0, 1, 3 (spacing 2), 5 -> 0, 1, 5 (spacing 4)
+    assert [fr.index for fr in win.kept] == [0, 1, 5]
+    kept_before = [fr.R.copy() for fr in win.kept]
+    assert win.adjust(m)  # the recent window only
+    for fr, R in zip(win.kept, kept_before, strict=True):
+        np.testing.assert_array_equal(fr.R, R)
+    assert _angle_deg(win.kept[1].R, poses[1][0]) > 0.05
+    assert win.adjust(m, spanning=True)
+    for fr in [*win.kept, *win.frames]:
+        R, t = poses[fr.index]
+        assert _angle_deg(fr.R, R) < 1e-5
+        np.testing.assert_allclose(fr.t, t, atol=1e-7)
+    np.testing.assert_allclose(m.points.X, X, atol=1e-6)
+
+
 def test_window_frames_option_is_checked():
     from jaxpose.pipelines.stereo import TrackerOptions
 
@@ -134,7 +164,12 @@ def test_window_every_and_points_options():
     from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
     from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
 
-    for bad in (dict(window_every=0), dict(window_points=0)):
+    for bad in (
+        dict(window_every=0),
+        dict(window_points=0),
+        dict(window_anchors=-1),
+        dict(window_anchor_every=0),
+    ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             TrackerOptions(**bad)
     with pytest.raises(ValueError, match="at most window_frames"):
@@ -148,7 +183,7 @@ def test_window_every_and_points_options():
     for every in (1, 2):
         options = TrackerOptions(window_every=every, window_depth_m=None)
         tracker = StereoTracker(rig, frames[0].pose, options=options)
-        tracker._window.adjust = lambda m, e=every: calls.__setitem__(e, calls.get(e, 0) + 1)
+        tracker._window.adjust = lambda m, e=every, **_: calls.__setitem__(e, calls.get(e, 0) + 1)
         for fr in frames:
             tracker.process(fr.left, fr.right)
     assert calls == {1: 2, 2: 1}  # the 2 tracked frames after the first (map start)

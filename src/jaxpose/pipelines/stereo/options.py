@@ -150,6 +150,15 @@ class TrackerOptions:
             (their endpoints free, observed by the stereo planes of the window's frames, the
             planes of older frames as a prior; the adjusted planes re-solve the lines); off,
             the lines' endpoints are held where they were placed.
+        window_anchors, window_anchor_every, window_anchor_points: the first adjustment at
+            least ``window_anchor_every`` tracked frames after the last global one is a global
+            one: the recent window together with up to ``window_anchors`` past frames spread
+            over the whole run (the given first frame among them; the ``anchors`` of
+            :class:`~jaxpose.pipelines.stereo.window.WindowAdjuster`), at most
+            ``window_anchor_points`` landmarks, so
+            the first frames' poses and the landmarks placed at them keep being re-estimated
+            with the later frames' rays. ``window_anchors=0``: off (measured on the development
+            scenes, ``docs/stereo.md``: better at 4 m, worse at 5 m).
         feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
             points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
             dilution of precision at the predicted pose), ``"random"`` or ``"response"``
@@ -230,6 +239,9 @@ class TrackerOptions:
     window_points: int = 300
     window_motion_sigma: tuple[float, float] | None = None
     window_free_lines: bool = True
+    window_anchors: int = 0
+    window_anchor_every: int = 8
+    window_anchor_points: int = 1000
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
     budget_rule: str = "dop"
@@ -274,7 +286,14 @@ class TrackerOptions:
             raise ValueError(
                 f"window_frames must be 0 or an integer >= 2; got {self.window_frames!r}"
             )
-        for name in ("window_every", "window_points"):
+        if not (isinstance(self.window_anchors, int | np.integer) and self.window_anchors >= 0):
+            raise ValueError(f"window_anchors must be an integer >= 0; got {self.window_anchors!r}")
+        for name in (
+            "window_every",
+            "window_points",
+            "window_anchor_every",
+            "window_anchor_points",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, int | np.integer) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1; got {value!r}")

@@ -203,12 +203,15 @@ class StereoTracker:
                 max_lines=options.max_lines,
                 motion_sigma=options.window_motion_sigma,
                 free_lines=options.window_free_lines and options.use_lines,
+                anchors=options.window_anchors,
+                anchor_points=options.window_anchor_points,
             )
             if options.window_frames
             else None
         )
         self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
         self._since_adjust = 0  # tracked frames since the last adjustment (window_every)
+        self._since_global = 0  # tracked frames since the last global adjustment
         warm_up_projection(rig.left)
         if self._window is not None:
             self._window.warm_up()
@@ -523,10 +526,14 @@ class StereoTracker:
         if self._rays is not None:
             depth, self._rays = float(self._rays.t[2]), None
             self._since_adjust += 1
+            self._since_global += 1
             if self._since_adjust >= self._window_every(depth):
                 self._since_adjust = 0
+                spanning = bool(o.window_anchors) and self._since_global >= o.window_anchor_every
+                if spanning:
+                    self._since_global = 0
                 with clock.stage("map"):
-                    self._adjust_window(result)
+                    self._adjust_window(result, spanning=spanning)
         return result
 
     def _window_every(self, depth: float) -> int:
@@ -539,11 +546,12 @@ class StereoTracker:
             return o.window_every
         return int(min(o.window_every, max(1, np.floor(o.window_depth_m / depth))))
 
-    def _adjust_window(self, result: FrameResult) -> None:
-        """Jointly adjust the window's poses and landmarks (``window_frames``); the frame's
-        result, the last pose and the constant-velocity motion become the adjusted ones."""
+    def _adjust_window(self, result: FrameResult, *, spanning: bool = False) -> None:
+        """Jointly adjust the window's poses and landmarks (``window_frames``; ``spanning``:
+        with the kept past frames, ``window_anchors``); the frame's result, the last pose and
+        the constant-velocity motion become the adjusted ones."""
         win = self._window
-        if not win.adjust(self.map):
+        if not win.adjust(self.map, spanning=spanning):
             return
         last = win.frames[-1]
         pose = Pose(jnp.asarray(last.R), jnp.asarray(last.t))

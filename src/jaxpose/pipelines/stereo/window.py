@@ -156,6 +156,12 @@ class WindowAdjuster:
             with the poses (:class:`jaxpose.core.refine.WindowLines`: their endpoints free,
             the planes from outside the window as a prior; at most ``2 max_lines``); off, or
             for the others, the lines' endpoints are held where the map has them.
+        anchors: most past frames kept for the global adjustment (:meth:`adjust` with
+            ``spanning=True``): the fixed first frame and frames spread over the run (a frame
+            leaving the recent window is kept when it is at least ``spacing`` frames after
+            the last one kept; when more than ``anchors`` are kept every other one is dropped
+            and the spacing doubled). ``0``: none.
+        anchor_points: most landmarks in the global adjustment.
     """
 
     anchor_oldest = True
@@ -170,11 +176,19 @@ class WindowAdjuster:
         max_lines: int = 96,
         motion_sigma: tuple[float, float] | None = None,
         free_lines: bool = True,
+        anchors: int = 0,
+        anchor_points: int = 1000,
     ):
         if frames < 2:
             raise ValueError(f"window frames must be >= 2; got {frames}")
+        if anchors < 0:
+            raise ValueError(f"anchors must be >= 0; got {anchors}")
         self.rig = rig
         self.frames: deque[FrameRays] = deque(maxlen=int(frames))
+        self.anchors = int(anchors)
+        self.anchor_points = int(anchor_points)
+        self.kept: list[FrameRays] = []  # past frames of the global adjustment
+        self._spacing = 1
         self.options = WindowOptions(
             iterations=int(iterations),
             huber_px=float(huber_px),
@@ -188,14 +202,30 @@ class WindowAdjuster:
         self.f = (float(c.fx), float(c.fy))
         self.c = (float(c.cx), float(c.cy))
         self.t_rl = np.asarray(rig.t_rl, float)
+        self._spanning = False
 
     def start(self, R, t, *, fixed: bool = False, index: int = -1) -> FrameRays:
         """Open the ray record of frame ``index`` (the oldest leaves the window when it is full)."""
         fr = FrameRays(np.array(R, float), np.array(t, float), fixed=fixed, index=index)
+        if len(self.frames) == self.frames.maxlen:
+            self._keep(self.frames[0])
         self.frames.append(fr)
         return fr
 
-    def _motion_weight(self, f: int) -> np.ndarray:
+    def _keep(self, fr: FrameRays) -> None:
+        """Keep a frame leaving the recent window for the global adjustment (``anchors``)."""
+        if not self.anchors:
+            return
+        if not (fr.fixed or not self.kept or fr.index - self.kept[-1].index >= self._spacing):
+            return
+        self.kept.append(fr)
+        if len(self.kept) > self.anchors:
+            fixed = [k for k in self.kept if k.fixed]
+            rest = [k for k in self.kept if not k.fixed]
+            self.kept = fixed + rest[(len(rest) - 1) % 2 :: 2]  # the newest stays
+            self._spacing *= 2
+
+    def _motion_weight(self, f: int, frames=None) -> np.ndarray:
         """``(f, 6)`` weights of the constant-twist prior: ``1 / sigma^2`` at each frame whose
         neighbours in the window are the frames just before and after it (no frame lost
         between), zero elsewhere and without ``motion_sigma``."""
@@ -204,7 +234,7 @@ class WindowAdjuster:
             return w
         deg, mm = self.motion_sigma
         row = np.r_[np.full(3, (1e3 / mm) ** 2), np.full(3, np.degrees(1.0 / deg) ** 2)]
-        idx = [fr.index for fr in self.frames]
+        idx = [fr.index for fr in (self.frames if frames is None else frames)]
         for j in range(1, len(idx) - 1):
             if idx[j - 1] + 1 == idx[j] == idx[j + 1] - 1:
                 w[j] = row
@@ -212,9 +242,15 @@ class WindowAdjuster:
 
     def warm_up(self) -> None:
         """Compile the adjustment for this window's padded size (about 2 s of CPU, once per
-        process and size) before the first frame rather than in the middle of a sequence."""
+        process and size; with ``anchors``, the global adjustment's size too) before the first
+        frame rather than in the middle of a sequence."""
+        for spanning in (False, True) if self.anchors else (False,):
+            self._warm_up(spanning)
+
+    def _warm_up(self, spanning: bool) -> None:
         R, t = np.eye(3)[None], np.array([[0.0, 0.0, 2.0]])
         one = np.zeros(1, np.int64)
+        self._spanning = spanning
         self._solve(
             R,
             t,
@@ -229,9 +265,13 @@ class WindowAdjuster:
         )
 
     # ------------------------------------------------------------------ the adjustment
-    def adjust(self, landmarks: LandmarkMap) -> bool:
-        """Adjust the window's poses and landmarks; move the rays. Returns whether it ran."""
-        frames = list(self.frames)
+    def adjust(self, landmarks: LandmarkMap, *, spanning: bool = False) -> bool:
+        """Adjust the window's poses and landmarks; move the rays. Returns whether it ran.
+        ``spanning``: the global adjustment, the kept past frames (``anchors``) with the
+        recent window, at most ``anchor_points`` landmarks."""
+        spanning = spanning and bool(self.anchors)
+        self._spanning = spanning
+        frames = (self.kept if spanning else []) + list(self.frames)
         if len(frames) < 2:
             return False
         s = landmarks.points
@@ -264,9 +304,10 @@ class WindowAdjuster:
         # at most max_points landmarks in the solve: those observed most often in the window
         # (the long tracks that tie its frames together); the others' rays move all the same
         sj, sli, spx, sright = jj, li, px, right
-        if len(lm) > self.max_points:
+        max_points = self._max_points
+        if len(lm) > max_points:
             count = np.bincount(li, minlength=len(lm))
-            sel = np.sort(np.lexsort((lm, -count))[: self.max_points])
+            sel = np.sort(np.lexsort((lm, -count))[:max_points])
             new_index = np.full(len(lm), -1)
             new_index[sel] = np.arange(len(sel))
             keep = new_index[li] >= 0
@@ -277,7 +318,7 @@ class WindowAdjuster:
         held = None if free_lines is None else free_lines["ids"]
         lines = self._line_terms(landmarks, frames, held)
         Rs_new, ts_new, X = self._solve(
-            Rs, ts, X, sj, sli, spx, sright, M_out, b_out, free, lines, free_lines
+            Rs, ts, X, sj, sli, spx, sright, M_out, b_out, free, lines, free_lines, frames
         )
         if Rs_new is None:
             return False
@@ -415,12 +456,33 @@ class WindowAdjuster:
         d = np.einsum("nj,nji->ni", d, R)
         return origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
-    def _solve(self, Rs, ts, X, jj, li, px, right, M_out, b_out, free, lines=None, free_lines=None):
+    @property
+    def _max_points(self) -> int:
+        return self.anchor_points if self._spanning else self.max_points
+
+    def _solve(
+        self,
+        Rs,
+        ts,
+        X,
+        jj,
+        li,
+        px,
+        right,
+        M_out,
+        b_out,
+        free,
+        lines=None,
+        free_lines=None,
+        frames=(),
+    ):
         """The adjustment (:func:`jaxpose.core.refine.adjust_window`) on the visibility grid,
-        padded to ``frames`` frames, ``max_points`` landmarks and ``max_lines`` lines a frame
-        (one compiled size); ``None`` poses when it fails."""
+        padded to ``frames`` frames (plus ``anchors`` in the global adjustment),
+        ``max_points`` (``anchor_points``) landmarks and ``max_lines`` lines a frame (one
+        compiled size each); ``None`` poses when it fails."""
         n, K = len(X), len(Rs)
-        f, n_pad, k_pad = self.frames.maxlen, max(self.max_points, n), 2 * self.max_lines
+        f = self.frames.maxlen + (self.anchors if self._spanning else 0)
+        n_pad, k_pad = max(self._max_points, n), 2 * self.max_lines
         Rp = np.broadcast_to(np.eye(3), (f, 3, 3)).copy()
         tp = np.zeros((f, 3))
         tp[:, 2] = 1.0
@@ -454,7 +516,7 @@ class WindowAdjuster:
             line_coeffs=jnp.asarray(Lc),
             line_weight=jnp.asarray(Lw),
             free=jnp.asarray(free_p),
-            motion_weight=jnp.asarray(self._motion_weight(f)),
+            motion_weight=jnp.asarray(self._motion_weight(f, frames)),
             lines=grid,
         )
         res = adjust_window(
