@@ -48,7 +48,11 @@ class FeatureOptions:
     Attributes:
         n_points: ORB budget per image.
         orb_fast_threshold: FAST threshold of ORB (lower finds corners on dim panels).
-        mu: eq. 1 length factor; lines shorter than ``mu min(W, H)`` are dropped.
+        mu: eq. 1 length factor; lines shorter than ``mu min(W, H)`` are dropped. The stereo
+            tracker's line stereo search (:func:`~jaxpose.vision.stereo_match.match_lines_stereo`)
+            needs ``line_min_matches`` samples ``line_step_px`` apart, so it matches only segments
+            of at least 40 px by default (30.7 px at ``mu = 0.04`` on a 768-row image): a lower
+            ``mu`` alone adds segments that no line landmark is made of.
         point_ratio, line_ratio: ratio-test thresholds (eq. 3 read as Lowe's test).
         max_hamming_point, max_hamming_line: absolute Hamming caps on the best match (bits).
         ransac_px: RANSAC threshold of the fundamental-matrix screening (pixels).
