@@ -80,7 +80,7 @@ class TrackerOptions:
             2000 836 and 176-243 (ray-cast truth; ``bench/stereo_diagnose.py --repeat``): 1000
             keeps about all the corners the target holds at 5 m. It acts beyond about 2.5 m for
             the 1 m target; chosen on the development scenes at 3-5 m against 100, 1500 and
-            ``n_points`` (``docs/stereo.md``).
+            ``n_points`` (``docs/stereo-evaluation.md``).
         lsd_area_px: on a target of apparent area ``A`` above this (pixels; the 1 m target at
             about 2 m), LSD runs at ``features.lsd_scale * sqrt(lsd_area_px / A)`` (at least 0.4)
             instead of ``features.lsd_scale``: it then scans about as many pixels of target as
@@ -116,7 +116,7 @@ class TrackerOptions:
             development scene it raised the errors by up to 60% (noise seeds 0 and 1), and a
             wider fixed margin did not help; our reading, not measured: on the quilt's
             repetitive texture a window centred on the prediction keeps a second ZNCC peak near
-            a wrong landmark, so the landmark's error confirms itself (``docs/stereo.md``).
+            a wrong landmark, so the landmark's error confirms itself (``docs/stereo-evaluation.md``).
         disparity_margin_px: the margin of the first tracked frame.
         neighbour_px: radius of the matched points that predict an unmatched feature's
             disparity.
@@ -137,7 +137,7 @@ class TrackerOptions:
             window_every``). The frames in between keep their single-frame poses (the next
             adjustment moves them in the window). Near the target the single-frame poses are
             already good and the adjustment costs the most; at range it is cheap and needed.
-            Chosen on the development scenes (``docs/stereo.md``): ``k = 1`` beyond 3 m, 2 at
+            Chosen on the development scenes (``docs/stereo-evaluation.md``): ``k = 1`` beyond 3 m, 2 at
             2-3 m, 3 at 1.5-2 m, 4 at 1.5 m and nearer.
         window_points: most point landmarks in each adjustment (those observed most often in
             the window).
@@ -158,7 +158,7 @@ class TrackerOptions:
             ``window_anchor_points`` landmarks, so
             the first frames' poses and the landmarks placed at them keep being re-estimated
             with the later frames' rays. ``window_anchors=0``: off (measured on the development
-            scenes, ``docs/stereo.md``: better at 4 m, worse at 5 m).
+            scenes, ``docs/stereo-evaluation.md``: better at 4 m, worse at 5 m).
         feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
             points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
             dilution of precision at the predicted pose), ``"random"`` or ``"response"``
@@ -179,7 +179,7 @@ class TrackerOptions:
             right-image residual at every later frame; weighted, the directions fix the pose
             and the depths count as much as they are known. Off: on the development scenes
             (noise seeds 0-2) it lowered the 5 m scene's worst axis by up to 20% and raised the
-            2.5 m tumbling scene's on every seed (``docs/stereo.md``).
+            2.5 m tumbling scene's on every seed (``docs/stereo-evaluation.md``).
         stereo: options of the epipolar search (:class:`~jaxpose.vision.stereo_match.
             StereoMatchOptions`); ranges of 128 disparities or more (a target within about 2 m
             on the 0.3 m, 1024-pixel rig) are searched coarse to fine, which takes 40-55% of the
