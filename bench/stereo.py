@@ -43,7 +43,12 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from jaxpose.pipelines.stereo import STAGES, StereoTracker, TrackerOptions  # noqa: E402
+from jaxpose.pipelines.stereo import (  # noqa: E402
+    STAGES,
+    StereoTracker,
+    TrackerOptions,
+    smooth_sequence,
+)
 from jaxpose.studies.stereo_track import summarize  # noqa: E402
 from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence  # noqa: E402
 
@@ -138,10 +143,19 @@ def meets_targets(summary: dict, range_m: float) -> bool:
 
 
 def run_scene(
-    name: str, frames: int | None, modes=MODES, seed: int = 0, options=None, *, rows=False
+    name: str,
+    frames: int | None,
+    modes=MODES,
+    seed: int = 0,
+    options=None,
+    *,
+    rows=False,
+    smooth=False,
 ) -> dict:
     """One scene rendered once and tracked in each mode; ``rows``: keep the per-frame rows of
-    :func:`~jaxpose.studies.stereo_track.summarize` (features, inliers, post-fit RMS, errors)."""
+    :func:`~jaxpose.studies.stereo_track.summarize` (features, inliers, post-fit RMS, errors);
+    ``smooth``: also the points + lines run's poses adjusted all at once after the last frame
+    (:func:`~jaxpose.pipelines.stereo.smooth_sequence`, offline), under ``"smoothed"``."""
     scene = scene_of(name, frames, seed)
     rig = default_rig()
     depth = (0.3, max(8.0, 3 * scene.range_m))
@@ -155,6 +169,8 @@ def run_scene(
             if mode not in trackers:
                 base = TrackerOptions() if options is None else options
                 opts = replace(base, use_lines=mode == "points+lines", depth_range_m=depth)
+                if smooth and mode == "points+lines":
+                    opts = replace(opts, keep_history=True)
                 trackers[mode] = StereoTracker(rig, fr.pose, options=opts)
             t0, c0 = time.perf_counter(), time.process_time()
             res = trackers[mode].process(fr.left, fr.right)
@@ -197,6 +213,8 @@ def run_scene(
         }
         if rows:
             out[mode]["rows"] = rep["rows"]
+        if smooth and mode == "points+lines":
+            out[mode]["smoothed"] = _smoothed(trackers[mode], results, truths, scene.range_m)
     if set(MODES) <= set(modes):
         a, b = out["points+lines"], out["points-only"]
         if a["rms_position_mm"] and b["rms_position_mm"]:
@@ -209,12 +227,29 @@ def run_scene(
     return out
 
 
-def run_scenes(names, frames, modes, seed, options, out: Path, *, rows=False) -> list[dict]:
+def _smoothed(tracker, results, truths, range_m: float) -> dict:
+    """Errors of the tracker's sequence adjusted all at once (offline smoothing)."""
+    c0 = time.process_time()
+    poses = smooth_sequence(tracker)
+    cpu = time.process_time() - c0
+    res = [replace(r, pose=poses[r.index]) if r.index in poses else r for r in results]
+    s = summarize(res, truths, [0.0] * len(res))["summary"]
+    return {
+        "rms_position_mm": s["rms_position_mm"],
+        "rms_attitude_deg": s["rms_attitude_deg"],
+        "meets_targets": meets_targets(s, range_m),
+        "cpu_s": cpu,
+    }
+
+
+def run_scenes(
+    names, frames, modes, seed, options, out: Path, *, rows=False, smooth=False
+) -> list[dict]:
     """:func:`run_scene` on each scene in turn, ``out/results.json`` rewritten after each (a run
     cut short keeps what it did) and a progress line on stderr."""
     results = []
     for name in names:
-        r = run_scene(name, frames, modes, seed=seed, options=options, rows=rows)
+        r = run_scene(name, frames, modes, seed=seed, options=options, rows=rows, smooth=smooth)
         results.append(r)
         (out / "results.json").write_text(json.dumps(results, indent=1))
         m = r["points+lines"]
@@ -325,6 +360,12 @@ def main(argv=None) -> int:
         action="store_true",
         help="keep each frame's row (features, inliers, post-fit RMS, errors) in results.json",
     )
+    p.add_argument(
+        "--smooth",
+        action="store_true",
+        help="also adjust each points+lines run all at once after its last frame (offline "
+        "smoothing, smooth_sequence) and report those errors",
+    )
     p.add_argument("--out", type=Path, default=Path("runs/bench-stereo"))
     p.add_argument(
         "--from-results",
@@ -364,10 +405,38 @@ def main(argv=None) -> int:
             else:
                 options = replace(options, **{key: ast.literal_eval(value)})
     results = run_scenes(
-        names, args.frames, modes, args.seed, options, args.out, rows=args.frame_rows
+        names,
+        args.frames,
+        modes,
+        args.seed,
+        options,
+        args.out,
+        rows=args.frame_rows,
+        smooth=args.smooth,
     )
     report(results, modes, args.out, args.frames, load0, timing=args.timing_only)
     return 0
+
+
+def _smoothed_summary(results) -> dict:
+    """Targets met by the smoothed runs per split (``--smooth``; empty without)."""
+    rows = [r for r in results if "smoothed" in r["points+lines"]]
+    if not rows:
+        return {}
+    return {
+        "smoothed_meets_targets": {
+            split: f"{sum(r['points+lines']['smoothed']['meets_targets'] for r in rows if r['scene']['split'] == split)}"  # noqa: E501
+            f"/{sum(r['scene']['split'] == split for r in rows)}"
+            for split in sorted({r["scene"]["split"] for r in rows})
+        },
+        "smoothed": {
+            r["scene"]["name"]: [
+                r["points+lines"]["smoothed"]["rms_position_mm"],
+                r["points+lines"]["smoothed"]["rms_attitude_deg"],
+            ]
+            for r in rows
+        },
+    }
 
 
 def _stage_medians(results, key: str) -> dict:
@@ -409,6 +478,7 @@ def report(results, modes, out: Path, frames, load0, *, timing: bool = False) ->
             if r.get("lines_help") and (r["scene"].get("blur") or r["scene"].get("glints"))
         ],
         "median_fps": float(np.median(fps)) if fps else None,
+        **_smoothed_summary(results),
         "median_cpu_s_per_frame": float(
             np.median([r["points+lines"]["mean_frame_cpu_s"] for r in results])
         ),

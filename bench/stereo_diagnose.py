@@ -458,24 +458,17 @@ def full_ba(
     from jaxpose.core.geometry import Pose, so3_log
     from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
     from jaxpose.pipelines.stereo._arrays import find
+    from jaxpose.pipelines.stereo.smooth import adjust_sequence
     from jaxpose.pipelines.stereo.window import WindowAdjuster, ray_geometry
     from jaxpose.studies.stereo_track import summarize
 
     scene = _scene_by_name(name, frames, seed)
     rig = default_rig()
     seq = list(render_sequence(scene, rig))
-    opts = TrackerOptions(depth_range_m=(0.3, max(8.0, 3 * scene.range_m)))
+    opts = TrackerOptions(depth_range_m=(0.3, max(8.0, 3 * scene.range_m)), keep_history=True)
     tr = StereoTracker(rig, seq[0].pose, options=opts)
-    logs = []
-    start = tr._window.start
-
-    def logged(*a, **k):  # keep every frame's ray record, not only the window's
-        fr = start(*a, **k)
-        logs.append(fr)
-        return fr
-
-    tr._window.start = logged
     results = [tr.process(fr.left, fr.right) for fr in seq]
+    logs = tr._window.history  # every frame's ray record, not only the window's
     truths = [fr.pose for fr in seq]
 
     def report(res):
@@ -534,21 +527,11 @@ def full_ba(
         for fr, R, t in zip(logs, true_R, true_t, strict=True):
             fr.R, fr.t = R, t
         out["started from the true poses"] = True
-    adj = WindowAdjuster(
-        rig,
-        frames=len(logs),
-        iterations=iterations,
-        max_points=len(m.points),
-        max_lines=max(opts.max_lines, (len(m.lines) + 1) // 2),
-        free_lines=lines,
-    )
-    adj.anchor_oldest = False  # frame 0 (fixed) is the gauge
-    if not lines:
-        adj._line_terms = lambda *a, **k: None
-    adj.frames.extend(logs)
     by_index = {fr.index: fr for fr in logs}
     for r in range(rounds):
-        ran = adj.adjust(m)
+        ran = adjust_sequence(
+            m, rig, logs, rounds=1, iterations=iterations, lines=lines, max_lines=opts.max_lines
+        )
         res = []
         for k, orig in enumerate(results):
             rr = copy.copy(orig)

@@ -7,8 +7,9 @@ result), :mod:`~jaxpose.pipelines.stereo.landmarks` (the body-frame landmark map
 :mod:`~jaxpose.pipelines.stereo.budget` (the features of a frame's pose solve under a budget),
 :mod:`~jaxpose.pipelines.stereo.keyframes` (stereo correspondences and the map update),
 :mod:`~jaxpose.pipelines.stereo.window` (the joint adjustment of the last frames and their
-landmarks) and
-:mod:`~jaxpose.pipelines.stereo.tracker` (:class:`StereoTracker`, which runs them).
+landmarks),
+:mod:`~jaxpose.pipelines.stereo.tracker` (:class:`StereoTracker`, which runs them) and
+:mod:`~jaxpose.pipelines.stereo.smooth` (the whole tracked sequence adjusted afterwards).
 """
 
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap as LandmarkMap
@@ -17,6 +18,7 @@ from jaxpose.pipelines.stereo.options import BUDGET_RULES as BUDGET_RULES
 from jaxpose.pipelines.stereo.options import STAGES as STAGES
 from jaxpose.pipelines.stereo.options import FrameResult as FrameResult
 from jaxpose.pipelines.stereo.options import TrackerOptions as TrackerOptions
+from jaxpose.pipelines.stereo.smooth import smooth_sequence as smooth_sequence
 from jaxpose.pipelines.stereo.tracker import StereoTracker as StereoTracker
 from jaxpose.pipelines.stereo.tracker import as_gray_uint8 as as_gray_uint8
 from jaxpose.pipelines.stereo.tracker import target_roi as target_roi
@@ -30,5 +32,6 @@ __all__ = [
     "StereoTracker",
     "TrackerOptions",
     "as_gray_uint8",
+    "smooth_sequence",
     "target_roi",
 ]

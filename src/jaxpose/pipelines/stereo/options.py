@@ -116,7 +116,8 @@ class TrackerOptions:
             development scene it raised the errors by up to 60% (noise seeds 0 and 1), and a
             wider fixed margin did not help; our reading, not measured: on the quilt's
             repetitive texture a window centred on the prediction keeps a second ZNCC peak near
-            a wrong landmark, so the landmark's error confirms itself (``docs/stereo-evaluation.md``).
+            a wrong landmark, so the landmark's error confirms itself
+            (``docs/stereo-evaluation.md``).
         disparity_margin_px: the margin of the first tracked frame.
         neighbour_px: radius of the matched points that predict an unmatched feature's
             disparity.
@@ -137,8 +138,8 @@ class TrackerOptions:
             window_every``). The frames in between keep their single-frame poses (the next
             adjustment moves them in the window). Near the target the single-frame poses are
             already good and the adjustment costs the most; at range it is cheap and needed.
-            Chosen on the development scenes (``docs/stereo-evaluation.md``): ``k = 1`` beyond 3 m, 2 at
-            2-3 m, 3 at 1.5-2 m, 4 at 1.5 m and nearer.
+            Chosen on the development scenes (``docs/stereo-evaluation.md``): ``k = 1`` beyond
+            3 m, 2 at 2-3 m, 3 at 1.5-2 m, 4 at 1.5 m and nearer.
         window_points: most point landmarks in each adjustment (those observed most often in
             the window).
         window_motion_sigma: ``(deg, mm)``: the windowed adjustment holds the target's motion
@@ -159,6 +160,10 @@ class TrackerOptions:
             the first frames' poses and the landmarks placed at them keep being re-estimated
             with the later frames' rays. ``window_anchors=0``: off (measured on the development
             scenes, ``docs/stereo-evaluation.md``: better at 4 m, worse at 5 m).
+        keep_history: keep every tracked frame's observations (its point rays and line planes)
+            so that :func:`jaxpose.pipelines.stereo.smooth_sequence` can adjust the whole
+            sequence after the last frame (offline smoothing); memory grows with the sequence
+            (a few hundred kB a frame). Needs the windowed adjustment (``window_frames > 0``).
         feature_budget, budget_rule: solve the pose on at most ``feature_budget`` of the matched
             points and lines (``None``: all), chosen by ``budget_rule``: ``"dop"`` (lowest
             dilution of precision at the predicted pose), ``"random"`` or ``"response"``
@@ -242,6 +247,7 @@ class TrackerOptions:
     window_anchors: int = 0
     window_anchor_every: int = 8
     window_anchor_points: int = 1000
+    keep_history: bool = False
     # feature budget (jaxpose.pipelines.stereo.budget)
     feature_budget: int | None = None
     budget_rule: str = "dop"
@@ -285,6 +291,11 @@ class TrackerOptions:
         ):
             raise ValueError(
                 f"window_frames must be 0 or an integer >= 2; got {self.window_frames!r}"
+            )
+        if self.keep_history and not self.window_frames:
+            raise ValueError(
+                "keep_history needs the windowed adjustment (window_frames > 0): its ray records "
+                "are the history"
             )
         if not (isinstance(self.window_anchors, int | np.integer) and self.window_anchors >= 0):
             raise ValueError(f"window_anchors must be an integer >= 0; got {self.window_anchors!r}")

@@ -205,6 +205,7 @@ class StereoTracker:
                 free_lines=options.window_free_lines and options.use_lines,
                 anchors=options.window_anchors,
                 anchor_points=options.window_anchor_points,
+                history=options.keep_history,
             )
             if options.window_frames
             else None

@@ -162,6 +162,8 @@ class WindowAdjuster:
             the last one kept; when more than ``anchors`` are kept every other one is dropped
             and the spacing doubled). ``0``: none.
         anchor_points: most landmarks in the global adjustment.
+        history: keep every frame's ray record (:attr:`history`) for the offline smoothing of
+            :mod:`jaxpose.pipelines.stereo.smooth`; memory grows with the sequence.
     """
 
     anchor_oldest = True
@@ -178,6 +180,7 @@ class WindowAdjuster:
         free_lines: bool = True,
         anchors: int = 0,
         anchor_points: int = 1000,
+        history: bool = False,
     ):
         if frames < 2:
             raise ValueError(f"window frames must be >= 2; got {frames}")
@@ -188,6 +191,7 @@ class WindowAdjuster:
         self.anchors = int(anchors)
         self.anchor_points = int(anchor_points)
         self.kept: list[FrameRays] = []  # past frames of the global adjustment
+        self.history: list[FrameRays] | None = [] if history else None  # every frame's record
         self._spacing = 1
         self.options = WindowOptions(
             iterations=int(iterations),
@@ -210,6 +214,8 @@ class WindowAdjuster:
         if len(self.frames) == self.frames.maxlen:
             self._keep(self.frames[0])
         self.frames.append(fr)
+        if self.history is not None:
+            self.history.append(fr)
         return fr
 
     def _keep(self, fr: FrameRays) -> None:
