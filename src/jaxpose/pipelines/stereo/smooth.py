@@ -71,12 +71,18 @@ def adjust_sequence(
     return ran
 
 
-def smooth_sequence(tracker, *, rounds: int = 2, iterations: int = 4) -> dict[int, Pose]:
+def smooth_sequence(
+    tracker, *, rounds: int = 2, iterations: int = 4, max_points: int | None = None
+) -> dict[int, Pose]:
     """The poses of every tracked frame of ``tracker`` (a
     :class:`~jaxpose.pipelines.stereo.StereoTracker` built with
     ``TrackerOptions(keep_history=True)``, after its last frame) adjusted together
     (module docstring). Returns ``{frame index: Pose}`` (target in the left camera, as
     ``FrameResult.pose``); lost frames have no entry. The tracker is left as it was.
+
+    Cost: one solve padded to the sequence's frames x landmarks (``max_points``: at most that
+    many landmarks, those observed most often; ``None``: all). Measured on the 2-core CPU at
+    2 m: 30 frames 3-4 s of CPU, 100 frames 10.6 s with the process's peak memory at 1.4 GB.
 
     Raises ``ValueError`` when the tracker keeps no history (``keep_history=False`` or no
     windowed adjustment, ``window_frames=0``) or has tracked fewer than 2 frames."""
@@ -98,5 +104,6 @@ def smooth_sequence(tracker, *, rounds: int = 2, iterations: int = 4) -> dict[in
         iterations=iterations,
         lines=o.window_free_lines and o.use_lines,
         max_lines=o.max_lines,
+        max_points=max_points,
     )
     return {fr.index: Pose(np.asarray(fr.R, float), np.asarray(fr.t, float)) for fr in frames}
