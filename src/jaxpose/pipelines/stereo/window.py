@@ -206,7 +206,6 @@ class WindowAdjuster:
         self.f = (float(c.fx), float(c.fy))
         self.c = (float(c.cx), float(c.cy))
         self.t_rl = np.asarray(rig.t_rl, float)
-        self._spanning = False
 
     def start(self, R, t, *, fixed: bool = False, index: int = -1) -> FrameRays:
         """Open the ray record of frame ``index`` (the oldest leaves the window when it is full)."""
@@ -256,7 +255,6 @@ class WindowAdjuster:
     def _warm_up(self, spanning: bool) -> None:
         R, t = np.eye(3)[None], np.array([[0.0, 0.0, 2.0]])
         one = np.zeros(1, np.int64)
-        self._spanning = spanning
         self._solve(
             R,
             t,
@@ -268,6 +266,7 @@ class WindowAdjuster:
             np.eye(3)[None],
             np.zeros((1, 3)),
             np.zeros(1, bool),
+            spanning=spanning,
         )
 
     # ------------------------------------------------------------------ the adjustment
@@ -276,7 +275,6 @@ class WindowAdjuster:
         ``spanning``: the global adjustment, the kept past frames (``anchors``) with the
         recent window, at most ``anchor_points`` landmarks."""
         spanning = spanning and bool(self.anchors)
-        self._spanning = spanning
         frames = (self.kept if spanning else []) + list(self.frames)
         if len(frames) < 2:
             return False
@@ -310,7 +308,7 @@ class WindowAdjuster:
         # at most max_points landmarks in the solve: those observed most often in the window
         # (the long tracks that tie its frames together); the others' rays move all the same
         sj, sli, spx, sright = jj, li, px, right
-        max_points = self._max_points
+        max_points = self.anchor_points if spanning else self.max_points
         if len(lm) > max_points:
             count = np.bincount(li, minlength=len(lm))
             sel = np.sort(np.lexsort((lm, -count))[:max_points])
@@ -324,7 +322,20 @@ class WindowAdjuster:
         held = None if free_lines is None else free_lines["ids"]
         lines = self._line_terms(landmarks, frames, held)
         Rs_new, ts_new, X = self._solve(
-            Rs, ts, X, sj, sli, spx, sright, M_out, b_out, free, lines, free_lines, frames
+            Rs,
+            ts,
+            X,
+            sj,
+            sli,
+            spx,
+            sright,
+            M_out,
+            b_out,
+            free,
+            lines,
+            free_lines,
+            frames,
+            spanning=spanning,
         )
         if Rs_new is None:
             return False
@@ -462,10 +473,6 @@ class WindowAdjuster:
         d = np.einsum("nj,nji->ni", d, R)
         return origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
-    @property
-    def _max_points(self) -> int:
-        return self.anchor_points if self._spanning else self.max_points
-
     def _solve(
         self,
         Rs,
@@ -481,14 +488,17 @@ class WindowAdjuster:
         lines=None,
         free_lines=None,
         frames=(),
+        *,
+        spanning: bool = False,
     ):
         """The adjustment (:func:`jaxpose.core.refine.adjust_window`) on the visibility grid,
-        padded to ``frames`` frames (plus ``anchors`` in the global adjustment),
+        padded to ``frames`` frames (plus ``anchors`` in the global adjustment, ``spanning``),
         ``max_points`` (``anchor_points``) landmarks and ``max_lines`` lines a frame (one
         compiled size each); ``None`` poses when it fails."""
         n, K = len(X), len(Rs)
-        f = self.frames.maxlen + (self.anchors if self._spanning else 0)
-        n_pad, k_pad = max(self._max_points, n), 2 * self.max_lines
+        f = self.frames.maxlen + (self.anchors if spanning else 0)
+        max_points = self.anchor_points if spanning else self.max_points
+        n_pad, k_pad = max(max_points, n), 2 * self.max_lines
         Rp = np.broadcast_to(np.eye(3), (f, 3, 3)).copy()
         tp = np.zeros((f, 3))
         tp[:, 2] = 1.0
