@@ -35,6 +35,7 @@ def adjust_sequence(
     rounds: int = 2,
     iterations: int = 4,
     lines: bool = True,
+    free_lines: bool = True,
     max_lines: int = 96,
     max_points: int | None = None,
 ) -> bool:
@@ -42,9 +43,10 @@ def adjust_sequence(
     frame, the fixed first one the gauge) and ``landmarks``
     (:class:`~jaxpose.pipelines.stereo.LandmarkMap`) together, in place: ``rounds`` calls of
     ``iterations`` Gauss-Newton steps, the rays moved and the landmarks re-solved between calls
-    (the windowed adjustment over all the frames). ``lines=False``: no line term. ``max_points``:
-    most point landmarks in the solve (``None``: all; the solve's size is frames x landmarks).
-    Returns whether the last call ran."""
+    (the windowed adjustment over all the frames). ``free_lines``: the line landmarks whose
+    planes meet are adjusted too (else held where the map has them); ``lines=False``: no line
+    term at all. ``max_points``: most point landmarks in the solve (``None``: all; the solve's
+    size is frames x landmarks). Returns whether the last call ran."""
     frames = list(frames)
     if len(frames) < 2:
         raise ValueError(f"the sequence must hold at least 2 tracked frames; got {len(frames)}")
@@ -59,11 +61,10 @@ def adjust_sequence(
         iterations=iterations,
         max_points=max(n_points, 1),
         max_lines=max(int(max_lines), (len(landmarks.lines) + 1) // 2),
-        free_lines=lines,
+        free_lines=free_lines,
+        lines=lines,
     )
     adj.anchor_oldest = False  # the given first frame (fixed) is the gauge
-    if not lines:
-        adj._line_terms = lambda *a, **k: None
     adj.frames.extend(frames)
     ran = False
     for _ in range(rounds):
@@ -102,7 +103,7 @@ def smooth_sequence(
         frames,
         rounds=rounds,
         iterations=iterations,
-        lines=o.window_free_lines and o.use_lines,
+        free_lines=o.window_free_lines and o.use_lines,
         max_lines=o.max_lines,
         max_points=max_points,
     )

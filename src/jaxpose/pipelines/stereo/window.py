@@ -164,6 +164,8 @@ class WindowAdjuster:
         anchor_points: most landmarks in the global adjustment.
         history: keep every frame's ray record (:attr:`history`) for the offline smoothing of
             :mod:`jaxpose.pipelines.stereo.smooth`; memory grows with the sequence.
+        lines: ``False``: no line term at all, held or free (the poses from the points' rays
+            alone; a diagnosis of what the lines do).
     """
 
     anchor_oldest = True
@@ -181,6 +183,7 @@ class WindowAdjuster:
         anchors: int = 0,
         anchor_points: int = 1000,
         history: bool = False,
+        lines: bool = True,
     ):
         if frames < 2:
             raise ValueError(f"window frames must be >= 2; got {frames}")
@@ -192,6 +195,7 @@ class WindowAdjuster:
         self.anchor_points = int(anchor_points)
         self.kept: list[FrameRays] = []  # past frames of the global adjustment
         self.history: list[FrameRays] | None = [] if history else None  # every frame's record
+        self.lines = bool(lines)
         self._spacing = 1
         self.options = WindowOptions(
             iterations=int(iterations),
@@ -200,7 +204,7 @@ class WindowAdjuster:
         )
         self.max_points = int(max_points)
         self.max_lines = int(max_lines)
-        self.free_lines = bool(free_lines)
+        self.free_lines = bool(free_lines) and bool(lines)
         self.motion_sigma = motion_sigma  # (deg, mm), or None
         c = rig.left
         self.f = (float(c.fx), float(c.fy))
@@ -320,7 +324,7 @@ class WindowAdjuster:
         X = s.X[lm].copy()
         free_lines = self._free_line_terms(landmarks, frames) if self.free_lines else None
         held = None if free_lines is None else free_lines["ids"]
-        lines = self._line_terms(landmarks, frames, held)
+        lines = self._line_terms(landmarks, frames, held) if self.lines else None
         Rs_new, ts_new, X = self._solve(
             Rs,
             ts,
