@@ -389,11 +389,11 @@ def render_stereo_frame(
     sun = _rot(1, sun_axis_angle) @ np.asarray(scene.sun_dir_cam, float)
     sun /= np.linalg.norm(sun)
     rays_cache = {} if _rays is None else _rays
+    sub_poses = [scene_pose(scene, time_s + off) for off in offsets]  # target in the left camera
     for cam_index, (camera, R_c, t_c) in enumerate(
         [(rig.left, np.eye(3), np.zeros(3)), (rig.right, R_rl, t_rl)]
     ):
-        poses = [scene_pose(scene, time_s + off) for off in offsets]
-        poses = [(R_c @ R, R_c @ t + t_c) for R, t in poses]
+        poses = [(R_c @ R, R_c @ t + t_c) for R, t in sub_poses]
         (v0, v1, u0, u1), view = _target_window(camera, model, poses)
         sun_c = R_c @ sun
         acc = None
