@@ -4,52 +4,13 @@ landmarks (the reference is the geometry the pixels were made from)."""
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from window_scenes import angle_deg, observe, perturbed, window_scene
 
 from jaxpose import PinholeCamera, StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.pipelines.stereo import LandmarkMap
-from jaxpose.pipelines.stereo.keyframes import observe_line_planes, observe_point_rays
+from jaxpose.pipelines.stereo.keyframes import observe_line_planes
 from jaxpose.pipelines.stereo.window import WindowAdjuster
-
-
-def _scene(n_frames=5, seed=0):
-    rng = np.random.default_rng(seed)
-    cam = PinholeCamera(800.0, 800.0, 319.5, 239.5, width=640, height=480)
-    rig = StereoCamera.from_baseline(cam, 0.3)
-    X = rng.uniform(-0.3, 0.3, (60, 3))
-    poses = []
-    for j in range(n_frames):  # the target turning 3 degrees a frame about its y axis, 2.5 m away
-        R = Rotation.from_rotvec([0.1, np.radians(3.0 * j), 0.05]).as_matrix()
-        poses.append((R, np.array([0.05, -0.02, 2.5])))
-    return rig, X, poses
-
-
-def _pixels(rig, R, t, X):
-    """Left and right pixels of body points (NumPy pinhole projection of the rectified rig)."""
-    K = np.asarray(rig.left.K)
-    out = []
-    for shift in (np.zeros(3), np.asarray(rig.t_rl)):
-        x = (X @ R.T + t + shift) @ K.T
-        out.append(x[:, :2] / x[:, 2:])
-    return out
-
-
-def _perturbed(rng, R, t):
-    """The pose as a tracker would have it: off by up to about 0.5 degree and 1 cm."""
-    Re = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R
-    return Re, t + rng.normal(0, 0.006, 3)
-
-
-def _observe(m, rig, ids, R, t, X, estimate: Pose, rec):
-    """The rays of both images of the true pose ``(R, t)``, placed at the ``estimate``."""
-    left, right = _pixels(rig, R, t, X)
-    observe_point_rays(m, rig, ids, left, estimate, right=False, log=rec)
-    observe_point_rays(m, rig, ids, right, estimate, right=True, log=rec)
-
-
-def _angle_deg(Ra, Rb):
-    return np.degrees(Rotation.from_matrix(Ra @ Rb.T).magnitude())
 
 
 def _assert_adjusts_to_truth(win, m, poses, X):
@@ -57,27 +18,27 @@ def _assert_adjusts_to_truth(win, m, poses, X):
     poses, so the landmarks are the true points."""
     assert win.adjust(m)
     for fr, (R, t) in zip(win.frames, poses, strict=True):
-        assert _angle_deg(fr.R, R) < 1e-5
+        assert angle_deg(fr.R, R) < 1e-5
         np.testing.assert_allclose(fr.t, t, atol=1e-7)
     np.testing.assert_allclose(m.points.X, X, atol=1e-6)
 
 
 def test_adjustment_recovers_the_true_poses_and_landmarks():
     iterations = 8
-    rig, X, poses = _scene()
+    rig, X, poses = window_scene()
     rng = np.random.default_rng(1)
     m = LandmarkMap()
     win = WindowAdjuster(rig, frames=5, iterations=iterations, max_points=60)
     ids = None
     for j, (R, t) in enumerate(poses):
         # the frames' poses as a tracker would have them: off by up to 0.5 degree and 1 cm
-        Re, te = (R, t) if j == 0 else _perturbed(rng, R, t)
+        Re, te = (R, t) if j == 0 else perturbed(rng, R, t)
         pose = Pose(Re, te)
         if ids is None:
             ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), pose, 0)
         rec = win.start(Re, te, fixed=j == 0)
-        _observe(m, rig, ids, R, t, X, pose, rec)
-    before = max(_angle_deg(fr.R, R) for fr, (R, _) in zip(win.frames, poses, strict=True))
+        observe(m, rig, ids, R, t, X, pose, rec)
+    before = max(angle_deg(fr.R, R) for fr, (R, _) in zip(win.frames, poses, strict=True))
     err_X_before = np.abs(m.points.X - X).max()
     assert before > 0.2 and err_X_before > 1e-3
     _assert_adjusts_to_truth(win, m, poses, X)
@@ -87,7 +48,7 @@ def test_older_rays_are_a_prior_that_holds_the_landmarks():
     """A landmark's rays from frames that left the window stay in its triangulation: with the
     older frames at the true poses, a window whose only fixed information is those rays (no
     fixed frame, the oldest frame not anchored) returns the true poses."""
-    rig, X, poses = _scene(n_frames=6)
+    rig, X, poses = window_scene(n_frames=6)
     m = LandmarkMap()
     win = WindowAdjuster(rig, frames=3, iterations=8, max_points=60)
     win.anchor_oldest = False
@@ -95,13 +56,13 @@ def test_older_rays_are_a_prior_that_holds_the_landmarks():
     rng = np.random.default_rng(2)
     for j, (R, t) in enumerate(poses):
         # the window's frames off by up to 0.5 degree
-        Re, te = _perturbed(rng, R, t) if j >= 3 else (R, t)
+        Re, te = perturbed(rng, R, t) if j >= 3 else (R, t)
         rec = win.start(Re, te)
-        _observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
+        observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
     assert [fr.fixed for fr in win.frames] == [False] * 3
     assert win.adjust(m)
     for fr, (R, t) in zip(win.frames, poses[3:], strict=True):
-        assert _angle_deg(fr.R, R) < 1e-4
+        assert angle_deg(fr.R, R) < 1e-4
         np.testing.assert_allclose(fr.t, t, atol=1e-6)
     np.testing.assert_allclose(m.points.X, X, atol=1e-6)
 
@@ -111,27 +72,27 @@ def test_anchors_keep_past_frames_spread_over_the_run_and_adjust_them():
     after the last kept one (the fixed first frame always), every other one dropped and the
     spacing doubled beyond ``anchors``; the global adjustment (``spanning=True``) returns the
     kept frames' true poses with the recent ones', the ordinary one leaves the kept frames."""
-    rig, X, poses = _scene(n_frames=9)
+    rig, X, poses = window_scene(n_frames=9)
     rng = np.random.default_rng(4)
     m = LandmarkMap()
     win = WindowAdjuster(rig, frames=3, iterations=8, max_points=60, anchors=3, anchor_points=60)
     ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), Pose(*poses[0]), 0)
     for j, (R, t) in enumerate(poses):
         # off: the frames that will be in the global window (not the dropped 2-4)
-        Re, te = _perturbed(rng, R, t) if j in (1, 5, 6, 7, 8) else (R, t)
+        Re, te = perturbed(rng, R, t) if j in (1, 5, 6, 7, 8) else (R, t)
         rec = win.start(Re, te, fixed=j == 0, index=j)
-        _observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
+        observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
     # left the window: 0-5; kept 0, 1, 2, 3 -> 0, 1, 3 (spacing 2), 5 -> 0, 1, 5 (spacing 4)
     assert [fr.index for fr in win.kept] == [0, 1, 5]
     kept_before = [fr.R.copy() for fr in win.kept]
     assert win.adjust(m)  # the recent window only
     for fr, R in zip(win.kept, kept_before, strict=True):
         np.testing.assert_array_equal(fr.R, R)
-    assert _angle_deg(win.kept[1].R, poses[1][0]) > 0.05
+    assert angle_deg(win.kept[1].R, poses[1][0]) > 0.05
     assert win.adjust(m, spanning=True)
     for fr in [*win.kept, *win.frames]:
         R, t = poses[fr.index]
-        assert _angle_deg(fr.R, R) < 1e-5
+        assert angle_deg(fr.R, R) < 1e-5
         np.testing.assert_allclose(fr.t, t, atol=1e-7)
     np.testing.assert_allclose(m.points.X, X, atol=1e-6)
 
@@ -148,15 +109,15 @@ def test_window_frames_option_is_checked():
 def test_landmark_cap_still_recovers_poses_and_moves_every_landmark():
     """``max_points`` (``TrackerOptions.window_points``): 20 of the 60 landmarks in the solve;
     the poses are still the true ones and the rays of the other 40 move with them."""
-    rig, X, poses = _scene()
+    rig, X, poses = window_scene()
     rng = np.random.default_rng(3)
     m = LandmarkMap()
     win = WindowAdjuster(rig, frames=5, iterations=8, max_points=20)
     ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), Pose(*poses[0]), 0)
     for j, (R, t) in enumerate(poses):
-        Re, te = _perturbed(rng, R, t) if j else (R, t)
+        Re, te = perturbed(rng, R, t) if j else (R, t)
         rec = win.start(Re, te, fixed=j == 0)
-        _observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
+        observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
     _assert_adjusts_to_truth(win, m, poses, X)
 
 
@@ -217,7 +178,7 @@ def test_free_lines_are_moved_onto_the_true_lines(free_lines):
     (wrong) poses: with the lines free, the adjustment moves the window's planes to the true
     poses and the map's lines onto the true lines (the lines all the planes meet in); held
     (``free_lines=False``), the lines keep the planes of the wrong poses."""
-    rig, X, poses = _scene()
+    rig, X, poses = window_scene()
     rng = np.random.default_rng(5)
     P = rng.uniform(-0.3, 0.3, (6, 2, 3))
     m = LandmarkMap()
@@ -227,9 +188,9 @@ def test_free_lines_are_moved_onto_the_true_lines(free_lines):
     ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), Pose(*poses[0]), 0)
     lids = m.add("lines", P + rng.normal(0, 0.01, P.shape), np.zeros((6, 32)), Pose(*poses[0]), 0)
     for j, (R, t) in enumerate(poses):
-        Re, te = _perturbed(rng, R, t) if j else (R, t)
+        Re, te = perturbed(rng, R, t) if j else (R, t)
         rec = win.start(Re, te, fixed=j == 0)
-        _observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
+        observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
         observe_line_planes(m, rig, lids, P @ R.T + t, Pose(Re, te), log=rec)  # true segments
     _assert_adjusts_to_truth(win, m, poses, X)
     u = (P[:, 1] - P[:, 0]) / np.linalg.norm(P[:, 1] - P[:, 0], axis=1, keepdims=True)
