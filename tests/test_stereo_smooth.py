@@ -40,6 +40,8 @@ def test_the_whole_sequence_returns_to_the_true_poses_a_short_window_cannot():
         adjust_sequence(m, rig, win.history[:1])
     with pytest.raises(ValueError, match="rounds"):
         adjust_sequence(m, rig, win.history, rounds=0)
+    with pytest.raises(ValueError, match="max_points"):
+        adjust_sequence(m, rig, win.history, max_points=0)
 
 
 def test_smooth_sequence_of_a_tracker_leaves_the_tracker_as_it_was():

@@ -54,6 +54,10 @@ def adjust_sequence(
         raise ValueError(f"rounds must be an integer >= 1; got {rounds!r}")
     if not (isinstance(iterations, int) and iterations >= 1):
         raise ValueError(f"iterations must be an integer >= 1; got {iterations!r}")
+    if max_points is not None and not (
+        isinstance(max_points, int | np.integer) and max_points >= 1
+    ):
+        raise ValueError(f"max_points must be None or an integer >= 1; got {max_points!r}")
     n_points = len(landmarks.points) if max_points is None else int(max_points)
     adj = WindowAdjuster(
         rig,
