@@ -25,10 +25,12 @@ for about 20 seconds; later calls take under a second an image.""")
 
 code("""import os
 import time
+
 import jax
-jax.config.update("jax_enable_x64", True)
-import numpy as np
+
+jax.config.update("jax_enable_x64", True)  # before any jaxpose import
 import matplotlib.pyplot as plt
+import numpy as np
 
 import jaxpose as jp
 from jaxpose.core.geometry import euler_to_dcm
@@ -66,9 +68,9 @@ plt.axis("off")
 plt.title("detected edges, the winning feature group and the model at the returned pose");""")
 
 md("""## Inside the pipeline
-With `InitOptions(trace=True)` the result keeps the poses each stage held; `diagnose.stage_breakdown`
-asks of each stage whether it held a pose within 10 degrees and 0.30 m of the truth (the success
-criterion). `result.timings` holds the seconds of each stage.""")
+With `InitOptions(trace=True)` the result keeps the poses each stage held;
+`diagnose.stage_breakdown` asks of each stage whether it held a pose within 10 degrees and
+0.30 m of the truth (the success criterion). `result.timings` holds the seconds of each stage.""")
 
 code("""stages = diagnose.stage_breakdown(result, truth, model)
 for s in diagnose.STAGES:
@@ -76,7 +78,7 @@ for s in diagnose.STAGES:
 print(f"ROI IoU with the true box: {stages['roi_iou']:.2f}; hypotheses: {stages.get('hypotheses')}")
 
 again = jp.initialise_pose(image, camera)  # compiled now
-names, secs = zip(*sorted(again.timings.items(), key=lambda kv: -kv[1]))
+names, secs = zip(*sorted(again.timings.items(), key=lambda kv: -kv[1]), strict=True)
 plt.figure(figsize=(7, 3))
 plt.barh(names, np.asarray(secs) * 1000)
 plt.gca().invert_yaxis()
@@ -102,7 +104,7 @@ for i in range(n):
     dt = float(np.linalg.norm(np.asarray(res.pose.t) - pose.t))
     rows.append((float(pose.t[2]), dr, dt, res.confidence))
 
-rng_m, rot, tra, conf = map(np.array, zip(*rows))
+rng_m, rot, tra, conf = map(np.array, zip(*rows, strict=True))
 right = (rot < 10) & (tra < 0.30)
 for c in ("high", "low", "position-only", "none"):
     sel = conf == c
@@ -126,7 +128,8 @@ md("""## Real photographs (SPEED+)
 Point `JAXPOSE_SPEEDPLUS` at a SPEED+ root (`camera.json` and per domain `images/` with the label
 JSON) or at a folder with `labels.csv`; `jaxpose eval-speedplus ROOT` is the full evaluation with
 the 2021 competition's score. On real photographs the pipeline is right far less often than on
-renders (the documentation's evaluation says where and why); the class tells which answers to trust.""")
+renders (the documentation's evaluation says where and why); the class tells which answers to
+trust.""")
 
 code("""from jaxpose.studies.speedplus import evaluate_speedplus
 

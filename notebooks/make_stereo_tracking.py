@@ -21,10 +21,12 @@ notebook:
 Set `JAXPOSE_NB_SMALL=1` to run at a small size (the test suite does).""")
 
 code("""import os
+
 import jax
-jax.config.update("jax_enable_x64", True)
-import numpy as np
+
+jax.config.update("jax_enable_x64", True)  # before any jaxpose import
 import matplotlib.pyplot as plt
+import numpy as np
 
 from jaxpose.pipelines.stereo import TrackerOptions
 from jaxpose.studies.stereo_track import summarize, track_sequence
@@ -39,12 +41,14 @@ with 10 degrees of nutation, seen at 5 Hz with motion blur by a 1024 x 768 rig w
 baseline. The renderer returns rectified pairs and the true pose of each frame. The video is
 rendered once and kept, so that every run below sees the same frames.""")
 
-code("""scene = StereoScene(frames=frames, range_m=2.5, rate_deg_s=12.0, spin_axis_body=(0.3, 0.2, 1.0),
-                    nutation_deg=10.0, blur=0.5, seed=0)
+code("""scene = StereoScene(
+    frames=frames, range_m=2.5, rate_deg_s=12.0, spin_axis_body=(0.3, 0.2, 1.0),
+    nutation_deg=10.0, blur=0.5, seed=0,
+)
 rig = default_rig(1024, 768)
 video = list(render_sequence(scene, rig))
 fig, ax = plt.subplots(1, 2, figsize=(12, 4.5))
-for a, img, name in zip(ax, (video[0].left, video[0].right), ("left", "right")):
+for a, img, name in zip(ax, (video[0].left, video[0].right), ("left", "right"), strict=True):
     a.imshow(img, cmap="gray")
     a.set_title(f"frame 0, {name}")
     a.axis("off")""")
@@ -60,8 +64,8 @@ for name, lines in (("points + lines", True), ("points only", False)):
     results, truths, seconds = track_sequence(video, rig, options=TrackerOptions(use_lines=lines))
     runs[name] = summarize(results, truths, seconds)
     s = runs[name]["summary"]
-    print(f"{name:15s} RMS position {s['rms_position_mm']} mm, attitude {s['rms_attitude_deg']} deg,"
-          f" lost {s['lost_frames']}, {s['fps']} fps")""")
+    print(f"{name:15s} RMS position {s['rms_position_mm']} mm,"
+          f" attitude {s['rms_attitude_deg']} deg, lost {s['lost_frames']}, {s['fps']} fps")""")
 
 code("""fig, ax = plt.subplots(2, 3, figsize=(13, 6), sharex=True)
 for name, style in (("points + lines", "-"), ("points only", "--")):
@@ -70,7 +74,7 @@ for name, style in (("points + lines", "-"), ("points only", "--")):
     for j, a in enumerate("xyz"):
         ax[0, j].plot(k, [r[f"err_pos_{a}_mm"] for r in rows], style, label=name)
         ax[1, j].plot(k, [r[f"err_att_{a}_deg"] for r in rows], style, label=name)
-for j, (p, q) in enumerate(zip("xyz", ("roll", "pitch", "yaw"))):
+for j, (p, q) in enumerate(zip("xyz", ("roll", "pitch", "yaw"), strict=True)):
     ax[0, j].set_title(f"chaser position error, {p} (mm)")
     ax[1, j].set_title(f"attitude error, {q} (deg)")
     ax[1, j].set_xlabel("frame")
