@@ -191,8 +191,8 @@ def main(argv=None) -> None:
     )
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
-    if args.directions < 100:
-        ap.error(f"--directions must be at least 100; got {args.directions}")
+    if not 100 <= args.directions <= 30000:  # cv2.remap reads at most 32767 rows
+        ap.error(f"--directions must be in [100, 30000]; got {args.directions}")
 
     camera = load_camera(args.root / "camera.json")
     labels = load_speed_labels(args.root)
