@@ -1,0 +1,95 @@
+"""The Cramer-Rao bound of ``bench/stereo_bound.py``: its Jacobians against finite differences,
+and its Schur-complement covariance against the inverse of the whole information matrix."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+_PATH = Path(__file__).resolve().parents[1] / "bench" / "stereo_bound.py"
+_spec = importlib.util.spec_from_file_location("stereo_bound", _PATH)
+bench = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench)
+
+FOCAL = (800.0, 790.0)
+OFFSET = np.array([-0.3, 0.0, 0.0])  # the right camera of a 0.3 m rig
+
+
+def _pixel(R, t, X, offset):
+    xc = R @ X + t + offset
+    return np.asarray(FOCAL) * xc[:2] / xc[2]
+
+
+def _pose(rng):
+    R = Rotation.from_rotvec(rng.normal(scale=0.5, size=3)).as_matrix()
+    return R, np.array([0.1, -0.2, 3.0]) + rng.normal(scale=0.1, size=3)
+
+
+def test_observation_jacobians_match_finite_differences():
+    rng = np.random.default_rng(0)
+    R, t = _pose(rng)
+    X = rng.normal(scale=0.4, size=3)
+    for offset in (np.zeros(3), OFFSET):
+        Jp, Jl = bench.observation_jacobians(R, t, X, offset, FOCAL)
+        h = 1e-6
+        num_p = np.zeros((2, 6))
+        for i in range(6):
+            d = np.zeros(6)
+            d[i] = h
+            Rp = Rotation.from_rotvec(d[:3]).as_matrix() @ R
+            Rm = Rotation.from_rotvec(-d[:3]).as_matrix() @ R
+            num_p[:, i] = (_pixel(Rp, t + d[3:], X, offset) - _pixel(Rm, t - d[3:], X, offset)) / (
+                2 * h
+            )
+        num_l = np.stack(
+            [
+                (_pixel(R, t, X + h * e, offset) - _pixel(R, t, X - h * e, offset)) / (2 * h)
+                for e in np.eye(3)
+            ],
+            1,
+        )
+        np.testing.assert_allclose(Jp, num_p, rtol=1e-6, atol=1e-4)
+        np.testing.assert_allclose(Jl, num_l, rtol=1e-6, atol=1e-4)
+
+
+def test_chaser_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(1)
+    R, t = _pose(rng)
+    h = 1e-6
+    num = np.zeros((3, 6))
+    for i in range(6):
+        d = np.zeros(6)
+        d[i] = h
+        Rp = Rotation.from_rotvec(d[:3]).as_matrix() @ R
+        Rm = Rotation.from_rotvec(-d[:3]).as_matrix() @ R
+        num[:, i] = (-Rp.T @ (t + d[3:]) + Rm.T @ (t - d[3:])) / (2 * h)
+    np.testing.assert_allclose(bench.chaser_jacobian(R, t), num, atol=1e-8)
+
+
+def test_schur_covariance_equals_the_inverse_of_the_whole_information():
+    rng = np.random.default_rng(2)
+    poses = {k: _pose(rng) for k in range(3)}
+    points = {j: rng.normal(scale=0.4, size=3) for j in range(10)}
+    observations = [
+        (k, j, off)
+        for k in range(3)
+        for j in range(10)
+        for off in (np.zeros(3), OFFSET)
+        if rng.random() < 0.8 or k == 0
+    ]
+    free, sigma = [1, 2], 0.4
+    C = bench.pose_covariance(observations, poses, points, free, FOCAL, sigma)
+    # the whole Jacobian: 6 per free pose, then 3 per point; the inverse's pose block
+    n = 6 * len(free) + 3 * len(points)
+    rows = []
+    for k, j, off in observations:
+        Jp, Jl = bench.observation_jacobians(*poses[k], points[j], off, FOCAL)
+        J = np.zeros((2, n))
+        if k in free:
+            J[:, 6 * free.index(k) : 6 * free.index(k) + 6] = Jp
+        J[:, 6 * len(free) + 3 * j : 6 * len(free) + 3 * j + 3] = Jl
+        rows.append(J)
+    J = np.concatenate(rows)
+    full = sigma**2 * np.linalg.inv(J.T @ J)
+    np.testing.assert_allclose(C, full[: 6 * len(free), : 6 * len(free)], rtol=1e-6, atol=1e-12)
