@@ -26,22 +26,25 @@ def _pose(rng):
     return R, np.array([0.1, -0.2, 3.0]) + rng.normal(scale=0.1, size=3)
 
 
+def _pose_derivative(f, R, t, h=1e-6):
+    """Central differences of ``f(R, t)`` over the pose perturbation ``(dtheta, dt)`` (``R <-
+    exp(dtheta) R``, ``t <- t + dt``): ``(len(f), 6)``."""
+    cols = []
+    for d in np.eye(6) * h:
+        Rp = Rotation.from_rotvec(d[:3]).as_matrix() @ R
+        Rm = Rotation.from_rotvec(-d[:3]).as_matrix() @ R
+        cols.append((f(Rp, t + d[3:]) - f(Rm, t - d[3:])) / (2 * h))
+    return np.stack(cols, 1)
+
+
 def test_observation_jacobians_match_finite_differences():
     rng = np.random.default_rng(0)
     R, t = _pose(rng)
     X = rng.normal(scale=0.4, size=3)
+    h = 1e-6
     for offset in (np.zeros(3), OFFSET):
         Jp, Jl = bench.observation_jacobians(R, t, X, offset, FOCAL)
-        h = 1e-6
-        num_p = np.zeros((2, 6))
-        for i in range(6):
-            d = np.zeros(6)
-            d[i] = h
-            Rp = Rotation.from_rotvec(d[:3]).as_matrix() @ R
-            Rm = Rotation.from_rotvec(-d[:3]).as_matrix() @ R
-            num_p[:, i] = (_pixel(Rp, t + d[3:], X, offset) - _pixel(Rm, t - d[3:], X, offset)) / (
-                2 * h
-            )
+        num_p = _pose_derivative(lambda R_, t_, o=offset: _pixel(R_, t_, X, o), R, t)
         num_l = np.stack(
             [
                 (_pixel(R, t, X + h * e, offset) - _pixel(R, t, X - h * e, offset)) / (2 * h)
@@ -54,16 +57,8 @@ def test_observation_jacobians_match_finite_differences():
 
 
 def test_chaser_jacobian_matches_finite_differences():
-    rng = np.random.default_rng(1)
-    R, t = _pose(rng)
-    h = 1e-6
-    num = np.zeros((3, 6))
-    for i in range(6):
-        d = np.zeros(6)
-        d[i] = h
-        Rp = Rotation.from_rotvec(d[:3]).as_matrix() @ R
-        Rm = Rotation.from_rotvec(-d[:3]).as_matrix() @ R
-        num[:, i] = (-Rp.T @ (t + d[3:]) + Rm.T @ (t - d[3:])) / (2 * h)
+    R, t = _pose(np.random.default_rng(1))
+    num = _pose_derivative(lambda R_, t_: -R_.T @ t_, R, t)
     np.testing.assert_allclose(bench.chaser_jacobian(R, t), num, atol=1e-8)
 
 
