@@ -194,8 +194,11 @@ def main(argv=None) -> None:
     if not 100 <= args.directions <= 30000:  # cv2.remap reads at most 32767 rows
         ap.error(f"--directions must be in [100, 30000]; got {args.directions}")
 
-    camera = load_camera(args.root / "camera.json")
-    labels = load_speed_labels(args.root)
+    try:
+        camera = load_camera(args.root / "camera.json")
+        labels = load_speed_labels(args.root)
+    except (OSError, ValueError) as err:
+        ap.error(str(err))
     model = tango()
     V = np.asarray(model.vertices, float)
     dirs = fibonacci_sphere(args.directions)

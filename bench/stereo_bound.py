@@ -162,6 +162,14 @@ def main(argv=None) -> None:
         ap.error(f"--frames must be at least 3; got {args.frames}")
     if args.sigma is not None and not args.sigma > 0:
         ap.error(f"--sigma must be positive; got {args.sigma}")
+    sys.path.insert(0, str(Path(__file__).parent))
+    from stereo_diagnose import _scene_by_name
+
+    for name in args.scenes:
+        try:
+            _scene_by_name(name, args.frames, 0)
+        except KeyError:
+            ap.error(f"unknown scene {name!r}: a scene of bench/stereo.py or hNN (held-out)")
     rows = []
     print("| scene | seed | sigma px | tracker RMS x, y, z mm | bound x, y, z mm | target mm |")
     print("|---|---|---|---|---|---|")
