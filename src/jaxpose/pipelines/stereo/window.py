@@ -312,7 +312,7 @@ class WindowAdjuster:
         # at most max_points landmarks in the solve: those observed most often in the window
         # (the long tracks that tie its frames together); the others' rays move all the same
         sj, sli, spx, sright = jj, li, px, right
-        max_points = self.anchor_points if spanning else self.max_points
+        max_points = self._points_cap(spanning)
         if len(lm) > max_points:
             count = np.bincount(li, minlength=len(lm))
             sel = np.sort(np.lexsort((lm, -count))[:max_points])
@@ -477,6 +477,11 @@ class WindowAdjuster:
         d = np.einsum("nj,nji->ni", d, R)
         return origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
+    def _points_cap(self, spanning: bool) -> int:
+        """Most landmarks in a solve: ``anchor_points`` in the global adjustment, else
+        ``max_points``."""
+        return self.anchor_points if spanning else self.max_points
+
     def _solve(
         self,
         Rs,
@@ -501,7 +506,7 @@ class WindowAdjuster:
         compiled size each); ``None`` poses when it fails."""
         n, K = len(X), len(Rs)
         f = self.frames.maxlen + (self.anchors if spanning else 0)
-        max_points = self.anchor_points if spanning else self.max_points
+        max_points = self._points_cap(spanning)
         n_pad, k_pad = max(max_points, n), 2 * self.max_lines
         Rp = np.broadcast_to(np.eye(3), (f, 3, 3)).copy()
         tp = np.zeros((f, 3))
