@@ -86,19 +86,25 @@ def pose_covariance(observations, poses, points, free, focal, sigma) -> np.ndarr
     return sigma**2 * np.linalg.inv(S)
 
 
+def _scene(name: str, frames: int, seed: int):
+    """A scene of ``bench/stereo.py`` or ``hNN`` (``stereo_diagnose._scene_by_name``);
+    ``KeyError`` for an unknown name."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from stereo_diagnose import _scene_by_name
+
+    return _scene_by_name(name, frames, seed)
+
+
 def bound(name: str, frames: int, seed: int, sigma: float | None = None) -> dict:
     """The tracker's figures and the bound on one scene (module docstring)."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    sys.path.insert(0, str(Path(__file__).parent))
-    from stereo_diagnose import _scene_by_name
-
     from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
     from jaxpose.studies.stereo_track import summarize
     from jaxpose.vision.stereo_render import default_rig, render_sequence
 
-    scene = _scene_by_name(name, frames, seed)
+    scene = _scene(name, frames, seed)
     rig = default_rig()
     focal = (float(rig.left.fx), float(rig.left.fy))
     cxy = np.array([float(rig.left.cx), float(rig.left.cy)])
@@ -162,12 +168,9 @@ def main(argv=None) -> None:
         ap.error(f"--frames must be at least 3; got {args.frames}")
     if args.sigma is not None and not args.sigma > 0:
         ap.error(f"--sigma must be positive; got {args.sigma}")
-    sys.path.insert(0, str(Path(__file__).parent))
-    from stereo_diagnose import _scene_by_name
-
     for name in args.scenes:
         try:
-            _scene_by_name(name, args.frames, 0)
+            _scene(name, args.frames, 0)
         except KeyError:
             ap.error(f"unknown scene {name!r}: a scene of bench/stereo.py or hNN (held-out)")
     rows = []
