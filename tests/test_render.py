@@ -341,3 +341,28 @@ def test_textured_faces_outside_the_image_render(camera):
     r = render(m, pose, camera, rng=rng, **opts)
     assert r.image.shape == (480, 640)
     assert np.all(r.face_ids == BACKGROUND)
+
+
+def test_exact_face_fill_holds_the_pixel_centres_inside_the_polygon():
+    """``_centres_inside`` against OpenCV's ``pointPolygonTest`` at every pixel centre, for a
+    convex and a concave polygon; ``cv2.fillPoly`` (the default fill) holds more."""
+    import cv2
+
+    from jaxpose.vision.render import _centres_inside
+
+    rng = np.random.default_rng(3)
+    convex = np.array([[10.3, 12.6], [40.7, 9.2], [47.4, 30.5], [15.1, 38.8]])
+    concave = np.array([[5.5, 5.2], [44.6, 6.3], [25.3, 20.7], [42.2, 41.4], [6.8, 39.9]])
+    for poly in (convex, concave, convex + rng.uniform(-0.5, 0.5, convex.shape)):
+        mask = _centres_inside(poly, (48, 52))
+        vv, uu = np.mgrid[0:48, 0:52]
+        ref = np.array(
+            [
+                cv2.pointPolygonTest(poly.astype(np.float32), (float(u), float(v)), False) > 0
+                for u, v in zip(uu.ravel(), vv.ravel(), strict=True)
+            ]
+        ).reshape(48, 52)
+        assert np.array_equal(mask, ref)
+        grown = np.zeros((48, 52), np.uint8)
+        cv2.fillPoly(grown, [np.rint(poly * 16).astype(np.int32)], 1, cv2.LINE_8, shift=4)
+        assert grown.sum() > mask.sum() and not (mask & ~grown.astype(bool)).any()

@@ -151,7 +151,13 @@ def test_exposure_offsets_keep_every_vertex_within_the_step():
     assert np.linalg.norm(np.diff(pixels(fewer), axis=0), axis=-1).max() > scene.blur_step_px
     assert len(exposure_offsets(StereoScene(**{**_BLUR, "blur_samples": 5}), rig, 0.0)) == 5
     np.testing.assert_array_equal(exposure_offsets(StereoScene(), rig, 0.0), [0.0])
-    for bad in (dict(blur=-0.5), dict(blur_step_px=0.0), dict(blur_samples=0)):
+    for bad in (
+        dict(blur=-0.5),
+        dict(blur_step_px=0.0),
+        dict(blur_samples=0),
+        dict(pixel_samples=0),
+        dict(pixel_samples=-2),
+    ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             StereoScene(**bad)
 
@@ -171,3 +177,57 @@ def test_rendering_the_target_window_gives_the_whole_image_pixels(monkeypatch):
     np.testing.assert_array_equal(windowed.roi, whole.roi)
     assert u0 < windowed.roi[0] < windowed.roi[2] < u1  # the target inside the window
     assert v0 < windowed.roi[1] < windowed.roi[3] < v1
+
+
+def test_the_sample_camera_spreads_each_pixels_samples_about_its_centre():
+    """Sample ``(n u + k, n v + l)`` of the sampling camera seen through the pixel's camera lies
+    at ``u - 1/2 + (k + 1/2) / n``: the samples tile the pixel and their mean is its centre."""
+    import jaxpose.vision.stereo_render as sr
+
+    cam = default_rig(320, 240).left
+    for n in (2, 3, 4):
+        s = sr._sampling_camera(cam, n)
+        assert (s.width, s.height) == (n * 320, n * 240)
+        u, v = 17, 101
+        k = np.arange(n)
+        x = (n * u + k - float(s.cx)) / float(s.fx)  # the samples' normalised coordinates
+        y = (n * v + k - float(s.cy)) / float(s.fy)
+        np.testing.assert_allclose(float(cam.fx) * x + float(cam.cx), u - 0.5 + (k + 0.5) / n)
+        np.testing.assert_allclose(float(cam.fy) * y + float(cam.cy), v - 0.5 + (k + 0.5) / n)
+    block = np.arange(36.0).reshape(6, 6)
+    np.testing.assert_allclose(sr._pixel_means(block, 3), [[7.0, 10.0], [25.0, 28.0]])
+
+
+def _centroid(img):
+    w = img.astype(float)
+    vv, uu = np.mgrid[0 : img.shape[0], 0 : img.shape[1]]
+    return np.array([(w * uu).sum(), (w * vv).sum()]) / w.sum()
+
+
+def test_area_sampling_keeps_the_image_at_the_pixel_centres_and_follows_a_subpixel_shift():
+    """With the faces filled exactly (the model without its antennas, which ``cv2.line`` draws),
+    the target's intensity centroid converges as the samples per pixel grow and stays where one
+    sample at each pixel's centre puts it (a sampling camera off by its ``(n - 1) / 2`` would
+    move it by 0.4 px), and moving the principal point by 0.3 px moves the area-sampled image
+    by 0.3 px (a box-filtered image is shift covariant). ``cv2.fillPoly``'s faces, half a
+    pixel grown, move the one-sample centroid by more."""
+    import dataclasses
+
+    import equinox as eqx
+
+    from jaxpose.vision.stereo_render import tumbler_model
+
+    model = dataclasses.replace(tumbler_model(), antennas=np.zeros((0, 2), int))
+    rig = default_rig(320, 240)
+    base = dict(frames=2, range_m=2.5, rate_deg_s=10.0, noise_sigma=0.0, exact_faces=True)
+
+    def centroid(n, camera_rig=rig, **over):
+        scene = StereoScene(**{**base, **over}, pixel_samples=n)
+        return _centroid(render_stereo_frame(scene, camera_rig, 1, model=model).left)
+
+    c1, c4, c8 = centroid(1), centroid(4), centroid(8)
+    assert np.abs(c4 - c8).max() < 0.03
+    assert np.abs(c1 - c8).max() < 0.12
+    moved = centroid(4, eqx.tree_at(lambda r: r.left.cx, rig, rig.left.cx + 0.3))
+    np.testing.assert_allclose(moved - c4, [0.3, 0.0], atol=0.02)
+    assert np.abs(centroid(1, exact_faces=False) - c8).max() > 0.15

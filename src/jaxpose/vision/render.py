@@ -124,6 +124,30 @@ def _subdivide(poly: np.ndarray, n: int) -> np.ndarray:
     return (poly[:, None] + s * (nxt - poly)[:, None]).reshape(-1, poly.shape[1])
 
 
+def _centres_inside(pix: np.ndarray, shape) -> np.ndarray:
+    """Mask ``shape`` of the pixels whose centres (integer coordinates) lie inside the polygon
+    ``pix (k, 2)`` (even-odd rule over its edges, within its bounding box). Exact where
+    ``cv2.fillPoly`` rounds the vertices to whole pixels and fills inclusively, which grows a
+    polygon by about half a pixel on every side."""
+    H, W = shape
+    mask = np.zeros((H, W), bool)
+    u0, v0 = np.maximum(np.ceil(pix.min(0)).astype(int), 0)
+    u1, v1 = np.minimum(np.floor(pix.max(0)).astype(int), [W - 1, H - 1])
+    if u1 < u0 or v1 < v0:
+        return mask
+    vv, uu = np.mgrid[v0 : v1 + 1, u0 : u1 + 1].astype(float)
+    inside = np.zeros(uu.shape, bool)
+    a, b = pix, np.roll(pix, -1, axis=0)
+    for (xa, ya), (xb, yb) in zip(a, b, strict=True):
+        if ya == yb:
+            continue
+        crosses = (ya > vv) != (yb > vv)
+        x_at = xa + (vv - ya) * (xb - xa) / (yb - ya)
+        inside ^= crosses & (uu < x_at)
+    mask[v0 : v1 + 1, u0 : u1 + 1] = inside
+    return mask
+
+
 # ----------------------------------------------------------------------------- visibility
 def _face_depth_along_rays(n_cam, d_cam, rays):
     """Depth z where rays (M, 3) with z = 1 meet the plane n . x = d."""
@@ -477,11 +501,15 @@ def render_layers(
     specular: tuple[float, float] | None = None,
     antenna_diameter_m: float = 0.015,
     subdivisions: int = 16,
+    exact_faces: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Noise-free radiance ``(H, W)`` float in ``[0, 1]`` (NaN on background) and the face-index
     buffer (``-1`` background, ``-2`` antenna), by the painter's algorithm.
 
     ``sun_dir_cam`` points from the target towards the Sun, in the camera frame.
+    ``exact_faces``: a face covers exactly the pixels whose centres it holds
+    (:func:`_centres_inside`); else ``cv2.fillPoly``'s, about half a pixel more on every side,
+    so that a nearer face drawn later takes a half-pixel band of the face behind it.
     """
     R, t = _pose_np(pose)
     H, W = _image_size(camera, shape)
@@ -522,11 +550,14 @@ def render_layers(
             pix = project_points(camera, _subdivide(poly, subdivisions))
             if not np.all(np.isfinite(pix)) or np.abs(pix).max() > 1e6:
                 continue
-            mask = np.zeros((H, W), np.uint8)
-            cv2.fillPoly(
-                mask, [np.rint(pix * scale).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4
-            )
-            sel = mask.astype(bool)
+            if exact_faces:
+                sel = _centres_inside(pix, (H, W))
+            else:
+                mask = np.zeros((H, W), np.uint8)
+                cv2.fillPoly(
+                    mask, [np.rint(pix * scale).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4
+                )
+                sel = mask.astype(bool)
             face_ids[sel] = k
             value = albedo[k] * shade[k] + spec[k]
             if textures and k in textures:

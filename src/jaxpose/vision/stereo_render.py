@@ -170,6 +170,12 @@ class StereoScene:
             150 ms with glints).
         glints: per-pixel specular strength (0: none); ``shininess`` its exponent.
         noise_sigma: sensor noise (fraction of full scale); ``defocus_px`` the optics blur.
+        pixel_samples: each pixel's radiance is the mean of ``pixel_samples x pixel_samples``
+            point samples spread over its area (a sensor integrates the light over the pixel;
+            1: one sample at the pixel's centre, which puts every texture corner and face edge
+            on the whole-pixel grid).
+        exact_faces: a face covers the pixels (samples) whose centres it holds, not
+            ``cv2.fillPoly``'s half-pixel-grown set (``render_layers``).
         seed: noise seed.
     """
 
@@ -193,6 +199,8 @@ class StereoScene:
     noise_sigma: float = 0.01
     defocus_px: float = 1.0
     ambient: float = 0.15
+    pixel_samples: int = 1
+    exact_faces: bool = False
     seed: int = 0
 
     def __post_init__(self):
@@ -202,6 +210,8 @@ class StereoScene:
             raise ValueError(f"blur_step_px must be positive; got {self.blur_step_px}")
         if int(self.blur_samples) != self.blur_samples or self.blur_samples < 1:
             raise ValueError(f"blur_samples must be a positive integer; got {self.blur_samples}")
+        if int(self.pixel_samples) != self.pixel_samples or self.pixel_samples < 1:
+            raise ValueError(f"pixel_samples must be a positive integer; got {self.pixel_samples}")
 
     def n_frames(self) -> int:
         if self.frames is not None:
@@ -295,6 +305,33 @@ def _glints(face_ids, rays, model, R, sun, strength, shininess):
     h /= np.linalg.norm(h, axis=1, keepdims=True)
     out[sel] = strength * np.clip(np.einsum("ij,ij->i", n, h), 0, None) ** shininess
     return out
+
+
+def _sampling_camera(camera: PinholeCamera, n: int) -> PinholeCamera:
+    """The camera of ``n x n`` point samples per pixel of ``camera``: sample ``(n u + k, n v + l)``
+    lies at ``(u - 1/2 + (k + 1/2) / n, v - 1/2 + (l + 1/2) / n)`` of ``camera``'s pixels, so
+    the mean of each ``n x n`` block (:func:`_pixel_means`) is the pixel's area integral by the
+    midpoint rule (``n = 1``: ``camera`` itself)."""
+    if n == 1:
+        return camera
+    c = 0.5 * (n - 1)
+    return PinholeCamera(
+        n * camera.fx,
+        n * camera.fy,
+        n * camera.cx + c,
+        n * camera.cy + c,
+        camera.dist,
+        width=n * camera.width,
+        height=n * camera.height,
+    )
+
+
+def _pixel_means(samples: np.ndarray, n: int) -> np.ndarray:
+    """``(n H, n W)`` samples to the ``(H, W)`` means of their ``n x n`` blocks."""
+    if n == 1:
+        return samples
+    H, W = samples.shape[0] // n, samples.shape[1] // n
+    return samples.reshape(H, n, W, n).mean(axis=(1, 3))
 
 
 def _target_window(camera: PinholeCamera, model: WireframeModel, poses):
@@ -395,6 +432,8 @@ def render_stereo_frame(
     ):
         poses = [(R_c @ R, R_c @ t + t_c) for R, t in sub_poses]
         (v0, v1, u0, u1), view = _target_window(camera, model, poses)
+        n_s = int(scene.pixel_samples)
+        view = _sampling_camera(view, n_s)
         sun_c = R_c @ sun
         acc = None
         for Rc, tc in poses:
@@ -405,17 +444,22 @@ def render_stereo_frame(
                 sun_dir_cam=sun_c,
                 ambient=scene.ambient,
                 textures=textures,
+                exact_faces=scene.exact_faces,
             )
             if scene.glints > 0:
-                if cam_index not in rays_cache:
-                    rays_cache[cam_index] = _pixel_rays(camera)
-                rays = rays_cache[cam_index][v0:v1, u0:u1]
+                if n_s > 1:
+                    rays = _pixel_rays(view)  # the window's sample rays
+                else:
+                    if cam_index not in rays_cache:
+                        rays_cache[cam_index] = _pixel_rays(camera)
+                    rays = rays_cache[cam_index][v0:v1, u0:u1]
                 g = _glints(face_ids, rays, model, Rc, sun_c, scene.glints, scene.shininess)
                 radiance = np.where(np.isnan(radiance), radiance, radiance + g)
-            radiance = np.nan_to_num(radiance, nan=0.0)
+            radiance = _pixel_means(np.nan_to_num(radiance, nan=0.0), n_s)
             acc = radiance if acc is None else acc + radiance
             if cam_index == 0:
                 vv, uu = np.nonzero(face_ids != BACKGROUND)
+                vv, uu = vv // n_s, uu // n_s  # samples to pixels
                 if len(uu):
                     box = np.array([uu.min(), vv.min(), uu.max(), vv.max()], float)
                     box += [u0, v0, u0, v0]  # the window's pixels to the image's
