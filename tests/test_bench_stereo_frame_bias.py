@@ -1,0 +1,74 @@
+"""The per-frame fit of ``bench/stereo_frame_bias.py``: it recovers a known pose from exact
+pixels of known points (a closed form), and its normal matrix is that of finite differences."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+_BENCH = Path(__file__).resolve().parents[1] / "bench"
+sys.path.insert(0, str(_BENCH))  # the bench imports its sibling stereo_bound
+_spec = importlib.util.spec_from_file_location("stereo_frame_bias", _BENCH / "stereo_frame_bias.py")
+bench = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(bench)
+
+FOCAL, CENTRE = (800.0, 790.0), (320.0, 240.0)
+T_RL = np.array([-0.3, 0.0, 0.0])
+
+
+def _scene(rng, n=40):
+    points = rng.uniform(-0.5, 0.5, size=(n, 3))
+    R = Rotation.from_rotvec([0.2, -0.4, 0.1]).as_matrix()
+    t = np.array([0.05, -0.1, 4.0])
+    offsets = np.where((np.arange(n) % 2 == 1)[:, None], T_RL, 0.0)
+    return points, R, t, offsets
+
+
+def _pixels(R, t, points, offsets):
+    xc = points @ R.T + t + offsets
+    return np.stack(
+        [FOCAL[0] * xc[:, 0] / xc[:, 2] + CENTRE[0], FOCAL[1] * xc[:, 1] / xc[:, 2] + CENTRE[1]], 1
+    )
+
+
+def test_frame_fit_recovers_the_pose_that_made_the_pixels():
+    rng = np.random.default_rng(0)
+    points, R, t, offsets = _scene(rng)
+    dR = Rotation.from_rotvec(np.radians([0.0, 0.5, 0.0])).as_matrix()  # 0.5 deg about y
+    R_true, t_true = dR @ R, t + np.array([0.01, 0.0, -0.02])
+    pix = _pixels(R_true, t_true, points, offsets)
+    R_fit, t_fit, _ = bench.frame_fit(pix, points, offsets, R, t, FOCAL, CENTRE)
+    err = Rotation.from_matrix(R_fit @ R_true.T).magnitude()
+    assert np.degrees(err) < 1e-7
+    np.testing.assert_allclose(t_fit, t_true, atol=1e-9)
+    # from the pose that made the pixels, nothing moves
+    R_same, t_same, _ = bench.frame_fit(pix, points, offsets, R_true, t_true, FOCAL, CENTRE)
+    np.testing.assert_allclose(R_same, R_true, atol=1e-12)
+
+
+def test_frame_fit_normal_matrix_matches_finite_differences():
+    rng = np.random.default_rng(1)
+    points, R, t, offsets = _scene(rng)
+
+    def pixels(x):
+        Rx = Rotation.from_rotvec(x[:3]).as_matrix() @ R
+        return _pixels(Rx, t + x[3:], points, offsets).ravel()
+
+    h = 1e-6
+    J = np.stack([(pixels(h * e) - pixels(-h * e)) / (2 * h) for e in np.eye(6)], 1)
+    _, _, normal = bench.frame_fit(
+        _pixels(R, t, points, offsets), points, offsets, R, t, FOCAL, CENTRE
+    )
+    np.testing.assert_allclose(normal, J.T @ J, rtol=1e-5)
+
+
+def test_an_unknown_scene_field_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit):
+        bench.main(["d1-clean-2m", "--scene-option", "pixel_sample=3"])
+    assert "'pixel_sample': not a StereoScene field" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        bench.main(["d1-clean-2m", "--scene-option", "pixel_samples"])
+    assert "NAME=VALUE" in capsys.readouterr().err
