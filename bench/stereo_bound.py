@@ -95,6 +95,16 @@ def _scene(name: str, frames: int, seed: int):
     return _scene_by_name(name, frames, seed)
 
 
+def check_scenes(parser: argparse.ArgumentParser, names) -> None:
+    """A usage error (``parser.error``) for the first name that is not a scene of
+    ``bench/stereo.py`` or ``hNN``."""
+    for name in names:
+        try:
+            _scene(name, 3, 0)
+        except KeyError:
+            parser.error(f"unknown scene {name!r}: a scene of bench/stereo.py or hNN (held-out)")
+
+
 def bound(name: str, frames: int, seed: int, sigma: float | None = None) -> dict:
     """The tracker's figures and the bound on one scene (module docstring)."""
     import jax
@@ -168,11 +178,7 @@ def main(argv=None) -> None:
         ap.error(f"--frames must be at least 3; got {args.frames}")
     if args.sigma is not None and not args.sigma > 0:
         ap.error(f"--sigma must be positive; got {args.sigma}")
-    for name in args.scenes:
-        try:
-            _scene(name, args.frames, 0)
-        except KeyError:
-            ap.error(f"unknown scene {name!r}: a scene of bench/stereo.py or hNN (held-out)")
+    check_scenes(ap, args.scenes)
     rows = []
     print("| scene | seed | sigma px | tracker RMS x, y, z mm | bound x, y, z mm | target mm |")
     print("|---|---|---|---|---|---|")

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from stereo_bound import observation_jacobians  # noqa: E402
+from stereo_bound import check_scenes, observation_jacobians  # noqa: E402
 
 
 def _rotvec(R: np.ndarray) -> np.ndarray:
@@ -193,13 +193,7 @@ def main(argv=None) -> None:
             ap.error(
                 f"--scene-option {key!r}: not a StereoScene field ({', '.join(sorted(fields))})"
             )
-    from stereo_diagnose import _scene_by_name
-
-    for name in args.scenes:
-        try:
-            _scene_by_name(name, args.frames, 0)
-        except KeyError:
-            ap.error(f"unknown scene {name!r}: a scene of bench/stereo.py or hNN (held-out)")
+    check_scenes(ap, args.scenes)
     runs = []
     for name in args.scenes:
         for seed in args.seeds:
