@@ -133,6 +133,21 @@ def scene_of(name: str, frames: int | None, seed: int) -> StereoScene:
     return StereoScene(frames=n, seed=seed, **params)
 
 
+def tracker_options(items, base: TrackerOptions | None = None) -> TrackerOptions:
+    """``base`` (default ``TrackerOptions()``) with the ``NAME=VALUE`` items of ``--option`` (a
+    Python literal each; ``features.mu=0.03`` sets a field of a nested option group)."""
+    options = TrackerOptions() if base is None else base
+    for item in items:
+        key, _, value = item.partition("=")
+        group, _, field = key.rpartition(".")
+        if group:
+            inner = replace(getattr(options, group), **{field: ast.literal_eval(value)})
+            options = replace(options, **{group: inner})
+        else:
+            options = replace(options, **{key: ast.literal_eval(value)})
+    return options
+
+
 def meets_targets(summary: dict, range_m: float) -> bool:
     """Issue 16's targets on one run: per-axis RMS position <= 5 mm per metre of range,
     attitude <= 1 deg, no lost frame."""
@@ -393,17 +408,7 @@ def main(argv=None) -> int:
     if args.timing_only:
         names = names[:1]
     load0 = os.getloadavg()
-    options = None
-    if args.option:
-        options = TrackerOptions()
-        for item in args.option:
-            key, _, value = item.partition("=")
-            group, _, field = key.rpartition(".")  # "features.mu=0.03": a nested option
-            if group:
-                inner = replace(getattr(options, group), **{field: ast.literal_eval(value)})
-                options = replace(options, **{group: inner})
-            else:
-                options = replace(options, **{key: ast.literal_eval(value)})
+    options = tracker_options(args.option) if args.option else None
     results = run_scenes(
         names,
         args.frames,

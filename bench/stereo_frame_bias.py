@@ -81,7 +81,7 @@ def frame_fit(pixels, points, offsets, R, t, focal, centre, iterations: int = 10
     return R, t, normal
 
 
-def frame_bias(name: str, frames: int, seed: int, scene_options: dict) -> dict:
+def frame_bias(name: str, frames: int, seed: int, scene_options: dict, option=()) -> dict:
     """Per frame: the fitted attitude error and its bound (module docstring)."""
     import jax
 
@@ -98,7 +98,11 @@ def frame_bias(name: str, frames: int, seed: int, scene_options: dict) -> dict:
     centre = (float(cam.cx), float(cam.cy))
     t_rl = np.asarray(rig.t_rl, float)
     seq = list(render_sequence(scene, rig))
-    options = TrackerOptions(depth_range_m=(0.3, max(8.0, 3 * scene.range_m)), keep_history=True)
+    from stereo import tracker_options
+
+    depth = (0.3, max(8.0, 3 * scene.range_m))
+    base = TrackerOptions(depth_range_m=depth, keep_history=True)
+    options = tracker_options(option, base)
     tracker = StereoTracker(rig, seq[0].pose, options=options)
     for fr in seq:
         tracker.process(fr.left, fr.right)
@@ -150,6 +154,7 @@ def frame_bias(name: str, frames: int, seed: int, scene_options: dict) -> dict:
         "scene": name,
         "seed": seed,
         "scene_options": scene_options,
+        "tracker_options": list(option),
         "frames": rows,
         "median_abs_z": np.round(np.median(z, axis=0), 1).tolist(),
         "share_abs_z_above_3": np.round(np.mean(z > 3, axis=0), 2).tolist(),
@@ -181,6 +186,13 @@ def main(argv=None) -> None:
         metavar="NAME=VALUE",
         help="a StereoScene field for every scene (a Python literal), e.g. pixel_samples=3",
     )
+    ap.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a TrackerOptions field as in bench/stereo.py, e.g. features.subpixel=False",
+    )
     args = ap.parse_args(argv)
     if args.frames < 3:
         ap.error(f"--frames must be at least 3; got {args.frames}")
@@ -197,9 +209,9 @@ def main(argv=None) -> None:
     runs = []
     for name in args.scenes:
         for seed in args.seeds:
-            r = frame_bias(name, args.frames, seed, options)
+            r = frame_bias(name, args.frames, seed, options, args.option)
             runs.append(r)
-            print(f"{name} seed {seed} {options or ''}")
+            print(f"{name} seed {seed} {options or ''} {' '.join(args.option)}")
             print("| frame | obs | sigma px | error x, y, z deg | left only | bound | z |")
             print("|---|---|---|---|---|---|---|")
             for f in r["frames"]:

@@ -1,6 +1,7 @@
 """Stereo tracker features: LSD segments on drawn edges at every detection scale, and the
 ratio-test matching over candidate pairs against a brute-force reference."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -78,3 +79,25 @@ def test_knn_ratio_match_pairs_equals_brute_force():
         np.testing.assert_array_equal(np.sort(got[0]), np.sort(want[0]))
         order_got, order_want = np.argsort(got[0]), np.argsort(want[0])
         np.testing.assert_array_equal(got[1][order_got], want[1][order_want])
+
+
+def test_one_orb_level_gives_the_full_resolution_fast_corners():
+    """With one pyramid level and no sub-pixel refinement every keypoint is a FAST corner of the
+    full-resolution image (whole-pixel coordinates); with eight, the coarser levels' corners
+    come back scaled by powers of 1.2 (not whole pixels); cornerSubPix moves them off the grid."""
+    from jaxpose.vision.stereo_features import detect_points
+
+    rng = np.random.default_rng(0)
+    blocks = (rng.random((24, 32)) > 0.5).astype(np.uint8) * 200 + 20
+    img = cv2.resize(blocks, (320, 240), interpolation=cv2.INTER_NEAREST)
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    one, _ = detect_points(img, options=FeatureOptions(orb_levels=1, subpixel=False))
+    eight, _ = detect_points(img, options=FeatureOptions(orb_levels=8, subpixel=False))
+    refined, _ = detect_points(img, options=FeatureOptions(orb_levels=1))
+    assert len(one) > 50 and len(eight) > len(one)
+    np.testing.assert_array_equal(one, np.round(one))
+    assert np.any(np.abs(eight - np.round(eight)) > 0.05)
+    assert np.any(np.abs(refined - np.round(refined)) > 0.05)
+    for bad in (0, 17):
+        with pytest.raises(ValueError, match="orb_levels"):
+            FeatureOptions(orb_levels=bad)

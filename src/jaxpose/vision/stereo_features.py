@@ -60,7 +60,14 @@ class FeatureOptions:
         subpixel: refine ORB keypoints with ``cv2.cornerSubPix``, half-window
             ``subpixel_half_window`` (7: a 15x15 window; 3 left the keypoints of one corner seen
             in two frames 1.5 px apart (median) after 20 deg of rotation on the rendered quilt,
-            7 brought that to 0.6 px).
+            7 brought that to 0.6 px). The window also pulls nearby corners and the same corner
+            found on several pyramid levels to one point: on the 4 m development scene about 9 in
+            10 keypoints have another within 0.5 px after it (3 in 10 without it), and the
+            points it finds move with the view in a way that biases the tracker's poses
+            (``bench/stereo_frame_bias.py``; docs/stereo-evaluation.md).
+        orb_levels: ORB's pyramid levels (``nlevels``, scale 1.2 between levels); 1 keeps the
+            FAST corners of the full-resolution image only (whole-pixel positions without
+            ``subpixel``).
         lsd_scale: LSD runs on the image resampled by this factor (Gaussian blur then
             ``cv2.resize``; LSD's own default is 0.8); its time goes with the square of the
             scale. The segments are returned in full-resolution pixels either way.
@@ -77,9 +84,12 @@ class FeatureOptions:
     max_lines: int = 120
     subpixel: bool = True
     subpixel_half_window: int = 7
+    orb_levels: int = 8
     lsd_scale: float = 0.8
 
     def __post_init__(self):
+        if not (isinstance(self.orb_levels, int | np.integer) and 1 <= self.orb_levels <= 16):
+            raise ValueError(f"orb_levels must be an integer in [1, 16]; got {self.orb_levels!r}")
         if not 0.1 <= self.lsd_scale <= 1.0:
             raise ValueError(f"lsd_scale must be in [0.1, 1]; got {self.lsd_scale}")
 
@@ -146,10 +156,12 @@ def detect_points(
     """ORB keypoints ``(N, 2)`` and descriptors ``(N, 32)`` uint8 of a grayscale image (and, with
     ``response=True``, their ORB responses ``(N,)``)."""
     img = _gray(image)
-    key = (options.n_points, options.orb_fast_threshold)
+    key = (options.n_points, options.orb_fast_threshold, options.orb_levels)
     if key not in _ORB:
         _ORB[key] = cv2.ORB_create(
-            nfeatures=options.n_points, fastThreshold=options.orb_fast_threshold
+            nfeatures=options.n_points,
+            fastThreshold=options.orb_fast_threshold,
+            nlevels=options.orb_levels,
         )
     u0, v0, u1, v1 = _roi_slice(img.shape, roi)
     kps, desc = _ORB[key].detectAndCompute(np.ascontiguousarray(img[v0:v1, u0:u1]), None)
