@@ -162,11 +162,16 @@ def test_exposure_offsets_keep_every_vertex_within_the_step():
             StereoScene(**bad)
 
 
-def test_rendering_the_target_window_gives_the_whole_image_pixels(monkeypatch):
+@pytest.mark.parametrize("samples", [1, 2])
+def test_rendering_the_target_window_gives_the_whole_image_pixels(monkeypatch, samples):
+    """Also with 2 x 2 samples a pixel: the window's sampling camera (its principal point moved
+    by the window's corner, then scaled) sees what the whole image's does."""
     import jaxpose.vision.stereo_render as sr
 
     rig = default_rig(320, 240)
-    scene = StereoScene(frames=2, range_m=2.5, rate_deg_s=20.0, blur=1.0, glints=1.0)
+    scene = StereoScene(
+        frames=2, range_m=2.5, rate_deg_s=20.0, blur=1.0, glints=1.0, pixel_samples=samples
+    )
     windowed = render_stereo_frame(scene, rig, 1)
     (v0, v1, u0, u1), _ = sr._target_window(rig.left, sr.tumbler_model(), [scene_pose(scene, 0.2)])
     assert (v1 - v0) * (u1 - u0) < 0.5 * 240 * 320  # the window is a part of the image

@@ -434,6 +434,8 @@ def render_stereo_frame(
         (v0, v1, u0, u1), view = _target_window(camera, model, poses)
         n_s = int(scene.pixel_samples)
         view = _sampling_camera(view, n_s)
+        if scene.glints > 0 and n_s > 1:
+            sample_rays = _pixel_rays(view)  # the window's samples, for every sub-frame
         sun_c = R_c @ sun
         acc = None
         for Rc, tc in poses:
@@ -448,7 +450,7 @@ def render_stereo_frame(
             )
             if scene.glints > 0:
                 if n_s > 1:
-                    rays = _pixel_rays(view)  # the window's sample rays
+                    rays = sample_rays
                 else:
                     if cam_index not in rays_cache:
                         rays_cache[cam_index] = _pixel_rays(camera)
