@@ -140,11 +140,18 @@ def tracker_options(items, base: TrackerOptions | None = None) -> TrackerOptions
     for item in items:
         key, _, value = item.partition("=")
         group, _, field = key.rpartition(".")
-        if group:
-            inner = replace(getattr(options, group), **{field: ast.literal_eval(value)})
-            options = replace(options, **{group: inner})
-        else:
-            options = replace(options, **{key: ast.literal_eval(value)})
+        try:
+            literal = ast.literal_eval(value)
+            if group:
+                inner = replace(getattr(options, group), **{field: literal})
+                options = replace(options, **{group: inner})
+            else:
+                options = replace(options, **{key: literal})
+        except (ValueError, SyntaxError, TypeError, AttributeError) as e:
+            raise ValueError(
+                f"--option {item!r}: expected NAME=VALUE with NAME a TrackerOptions field (or "
+                f"group.field) and VALUE a Python literal ({type(e).__name__}: {e})"
+            ) from e
     return options
 
 
@@ -408,7 +415,10 @@ def main(argv=None) -> int:
     if args.timing_only:
         names = names[:1]
     load0 = os.getloadavg()
-    options = tracker_options(args.option) if args.option else None
+    try:
+        options = tracker_options(args.option) if args.option else None
+    except ValueError as e:
+        p.error(str(e))
     results = run_scenes(
         names,
         args.frames,

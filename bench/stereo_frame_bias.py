@@ -51,6 +51,13 @@ def _exp(w: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(w).as_matrix()
 
 
+def project(R, t, points, offsets, focal, centre) -> np.ndarray:
+    """Pixels ``(n, 2)`` of body points ``(n, 3)`` at pose ``(R, t)`` seen by cameras whose
+    centres sit at ``-offsets (n, 3)`` in the left camera's frame (pinhole, no distortion)."""
+    xc = points @ R.T + t + offsets
+    return np.asarray(focal) * xc[:, :2] / xc[:, 2:3] + np.asarray(centre)
+
+
 def frame_fit(pixels, points, offsets, R, t, focal, centre, iterations: int = 10):
     """Gauss-Newton fit of one frame's pose ``(R, t)`` (``x_cam = R X + t``, left camera) to the
     pixels ``(n, 2)`` of body points ``(n, 3)`` seen by cameras whose centres sit at
@@ -59,16 +66,14 @@ def frame_fit(pixels, points, offsets, R, t, focal, centre, iterations: int = 10
     ``centre (cx, cy)``. Starts at ``(R, t)``; returns the fitted ``(R, t)`` and the ``(6, 6)``
     normal matrix ``J^T J`` at the start (the pose perturbation ``(dtheta, dt)``, ``R <- exp(
     dtheta) R``, of :func:`stereo_bound.observation_jacobians`)."""
-    fx, fy = focal
-    cx, cy = centre
 
     def residuals_jacobian(R, t):
-        r, J = [], []
-        for p, X, o in zip(pixels, points, offsets, strict=True):
-            xc = R @ X + t + o
-            r.append([fx * xc[0] / xc[2] + cx - p[0], fy * xc[1] / xc[2] + cy - p[1]])
-            J.append(observation_jacobians(R, t, X, o, focal)[0])
-        return np.asarray(r).ravel(), np.concatenate(J)
+        r = project(R, t, points, offsets, focal, centre) - pixels
+        J = [
+            observation_jacobians(R, t, X, o, focal)[0]
+            for X, o in zip(points, offsets, strict=True)
+        ]
+        return r.ravel(), np.concatenate(J)
 
     r, J = residuals_jacobian(R, t)
     normal = J.T @ J
@@ -86,6 +91,7 @@ def frame_bias(name: str, frames: int, seed: int, scene_options: dict, option=()
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    from stereo import tracker_options
     from stereo_diagnose import _mad_std, _scene_by_name, raycast
 
     from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
@@ -98,8 +104,6 @@ def frame_bias(name: str, frames: int, seed: int, scene_options: dict, option=()
     centre = (float(cam.cx), float(cam.cy))
     t_rl = np.asarray(rig.t_rl, float)
     seq = list(render_sequence(scene, rig))
-    from stereo import tracker_options
-
     depth = (0.3, max(8.0, 3 * scene.range_m))
     base = TrackerOptions(depth_range_m=depth, keep_history=True)
     options = tracker_options(option, base)
@@ -121,18 +125,7 @@ def frame_bias(name: str, frames: int, seed: int, scene_options: dict, option=()
         pix, rt = px[keep], right[keep]
         offsets = np.where(rt[:, None], t_rl, 0.0)
         R, t = np.asarray(seq[log.index].pose.R, float), np.asarray(seq[log.index].pose.t, float)
-        xc = pts @ R.T + t + offsets
-        res = (
-            np.stack(
-                [
-                    focal[0] * xc[:, 0] / xc[:, 2] + centre[0],
-                    focal[1] * xc[:, 1] / xc[:, 2] + centre[1],
-                ],
-                1,
-            )
-            - pix
-        )
-        sigma = _mad_std(res.ravel())
+        sigma = _mad_std((project(R, t, pts, offsets, focal, centre) - pix).ravel())
         Rf, _, normal = frame_fit(pix, pts, offsets, R, t, focal, centre)
         bound = np.degrees(sigma * np.sqrt(np.diag(np.linalg.inv(normal))[:3]))
         err = np.degrees(_rotvec(Rf @ R.T))
@@ -206,6 +199,12 @@ def main(argv=None) -> None:
                 f"--scene-option {key!r}: not a StereoScene field ({', '.join(sorted(fields))})"
             )
     check_scenes(ap, args.scenes)
+    from stereo import tracker_options
+
+    try:
+        tracker_options(args.option)
+    except ValueError as e:
+        ap.error(str(e))
     runs = []
     for name in args.scenes:
         for seed in args.seeds:

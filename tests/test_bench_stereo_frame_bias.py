@@ -72,3 +72,13 @@ def test_an_unknown_scene_field_is_a_usage_error(capsys):
     with pytest.raises(SystemExit):
         bench.main(["d1-clean-2m", "--scene-option", "pixel_samples"])
     assert "NAME=VALUE" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "option", ["window_frame=3", "features.subpixl=False", "window_frames=three", "features"]
+)
+def test_a_bad_tracker_option_is_a_usage_error(capsys, option):
+    with pytest.raises(SystemExit):
+        bench.main(["d1-clean-2m", "--option", option])
+    err = capsys.readouterr().err
+    assert f"--option {option!r}" in err and "TrackerOptions field" in err
