@@ -101,3 +101,70 @@ def test_one_orb_level_gives_the_full_resolution_fast_corners():
     for bad in (0, 17):
         with pytest.raises(ValueError, match="orb_levels"):
             FeatureOptions(orb_levels=bad)
+
+
+def _brute_force_twins(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance, p_ref, p_cur, r_px):
+    """The ratio test without the best candidate's twins as rivals, then one current feature to
+    the nearest (Hamming) of claimants that lie within ``r_px`` of it, by plain loops."""
+    bits = np.unpackbits(desc_ref[:, None] ^ desc_cur[None], axis=-1).sum(-1)
+    claims = {}
+    for r in np.unique(i_ref):
+        cand = i_cur[i_ref == r]
+        d = bits[r, cand]
+        j = int(np.argmin(d))
+        rival = np.linalg.norm(p_cur[cand] - p_cur[cand[j]], axis=1) > r_px
+        second = d[rival].min() if rival.any() else np.inf
+        if d[j] <= max_distance and d[j] < ratio * second:
+            claims.setdefault(int(cand[j]), []).append((int(d[j]), int(r)))
+    out = []
+    for c, who in claims.items():
+        d_win, r_win = min(who)  # nearest, then the lower reference index
+        if all(np.linalg.norm(p_ref[r] - p_ref[r_win]) <= r_px for _, r in who):
+            out.append((r_win, c))
+    out = np.array(sorted(out), int).reshape(-1, 2)
+    return out[:, 0], out[:, 1]
+
+
+def test_twin_aware_matching_equals_brute_force_and_keeps_a_corner_found_twice():
+    rng = np.random.default_rng(5)
+    base = rng.integers(0, 256, (30, 32), dtype=np.uint8)
+    desc_ref = base[rng.integers(0, 30, 80)] ^ (rng.random((80, 32)) < 0.03).astype(np.uint8)
+    desc_cur = base[rng.integers(0, 30, 90)] ^ (rng.random((90, 32)) < 0.03).astype(np.uint8)
+    p_ref = rng.uniform(0, 40, (80, 2))
+    p_cur = rng.uniform(0, 40, (90, 2))
+    i_ref, i_cur = rng.integers(0, 80, 700), rng.integers(0, 90, 700)
+    for radius in (1.5, 4.0):
+        got = knn_ratio_match_pairs(
+            desc_ref,
+            desc_cur,
+            i_ref,
+            i_cur,
+            ratio=0.8,
+            max_distance=64,
+            twins=(p_ref, p_cur, radius),
+        )
+        want = _brute_force_twins(desc_ref, desc_cur, i_ref, i_cur, 0.8, 64, p_ref, p_cur, radius)
+        assert len(want[0]) > 3
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+    # one corner found twice in each image (0.4 px apart): the plain ratio test sees two equal
+    # candidates and one-to-one drops the keypoint both landmarks claim; the twin-aware test
+    # matches it
+    d = rng.integers(0, 256, (1, 32), dtype=np.uint8)
+    desc2 = np.repeat(d, 2, axis=0)
+    pts = np.array([[10.0, 10.0], [10.4, 10.0]])
+    pairs = (np.array([0, 0, 1, 1]), np.array([0, 1, 0, 1]))
+    plain = knn_ratio_match_pairs(desc2, desc2, *pairs, ratio=0.8, max_distance=64)
+    assert len(plain[0]) == 0
+    twin = knn_ratio_match_pairs(
+        desc2, desc2, *pairs, ratio=0.8, max_distance=64, twins=(pts, pts, 1.5)
+    )
+    assert len(twin[0]) == 1
+    # the same twins 6 px apart are rivals again
+    apart = np.array([[10.0, 10.0], [16.0, 10.0]])
+    far = knn_ratio_match_pairs(
+        desc2, desc2, *pairs, ratio=0.8, max_distance=64, twins=(apart, apart, 1.5)
+    )
+    assert len(far[0]) == 0
+    with pytest.raises(ValueError, match="twin_px"):
+        FeatureOptions(twin_px=-1.0)

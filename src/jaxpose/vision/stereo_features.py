@@ -68,6 +68,11 @@ class FeatureOptions:
         orb_levels: ORB's pyramid levels (``nlevels``, scale 1.2 between levels); 1 keeps the
             FAST corners of the full-resolution image only (whole-pixel positions without
             ``subpixel``).
+        twin_px: in the stereo tracker's search by projection, keypoints closer than this
+            (pixels) to the best candidate are the same corner found again, not rivals in the
+            ratio test, and landmarks predicted that close to each other that claim one keypoint
+            leave it to the nearest in Hamming distance instead of all losing it
+            (:func:`knn_ratio_match_pairs`, ``twins``); 0: every candidate is a rival.
         lsd_scale: LSD runs on the image resampled by this factor (Gaussian blur then
             ``cv2.resize``; LSD's own default is 0.8); its time goes with the square of the
             scale. The segments are returned in full-resolution pixels either way.
@@ -85,11 +90,14 @@ class FeatureOptions:
     subpixel: bool = True
     subpixel_half_window: int = 7
     orb_levels: int = 8
+    twin_px: float = 0.0
     lsd_scale: float = 0.8
 
     def __post_init__(self):
         if not (isinstance(self.orb_levels, int | np.integer) and 1 <= self.orb_levels <= 16):
             raise ValueError(f"orb_levels must be an integer in [1, 16]; got {self.orb_levels!r}")
+        if not self.twin_px >= 0:
+            raise ValueError(f"twin_px must be >= 0 (pixels); got {self.twin_px}")
         if not 0.1 <= self.lsd_scale <= 1.0:
             raise ValueError(f"lsd_scale must be in [0.1, 1]; got {self.lsd_scale}")
 
@@ -319,20 +327,35 @@ def _hamming(desc_ref, desc_cur, i_ref, i_cur) -> np.ndarray:
 _BITWISE_COUNT = getattr(np, "bitwise_count", None)
 
 
-def _pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance) -> np.ndarray:
+def _pairs_knn(
+    desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance, twins=None, with_distance=False
+):
+    """Ratio test of each reference feature over its candidate pairs: ``(K, 2)`` pairs (and,
+    ``with_distance``, their ``(K,)`` Hamming distances). ``twins = (points_cur, radius)``: a
+    candidate within ``radius`` pixels of the best one is the same corner found again (ORB's
+    pyramid levels, the sub-pixel refinement), not a rival, and is left out of the second best."""
     if len(i_ref) == 0:
-        return np.zeros((0, 2), int)
+        empty = np.zeros((0, 2), int)
+        return (empty, np.zeros(0, int)) if with_distance else empty
     dist = _hamming(desc_ref, desc_cur, i_ref, i_cur)
     # by reference feature, then distance (one stable integer sort; distances are <= 256)
     order = np.argsort(i_ref * 512 + dist, kind="stable")
     i_ref, i_cur, dist = i_ref[order], i_cur[order], dist[order]
     first = np.r_[True, i_ref[1:] != i_ref[:-1]]
     starts = np.nonzero(first)[0]
-    has_second = np.r_[starts[1:] - starts[:-1] > 1, len(i_ref) - starts[-1] > 1]
-    second = np.where(has_second, dist[np.minimum(starts + 1, len(dist) - 1)], np.inf)
+    if twins is None:
+        has_second = np.r_[starts[1:] - starts[:-1] > 1, len(i_ref) - starts[-1] > 1]
+        second = np.where(has_second, dist[np.minimum(starts + 1, len(dist) - 1)], np.inf)
+    else:
+        points_cur, radius = twins
+        group = np.cumsum(first) - 1
+        best_at = np.asarray(points_cur, float)[i_cur[starts]][group]
+        apart = np.linalg.norm(np.asarray(points_cur, float)[i_cur] - best_at, axis=1) > radius
+        second = np.minimum.reduceat(np.where(apart, dist, np.inf), starts)
     best = dist[starts]
     keep = (best <= max_distance) & (best < ratio * second)
-    return np.stack([i_ref[starts][keep], i_cur[starts][keep]], 1)
+    pairs = np.stack([i_ref[starts][keep], i_cur[starts][keep]], 1)
+    return (pairs, best[keep]) if with_distance else pairs
 
 
 def knn_ratio_match_pairs(
@@ -343,13 +366,44 @@ def knn_ratio_match_pairs(
     *,
     ratio: float,
     max_distance: int,
+    twins: tuple[np.ndarray, np.ndarray, float] | None = None,
 ):
     """:func:`knn_ratio_match` over explicit candidate pairs ``(i_ref[j], i_cur[j])`` (e.g. from
-    a k-d tree radius search) instead of a dense ``allowed`` matrix; one-to-one."""
+    a k-d tree radius search) instead of a dense ``allowed`` matrix; one-to-one.
+
+    ``twins = (points_ref, points_cur, radius)``: pixels of the reference and current features
+    and a radius within which two features are the same corner found twice. A candidate that
+    close to the best is then no rival in the ratio test, and of several reference features that
+    claim one current feature from within ``radius`` of each other the nearest in Hamming
+    distance keeps it (else, and without ``twins``, all of them lose it)."""
     i_ref, i_cur = np.asarray(i_ref, int), np.asarray(i_cur, int)
     if len(i_ref) != len(i_cur):
         raise ValueError("i_ref and i_cur must have the same length")
-    return _one_to_one(_pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance))
+    if twins is None:
+        return _one_to_one(_pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance))
+    points_ref, points_cur, radius = twins
+    pairs, dist = _pairs_knn(
+        desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance, (points_cur, radius), True
+    )
+    return _one_to_one_twins(pairs, dist, np.asarray(points_ref, float), radius)
+
+
+def _one_to_one_twins(pairs: np.ndarray, dist: np.ndarray, points_ref: np.ndarray, radius):
+    """:func:`_one_to_one`, but a current feature claimed only by reference features within
+    ``radius`` pixels of the nearest claimant (in Hamming distance) goes to that one."""
+    if len(pairs) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    order = np.lexsort((dist, pairs[:, 1]))  # by current feature, then distance
+    pairs, dist = pairs[order], dist[order]
+    first = np.r_[True, pairs[1:, 1] != pairs[:-1, 1]]
+    group = np.cumsum(first) - 1
+    winner = np.nonzero(first)[0]
+    off = np.linalg.norm(points_ref[pairs[:, 0]] - points_ref[pairs[winner[group], 0]], axis=1)
+    rivals = np.zeros(len(winner), bool)
+    np.logical_or.at(rivals, group, off > radius)
+    kept = pairs[winner[~rivals]]
+    kept = kept[np.argsort(kept[:, 0], kind="stable")]  # by reference feature, as _one_to_one
+    return kept[:, 0], kept[:, 1]
 
 
 def _one_to_one(pairs: np.ndarray):

@@ -27,6 +27,7 @@ def match_points_within(pred, desc, feats, radius, options: FeatureOptions):
     rows, cols = near["i"].astype(int), near["j"].astype(int)
     order = np.argsort(rows * len(feats.points) + cols)  # by landmark, then keypoint
     rows, cols = rows[order], cols[order]
+    twins = (pred, feats.points, options.twin_px) if options.twin_px > 0 else None
     return knn_ratio_match_pairs(
         desc,
         feats.point_desc,
@@ -34,6 +35,7 @@ def match_points_within(pred, desc, feats, radius, options: FeatureOptions):
         cols,
         ratio=options.point_ratio,
         max_distance=options.max_hamming_point,
+        twins=twins,
     )
 
 
