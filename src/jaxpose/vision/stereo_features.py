@@ -60,11 +60,12 @@ class FeatureOptions:
         subpixel: refine ORB keypoints with ``cv2.cornerSubPix``, half-window
             ``subpixel_half_window`` (7: a 15x15 window; 3 left the keypoints of one corner seen
             in two frames 1.5 px apart (median) after 20 deg of rotation on the rendered quilt,
-            7 brought that to 0.6 px). The window also pulls nearby corners and the same corner
-            found on several pyramid levels to one point: on the 4 m development scene about 9 in
-            10 keypoints have another within 0.5 px after it (3 in 10 without it), and the
-            points it finds move with the view in a way that biases the tracker's poses
-            (``bench/stereo_frame_bias.py``; docs/stereo-evaluation.md).
+            7 brought that to 0.6 px). The window moves the keypoints (median 3 px on the 4 m
+            development scene) and pulls nearby corners and the same corner found on several
+            pyramid levels to one point: there about 9 in 10 keypoints have another within
+            0.5 px after it (3 in 10 without it), and the points it finds move with the view in
+            a way that biases the tracker's poses (``bench/stereo_frame_bias.py``;
+            docs/stereo-evaluation.md).
         orb_levels: ORB's pyramid levels (``nlevels``, scale 1.2 between levels); 1 keeps the
             FAST corners of the full-resolution image only (whole-pixel positions without
             ``subpixel``).
