@@ -2,7 +2,7 @@
 perfect landmarks.
 
     python bench/stereo_frame_bias.py SCENE [SCENE ...] [--frames 12] [--seeds 0]
-        [--scene-option NAME=VALUE ...]
+        [--scene-option NAME=VALUE ...] [--option NAME=VALUE ...]
 
 Runs the stereo tracker as it is (points + lines, default options, first pose given) on a scene
 of ``bench/stereo.py`` (or ``hNN`` of ``bench/stereo_heldout.py``), keeping every tracked frame's
@@ -19,8 +19,9 @@ adjustment over frames can remove. The fit on the left pixels alone tells the le
 keypoints from the stereo disparities.
 
 ``--scene-option`` changes a field of every scene (``pixel_samples=3``, ``exact_faces=True``,
-``noise_sigma=0.0``, ...), to tell the renderer's part from the features'. The last line is one
-JSON line of the figures.
+``noise_sigma=0.0``, ...), to tell the renderer's part from the features'; ``--option`` a field
+of the tracker's options as in ``bench/stereo.py`` (``features.subpixel=False``,
+``features.orb_levels=1``, ...). The last line is one JSON line of the figures.
 """
 
 from __future__ import annotations
