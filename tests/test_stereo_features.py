@@ -168,3 +168,32 @@ def test_twin_aware_matching_equals_brute_force_and_keeps_a_corner_found_twice()
     assert len(far[0]) == 0
     with pytest.raises(ValueError, match="twin_px"):
         FeatureOptions(twin_px=-1.0)
+
+
+def test_parabola_peak_finds_the_vertex_of_a_quadratic_within_half_a_pixel():
+    """The vertex of a map quadratic in each axis, from the nearest whole pixel (closed form);
+    a vertex farther than half a pixel is clipped there."""
+    from jaxpose.vision.stereo_features import _parabola_peak
+
+    vv, uu = np.mgrid[0:40, 0:40].astype(float)
+    r = -((uu - 10.3) ** 2) - 2.0 * (vv - 20.7) ** 2
+    got = _parabola_peak(r, np.array([[10.4, 20.6], [9.8, 21.2], [12.0, 20.0]]))
+    np.testing.assert_allclose(got[:2], [[10.3, 20.7], [10.3, 20.7]], atol=1e-5)
+    np.testing.assert_allclose(got[2], [11.5, 20.5], atol=1e-6)  # 1.7 px away: clipped
+
+
+def test_peak_refinement_stays_within_half_a_pixel_of_the_corners():
+    from jaxpose.vision.stereo_features import detect_points
+
+    rng = np.random.default_rng(0)
+    blocks = (rng.random((24, 32)) > 0.5).astype(np.uint8) * 200 + 20
+    img = cv2.GaussianBlur(
+        cv2.resize(blocks, (320, 240), interpolation=cv2.INTER_NEAREST), (0, 0), 1.0
+    )
+    raw, _ = detect_points(img, options=FeatureOptions(orb_levels=1, subpixel=False))
+    peak, _ = detect_points(img, options=FeatureOptions(orb_levels=1, subpixel="peak"))
+    assert raw.shape == peak.shape and len(raw) > 50
+    assert np.abs(peak - raw).max() <= 0.5 + 1e-6
+    assert np.mean(np.abs(peak - np.round(peak)) > 0.01) > 0.3  # most moved off the grid
+    with pytest.raises(ValueError, match="subpixel"):
+        FeatureOptions(subpixel="harris")

@@ -57,7 +57,7 @@ class FeatureOptions:
         max_hamming_point, max_hamming_line: absolute Hamming caps on the best match (bits).
         ransac_px: RANSAC threshold of the fundamental-matrix screening (pixels).
         max_lines: keep at most this many lines (the longest).
-        subpixel: refine ORB keypoints with ``cv2.cornerSubPix``, half-window
+        subpixel: ``True``: refine ORB keypoints with ``cv2.cornerSubPix``, half-window
             ``subpixel_half_window`` (7: a 15x15 window; 3 left the keypoints of one corner seen
             in two frames 1.5 px apart (median) after 20 deg of rotation on the rendered quilt,
             7 brought that to 0.6 px). The window moves the keypoints (median 3 px on the 4 m
@@ -65,7 +65,10 @@ class FeatureOptions:
             pyramid levels to one point: there about 9 in 10 keypoints have another within
             0.5 px after it (3 in 10 without it), and the points it finds move with the view in
             a way that biases the tracker's poses (``bench/stereo_frame_bias.py``;
-            docs/stereo-evaluation.md).
+            docs/stereo-evaluation.md). ``"peak"``: the sub-pixel peak of the Shi-Tomasi
+            response (3 x 3 blocks) within half a pixel of the keypoint's nearest whole pixel
+            (no keypoint moves to another corner; meant with ``orb_levels=1``). ``False``: the
+            keypoints as ORB returns them.
         orb_levels: ORB's pyramid levels (``nlevels``, scale 1.2 between levels); 1 keeps the
             FAST corners of the full-resolution image only (whole-pixel positions without
             ``subpixel``).
@@ -88,13 +91,15 @@ class FeatureOptions:
     max_hamming_line: int = 80
     ransac_px: float = 1.5
     max_lines: int = 120
-    subpixel: bool = True
+    subpixel: bool | str = True
     subpixel_half_window: int = 7
     orb_levels: int = 8
     twin_px: float = 0.0
     lsd_scale: float = 0.8
 
     def __post_init__(self):
+        if self.subpixel not in (True, False, "peak"):
+            raise ValueError(f'subpixel must be True, False or "peak"; got {self.subpixel!r}')
         if not (isinstance(self.orb_levels, int | np.integer) and 1 <= self.orb_levels <= 16):
             raise ValueError(f"orb_levels must be an integer in [1, 16]; got {self.orb_levels!r}")
         if not self.twin_px >= 0:
@@ -178,7 +183,9 @@ def detect_points(
         empty = np.zeros((0, 2)), np.zeros((0, 32), np.uint8)
         return (*empty, np.zeros(0)) if response else empty
     pts = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 1, 2)
-    if options.subpixel:
+    if options.subpixel == "peak":
+        pts = _response_peak(np.ascontiguousarray(img[v0:v1, u0:u1]), pts)
+    elif options.subpixel:
         # ORB keypoints sit on the FAST grid of their pyramid level (1.2^k px); refine at full
         # resolution (Foerstner corner) so that stereo depth and frame-to-frame pixels agree
         crop = np.ascontiguousarray(img[v0:v1, u0:u1])
@@ -188,6 +195,30 @@ def detect_points(
     if response:
         return pts, desc, np.array([k.response for k in kps], np.float64)
     return pts, desc
+
+
+def _response_peak(crop: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Keypoints ``(N, 1, 2)`` moved to the sub-pixel peak of the Shi-Tomasi corner response
+    (3 x 3 blocks) around their nearest whole pixel (:func:`_parabola_peak`)."""
+    return _parabola_peak(cv2.cornerMinEigenVal(crop, 3, 3), pts.reshape(-1, 2)).reshape(-1, 1, 2)
+
+
+def _parabola_peak(r: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Sub-pixel peaks ``(N, 2)`` float32 of the map ``r (H, W)`` near the pixels ``p (N, 2)``:
+    from the nearest whole pixel, along each axis the vertex of the parabola through the map
+    there and at its two neighbours, kept within half a pixel (none where the parabola opens
+    upward). Exact for a map that is quadratic in each axis."""
+    H, W = r.shape
+    u = np.clip(np.rint(p[:, 0]).astype(int), 1, W - 2)
+    v = np.clip(np.rint(p[:, 1]).astype(int), 1, H - 2)
+    out = np.stack([u, v], 1).astype(np.float64)
+    for axis, (du, dv) in enumerate(((1, 0), (0, 1))):
+        a, b, c = r[v - dv, u - du], r[v, u], r[v + dv, u + du]
+        den = a - 2 * b + c
+        with np.errstate(divide="ignore", invalid="ignore"):
+            off = np.where(den < 0, 0.5 * (a - c) / den, 0.0)
+        out[:, axis] += np.clip(np.nan_to_num(off), -0.5, 0.5)
+    return out.astype(np.float32)
 
 
 def _lsd(scale: float):
