@@ -133,6 +133,12 @@ def scene_of(name: str, frames: int | None, seed: int) -> StereoScene:
     return StereoScene(frames=n, seed=seed, **params)
 
 
+def depth_range(scene: StereoScene) -> tuple[float, float]:
+    """The depths (m) the bench's trackers search on ``scene``: 0.3 m to three times its range,
+    at least 8 m."""
+    return (0.3, max(8.0, 3 * scene.range_m))
+
+
 def tracker_options(items, base: TrackerOptions | None = None) -> TrackerOptions:
     """``base`` (default ``TrackerOptions()``) with the ``NAME=VALUE`` items of ``--option`` (a
     Python literal each; ``features.mu=0.03`` sets a field of a nested option group)."""
@@ -180,7 +186,7 @@ def run_scene(
     (:func:`~jaxpose.pipelines.stereo.smooth_sequence`, offline), under ``"smoothed"``."""
     scene = scene_of(name, frames, seed)
     rig = default_rig()
-    depth = (0.3, max(8.0, 3 * scene.range_m))
+    depth = depth_range(scene)
     trackers, logs = {}, {m: ([], [], []) for m in modes}
     cpu = {m: [] for m in modes}
     render_s = 0.0

@@ -50,6 +50,14 @@ def observation_jacobians(R, t, X, offset, focal) -> tuple[np.ndarray, np.ndarra
     return D @ np.hstack([-skew(R @ X), np.eye(3)]), D @ R
 
 
+def project(R, t, points, offsets, focal, centre) -> np.ndarray:
+    """Pixels ``(n, 2)`` of body points ``(n, 3)`` at pose ``(R, t)`` seen by cameras whose
+    centres sit at ``-offsets (n, 3)`` in the left camera's frame (pinhole, no distortion; the
+    pixel of :func:`observation_jacobians`)."""
+    xc = np.asarray(points, float) @ R.T + t + offsets
+    return np.asarray(focal) * xc[:, :2] / xc[:, 2:3] + np.asarray(centre)
+
+
 def chaser_jacobian(R, t) -> np.ndarray:
     """``(3, 6)``: the derivative of the chaser position ``c = -R^T t`` (target frame) with
     respect to the pose perturbation ``(dtheta, dt)`` of :func:`observation_jacobians`."""
@@ -110,19 +118,15 @@ def bound(name: str, frames: int, seed: int, sigma: float | None = None) -> dict
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
+    from stereo_diagnose import track_with_history
+
     from jaxpose.studies.stereo_track import summarize
-    from jaxpose.vision.stereo_render import default_rig, render_sequence
 
     scene = _scene(name, frames, seed)
-    rig = default_rig()
+    rig, seq, tr, results = track_with_history(scene)
     focal = (float(rig.left.fx), float(rig.left.fy))
-    cxy = np.array([float(rig.left.cx), float(rig.left.cy)])
+    cxy = (float(rig.left.cx), float(rig.left.cy))
     t_rl = np.asarray(rig.t_rl, float)
-    seq = list(render_sequence(scene, rig))
-    opts = TrackerOptions(depth_range_m=(0.3, max(8.0, 3 * scene.range_m)), keep_history=True)
-    tr = StereoTracker(rig, seq[0].pose, options=opts)
-    results = [tr.process(fr.left, fr.right) for fr in seq]
     truths = [fr.pose for fr in seq]
     summary = summarize(results, truths, [0.0] * len(results))["summary"]
     poses = {k: (np.asarray(p.R, float), np.asarray(p.t, float)) for k, p in enumerate(truths)}
@@ -137,8 +141,7 @@ def bound(name: str, frames: int, seed: int, sigma: float | None = None) -> dict
             if j is None:  # culled from the map: its position is not kept
                 continue
             offset = t_rl if r else np.zeros(3)
-            xc = R @ X[j] + t + offset
-            residuals.append(p - (np.asarray(focal) * xc[:2] / xc[2] + cxy))
+            residuals.append(p - project(R, t, X[j][None], offset, focal, cxy)[0])
             observations.append((fr.index, j, offset))
             seen[j] = seen.get(j, 0) + 1
     observations = [o for o in observations if seen[o[1]] >= 2]

@@ -50,7 +50,7 @@ from jaxpose.studies.stereo_track import summarize  # noqa: E402
 from jaxpose.vision.stereo_render import default_rig, render_sequence  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from stereo import SCENES, scene_of  # noqa: E402
+from stereo import SCENES, depth_range, scene_of  # noqa: E402
 
 RULES = ("dop", "random", "response")
 BUDGETS = (10, 20, 30, 50)
@@ -144,7 +144,7 @@ def run_scene(
     (the ``"dop"`` rule's noise model and subsample, the all-features weighting)."""
     scene = scene_of(name, frames, seed)
     rig = default_rig()
-    depth = (0.3, max(8.0, 3 * scene.range_m))
+    depth = depth_range(scene)
     cfgs = configs(budgets, rules)
     trackers, logs = {}, {c: ([], [], [], [], [], []) for c in cfgs}
     with _SharedFeatures():

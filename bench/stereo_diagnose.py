@@ -143,7 +143,9 @@ def drift(name: str, frames: int, window_frames: int | None = None) -> dict:
     R0 = np.asarray(seq[0].pose.R)
     axis_body = np.asarray(scene.spin_axis_body, float)
     spin_axis_cam = R0 @ axis_body / np.linalg.norm(axis_body)
-    opts = TrackerOptions(depth_range_m=(0.3, max(8.0, 3 * scene.range_m)))
+    import stereo  # bench/stereo.py
+
+    opts = TrackerOptions(depth_range_m=stereo.depth_range(scene))
     if window_frames is not None:
         opts = replace(opts, window_frames=window_frames)
     out = {}
@@ -214,6 +216,23 @@ def repeatability(name: str, budgets=(250, 640, 1000, 2000), seed: int = 0) -> N
             dist = np.linalg.norm(pk[ik[keep]] - pred[i0[keep]], axis=1)
             line += f" frame {k} {len(dist)} (median {np.median(dist):.2f} px)"
         print(line, flush=True)
+
+
+def track_with_history(scene, option=()):
+    """``scene`` rendered with the default rig and tracked from its true first pose at the
+    bench's depths (``stereo.depth_range``), every frame's ray record kept (``keep_history``),
+    then the ``NAME=VALUE`` items ``option`` (``stereo.tracker_options``). Returns ``(rig,
+    frames, tracker, results)``."""
+    import stereo  # bench/stereo.py
+
+    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
+
+    base = TrackerOptions(depth_range_m=stereo.depth_range(scene), keep_history=True)
+    opts = stereo.tracker_options(option, base)
+    rig = default_rig()
+    seq = list(render_sequence(scene, rig))
+    tracker = StereoTracker(rig, seq[0].pose, options=opts)
+    return rig, seq, tracker, [tracker.process(fr.left, fr.right) for fr in seq]
 
 
 def _scene_by_name(name: str, frames: int, seed: int):
@@ -456,18 +475,13 @@ def full_ba(
 
     jax.config.update("jax_enable_x64", True)
     from jaxpose.core.geometry import Pose, so3_log
-    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
     from jaxpose.pipelines.stereo._arrays import find
     from jaxpose.pipelines.stereo.smooth import adjust_sequence
     from jaxpose.pipelines.stereo.window import WindowAdjuster, ray_geometry
     from jaxpose.studies.stereo_track import summarize
 
     scene = _scene_by_name(name, frames, seed)
-    rig = default_rig()
-    seq = list(render_sequence(scene, rig))
-    opts = TrackerOptions(depth_range_m=(0.3, max(8.0, 3 * scene.range_m)), keep_history=True)
-    tr = StereoTracker(rig, seq[0].pose, options=opts)
-    results = [tr.process(fr.left, fr.right) for fr in seq]
+    rig, seq, tr, results = track_with_history(scene)
     logs = tr._window.history  # every frame's ray record, not only the window's
     truths = [fr.pose for fr in seq]
 
@@ -530,7 +544,13 @@ def full_ba(
     by_index = {fr.index: fr for fr in logs}
     for r in range(rounds):
         ran = adjust_sequence(
-            m, rig, logs, rounds=1, iterations=iterations, lines=lines, max_lines=opts.max_lines
+            m,
+            rig,
+            logs,
+            rounds=1,
+            iterations=iterations,
+            lines=lines,
+            max_lines=tr.options.max_lines,
         )
         res = []
         for k, orig in enumerate(results):

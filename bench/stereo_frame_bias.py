@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from stereo_bound import check_scenes, observation_jacobians  # noqa: E402
+from stereo_bound import check_scenes, observation_jacobians, project  # noqa: E402
 
 
 def _rotvec(R: np.ndarray) -> np.ndarray:
@@ -50,13 +50,6 @@ def _exp(w: np.ndarray) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
     return Rotation.from_rotvec(w).as_matrix()
-
-
-def project(R, t, points, offsets, focal, centre) -> np.ndarray:
-    """Pixels ``(n, 2)`` of body points ``(n, 3)`` at pose ``(R, t)`` seen by cameras whose
-    centres sit at ``-offsets (n, 3)`` in the left camera's frame (pinhole, no distortion)."""
-    xc = points @ R.T + t + offsets
-    return np.asarray(focal) * xc[:, :2] / xc[:, 2:3] + np.asarray(centre)
 
 
 def frame_fit(pixels, points, offsets, R, t, focal, centre, iterations: int = 10):
@@ -92,25 +85,17 @@ def frame_bias(name: str, frames: int, seed: int, scene_options: dict, option=()
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from stereo import tracker_options
-    from stereo_diagnose import _mad_std, _scene_by_name, raycast
+    from stereo_diagnose import _mad_std, _scene_by_name, raycast, track_with_history
 
-    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
-    from jaxpose.vision.stereo_render import default_rig, render_sequence, tumbler_model
+    from jaxpose.vision.stereo_render import tumbler_model
 
     scene = dataclasses.replace(_scene_by_name(name, frames, seed), **scene_options)
-    rig, model = default_rig(), tumbler_model(scene.size_m)
+    rig, seq, tracker, _ = track_with_history(scene, option)
+    model = tumbler_model(scene.size_m)
     cam = rig.left
     focal = (float(cam.fx), float(cam.fy))
     centre = (float(cam.cx), float(cam.cy))
     t_rl = np.asarray(rig.t_rl, float)
-    seq = list(render_sequence(scene, rig))
-    depth = (0.3, max(8.0, 3 * scene.range_m))
-    base = TrackerOptions(depth_range_m=depth, keep_history=True)
-    options = tracker_options(option, base)
-    tracker = StereoTracker(rig, seq[0].pose, options=options)
-    for fr in seq:
-        tracker.process(fr.left, fr.right)
     logs = sorted(tracker._window.history, key=lambda f: f.index)
     ids0, px0, right0, _ = logs[0].arrays()
     R0, t0 = np.asarray(seq[0].pose.R, float), np.asarray(seq[0].pose.t, float)
