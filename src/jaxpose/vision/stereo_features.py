@@ -338,7 +338,7 @@ def _sparse_knn(desc_ref, desc_cur, allowed, ratio, max_distance) -> np.ndarray:
     """Best and second-best Hamming distance of each reference descriptor among its allowed
     candidates only (vectorised over the candidate pairs); the ratio test of eq. 3. ``(K, 2)``."""
     i_ref, i_cur = np.nonzero(allowed)
-    return _pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance)
+    return _pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance)[0]
 
 
 def _hamming(desc_ref, desc_cur, i_ref, i_cur) -> np.ndarray:
@@ -359,16 +359,13 @@ def _hamming(desc_ref, desc_cur, i_ref, i_cur) -> np.ndarray:
 _BITWISE_COUNT = getattr(np, "bitwise_count", None)
 
 
-def _pairs_knn(
-    desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance, twins=None, with_distance=False
-):
-    """Ratio test of each reference feature over its candidate pairs: ``(K, 2)`` pairs (and,
-    ``with_distance``, their ``(K,)`` Hamming distances). ``twins = (points_cur, radius)``: a
+def _pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance, twins=None):
+    """Ratio test of each reference feature over its candidate pairs: the ``(K, 2)`` pairs kept
+    and their ``(K,)`` Hamming distances. ``twins = (points_cur, radius)``: a
     candidate within ``radius`` pixels of the best one is the same corner found again (ORB's
     pyramid levels, the sub-pixel refinement), not a rival, and is left out of the second best."""
     if len(i_ref) == 0:
-        empty = np.zeros((0, 2), int)
-        return (empty, np.zeros(0, int)) if with_distance else empty
+        return np.zeros((0, 2), int), np.zeros(0, int)
     dist = _hamming(desc_ref, desc_cur, i_ref, i_cur)
     # by reference feature, then distance (one stable integer sort; distances are <= 256)
     order = np.argsort(i_ref * 512 + dist, kind="stable")
@@ -386,8 +383,7 @@ def _pairs_knn(
         second = np.minimum.reduceat(np.where(apart, dist, np.inf), starts)
     best = dist[starts]
     keep = (best <= max_distance) & (best < ratio * second)
-    pairs = np.stack([i_ref[starts][keep], i_cur[starts][keep]], 1)
-    return (pairs, best[keep]) if with_distance else pairs
+    return np.stack([i_ref[starts][keep], i_cur[starts][keep]], 1), best[keep]
 
 
 def knn_ratio_match_pairs(
@@ -412,10 +408,10 @@ def knn_ratio_match_pairs(
     if len(i_ref) != len(i_cur):
         raise ValueError("i_ref and i_cur must have the same length")
     if twins is None:
-        return _one_to_one(_pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance))
+        return _one_to_one(_pairs_knn(desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance)[0])
     points_ref, points_cur, radius = twins
     pairs, dist = _pairs_knn(
-        desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance, (points_cur, radius), True
+        desc_ref, desc_cur, i_ref, i_cur, ratio, max_distance, (points_cur, radius)
     )
     return _one_to_one_twins(pairs, dist, np.asarray(points_ref, float), radius)
 
