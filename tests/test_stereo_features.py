@@ -197,3 +197,33 @@ def test_peak_refinement_stays_within_half_a_pixel_of_the_corners():
     assert np.mean(np.abs(peak - np.round(peak)) > 0.01) > 0.3  # most moved off the grid
     with pytest.raises(ValueError, match="subpixel"):
         FeatureOptions(subpixel="harris")
+
+
+def test_a_region_of_interest_keeps_the_keypoints_orb_finds_on_the_whole_image():
+    """A textured target on a dark sky, the region of interest its tight box: ORB drops
+    keypoints within 31 pixels of its level of the image it is given, so the crop must keep that
+    much sky around the box. Reference: OpenCV's ORB on the whole image (the budget not reached,
+    so both keep every corner they find)."""
+    from jaxpose.pipelines.stereo import target_roi
+    from jaxpose.vision.stereo_features import detect_points
+
+    rng = np.random.default_rng(3)
+    img = np.zeros((480, 640), np.uint8)
+    blocks = (rng.random((12, 16)) > 0.5).astype(np.uint8) * 180 + 40
+    img[200:296, 260:388] = cv2.resize(blocks, (128, 96), interpolation=cv2.INTER_NEAREST)
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    opts = FeatureOptions(n_points=5000, subpixel=False)
+    roi = target_roi(img)
+    assert roi is not None and roi[0] >= 250 and roi[2] <= 400  # the box hugs the target
+    cropped, _ = detect_points(img, options=opts, roi=roi)
+    orb = cv2.ORB_create(nfeatures=5000, fastThreshold=opts.orb_fast_threshold, nlevels=8)
+    kps = orb.detect(img, None)
+    whole = np.array([k.pt for k in kps])
+    assert len(whole) > 100
+    level0 = whole[np.array([k.octave for k in kps]) == 0]
+    assert np.linalg.norm(level0[:, None] - cropped[None], axis=-1).min(1).max() < 1e-3
+    assert 0.9 < len(cropped) / len(whole) < 1.1, (len(cropped), len(whole))
+    # the keypoints of the whole image are found in the crop: those of the full-resolution level
+    # exactly, the coarser levels' within 2 px (the crop's corner is not on their pixel grid)
+    d = np.linalg.norm(whole[:, None] - cropped[None], axis=-1).min(1)
+    assert np.mean(d < 2.0) > 0.9, np.mean(d < 2.0)
