@@ -60,17 +60,18 @@ class FeatureOptions:
         ransac_px: RANSAC threshold of the fundamental-matrix screening (pixels).
         max_lines: keep at most this many lines (the longest).
         subpixel: ``True``: refine ORB keypoints with ``cv2.cornerSubPix``, half-window
-            ``subpixel_half_window`` (7: a 15x15 window; 3 left the keypoints of one corner seen
-            in two frames 1.5 px apart (median) after 20 deg of rotation on the rendered quilt,
-            7 brought that to 0.6 px). The window moves the keypoints (median 3 px on the 4 m
-            development scene) and pulls nearby corners and the same corner found on several
-            pyramid levels to one point: there about 9 in 10 keypoints have another within
-            0.5 px after it (3 in 10 without it), and the points it finds move with the view in
-            a way that biases the tracker's poses (``bench/stereo_frame_bias.py``;
-            docs/stereo-evaluation.md). ``"peak"``: the sub-pixel peak of the Shi-Tomasi
-            response (3 x 3 blocks) within half a pixel of the keypoint's nearest whole pixel
-            (no keypoint moves to another corner; meant with ``orb_levels=1``). ``False``: the
-            keypoints as ORB returns them.
+            ``subpixel_half_window`` (5: an 11x11 window). The window moves the keypoints and
+            pulls nearby corners and the same corner found on several pyramid levels to one
+            point, and the points it finds move with the view in a way that biases the
+            tracker's poses, the more the larger the window (``bench/stereo_frame_bias.py``:
+            with 15x15, the default until 2026-11, the 3 m blurred development scene's frames
+            were a median 4.2, 12.9, 10.1 times their bound off about x, y, z, 1.7, 5.7, 6.5
+            with 11x11); a small one is noisy on blurred corners (7x7 missed the 5 m scene on
+            both seeds tried). Chosen on the development scenes over noise seeds 0-5
+            (docs/stereo-evaluation.md, *The corner refinement's window*). ``"peak"``: the
+            sub-pixel peak of the Shi-Tomasi response (3 x 3 blocks) within half a pixel of the
+            keypoint's nearest whole pixel (no keypoint moves to another corner; meant with
+            ``orb_levels=1``). ``False``: the keypoints as ORB returns them.
         orb_levels: ORB's pyramid levels (``nlevels``, scale 1.2 between levels); 1 keeps the
             FAST corners of the full-resolution image only (whole-pixel positions without
             ``subpixel``).
@@ -94,7 +95,7 @@ class FeatureOptions:
     ransac_px: float = 1.5
     max_lines: int = 120
     subpixel: bool | str = True
-    subpixel_half_window: int = 7
+    subpixel_half_window: int = 5
     orb_levels: int = 8
     twin_px: float = 0.0
     lsd_scale: float = 0.8
