@@ -14,7 +14,7 @@ Eq. 3 as printed keeps a match when ``d1 / d2 > eps_match``, which would keep *a
 
 Both detectors run on the whole image or inside an optional ``roi`` box ``(u0, v0, u1, v1)``,
 which saves most of the LSD time on a dark-sky background: LSD on the box and 8 pixels around it,
-ORB on the box and the margin its pyramid needs (:func:`_orb_margin`, 112 pixels at 8 levels).
+ORB on the box and the margin its pyramid needs (:func:`_orb_margin`, 113 pixels at 8 levels).
 Arrays handed on are float64 pixels ``(u, v)`` with the pixel-centre convention of
 :mod:`jaxpose.core.camera`.
 """
@@ -158,17 +158,17 @@ def _roi_slice(shape, roi, pad: int = 8):
 
 
 _ORB: dict = {}
-_ORB_SCALE = 1.2  # cv2.ORB_create's default scaleFactor
-_ORB_EDGE = 31  # cv2.ORB_create's default edgeThreshold (= patchSize), pixels of each level
 
 
-def _orb_margin(levels: int) -> int:
-    """Pixels of image kept around a region of interest for ORB: it drops every keypoint within
-    its edge threshold (31 pixels *of the keypoint's pyramid level*, ``31 * 1.2^level`` at full
-    resolution) of the image it is given, so a crop that hugs the target would lose the corners
-    of its outline, and at range most of them (on the 5 m development scene 430-950 keypoints a
-    frame with an 8-pixel margin, as the box happened to fall, against 1000 with this one)."""
-    return int(np.ceil(_ORB_EDGE * _ORB_SCALE ** (int(levels) - 1))) + 1
+def _orb_margin(orb) -> int:
+    """Pixels of image kept around a region of interest for the detector ``orb``: ORB drops
+    every keypoint within its edge threshold (31 pixels *of the keypoint's pyramid level*,
+    ``31 * 1.2^level`` at full resolution, at OpenCV's defaults) of the image it is given, so a
+    crop that hugs the target would lose the corners of its outline, and at range most of them
+    (on the 5 m development scene 430-950 keypoints a frame with an 8-pixel margin, as the box
+    happened to fall, against 1000 with this one). 113 pixels at 8 levels."""
+    top = orb.getScaleFactor() ** (orb.getNLevels() - 1)
+    return int(np.ceil(orb.getEdgeThreshold() * top)) + 1
 
 
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
@@ -194,18 +194,19 @@ def detect_points(
             fastThreshold=options.orb_fast_threshold,
             nlevels=options.orb_levels,
         )
-    u0, v0, u1, v1 = _roi_slice(img.shape, roi, _orb_margin(options.orb_levels))
-    kps, desc = _ORB[key].detectAndCompute(np.ascontiguousarray(img[v0:v1, u0:u1]), None)
+    orb = _ORB[key]
+    u0, v0, u1, v1 = _roi_slice(img.shape, roi, _orb_margin(orb))
+    crop = np.ascontiguousarray(img[v0:v1, u0:u1])
+    kps, desc = orb.detectAndCompute(crop, None)
     if desc is None or not kps:
         empty = np.zeros((0, 2)), np.zeros((0, 32), np.uint8)
         return (*empty, np.zeros(0)) if response else empty
     pts = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 1, 2)
     if options.subpixel == "peak":
-        pts = _response_peak(np.ascontiguousarray(img[v0:v1, u0:u1]), pts)
+        pts = _response_peak(crop, pts)
     elif options.subpixel:
         # ORB keypoints sit on the FAST grid of their pyramid level (1.2^k px); refine at full
         # resolution (Foerstner corner) so that stereo depth and frame-to-frame pixels agree
-        crop = np.ascontiguousarray(img[v0:v1, u0:u1])
         w = int(options.subpixel_half_window)
         pts = cv2.cornerSubPix(crop, pts, (w, w), (-1, -1), _SUBPIX_CRITERIA)
     pts = pts.reshape(-1, 2).astype(np.float64) + [u0, v0]
