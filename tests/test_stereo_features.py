@@ -197,6 +197,9 @@ def test_peak_refinement_stays_within_half_a_pixel_of_the_corners():
     assert np.mean(np.abs(peak - np.round(peak)) > 0.01) > 0.3  # most moved off the grid
     with pytest.raises(ValueError, match="subpixel"):
         FeatureOptions(subpixel="harris")
+    for bad in (0, -2):  # (a float is refused by the type check under the tests' hook)
+        with pytest.raises(ValueError, match="subpixel_half_window"):
+            FeatureOptions(subpixel_half_window=bad)
 
 
 def test_a_region_of_interest_keeps_the_keypoints_orb_finds_on_the_whole_image():

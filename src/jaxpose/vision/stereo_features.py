@@ -103,6 +103,9 @@ class FeatureOptions:
     def __post_init__(self):
         if self.subpixel not in (True, False, "peak"):
             raise ValueError(f'subpixel must be True, False or "peak"; got {self.subpixel!r}')
+        w = self.subpixel_half_window
+        if not (isinstance(w, int | np.integer) and w >= 1):
+            raise ValueError(f"subpixel_half_window must be an integer >= 1 (pixels); got {w!r}")
         if not (isinstance(self.orb_levels, int | np.integer) and 1 <= self.orb_levels <= 16):
             raise ValueError(f"orb_levels must be an integer in [1, 16]; got {self.orb_levels!r}")
         if not self.twin_px >= 0:
