@@ -120,3 +120,63 @@ def test_region_energy_matches_the_painter_buffer_and_rejects_a_wrong_pose():
     assert e_true < 0.08  # smoothing and the few antenna pixels only
     wrong = so3_exp(jnp.asarray([0.0, 0.7, 0.0])) @ true.R
     assert float(_region_energy(wrong, true.t, sc)) > 3 * e_true + 0.1
+
+
+def test_fit_model_side_weight_and_length_weights():
+    """The model side of the fit's residuals: scaled by the square root of its weight, and with
+    ``by_length`` each edge's samples weighted by its length (antennas 0), checked against the
+    distance map read by hand at the projected samples."""
+    from jaxpose.pipelines.monocular.fit import _chamfer_residuals
+    from jaxpose.pipelines.monocular.scene import _fit_sample_weights
+    from jaxpose.pipelines.monocular.score import _visible_edges
+
+    true, sc = _scene()
+    model = tango()
+    R = so3_exp(jnp.asarray([0.02, 0.01, -0.03])) @ true.R
+    t = true.t + jnp.asarray([0.02, 0.01, 0.1])
+    vis = _visible_edges(R, t, sc.geom)
+    n_model = int(np.prod(sc.geom[1].shape[:2]))
+    base = np.asarray(_chamfer_residuals(R, t, vis, sc))
+    w4 = np.asarray(_chamfer_residuals(R, t, vis, sc._replace(fit_model_weight=4.0)))
+    assert np.allclose(w4[:n_model], 2.0 * base[:n_model]) and np.any(base[:n_model] > 0)
+    assert np.allclose(w4[n_model:], base[n_model:])
+
+    w = np.asarray(_fit_sample_weights(model, True))
+    lengths = np.linalg.norm(np.diff(model.vertices[model.edges], axis=1)[:, 0], axis=-1)
+    E = len(model.edges)
+    assert np.allclose(w[:E], lengths / lengths.mean()) and np.all(w[E:] == 0.0)
+    assert _fit_sample_weights(model, False) is None
+
+    # by hand: the weighted mean square of the truncated distances at the visible samples
+    pts = np.asarray(sc.geom[1]) @ np.asarray(R).T + np.asarray(t)
+    fx, fy, cx, cy = np.asarray(sc.cam4)
+    uv = np.stack([fx * pts[..., 0] / pts[..., 2] + cx, fy * pts[..., 1] / pts[..., 2] + cy], -1)
+    d = np.minimum(np.asarray(_bilinear(sc.dt, jnp.asarray(uv))), sc.tau)
+    ws = np.where(np.asarray(vis)[:, None], w[:, None], 0.0) * np.ones(d.shape)
+    ref = np.sum(ws * d * d) / np.sum(ws)
+    r = np.asarray(_chamfer_residuals(R, t, vis, sc._replace(fit_sample_w=jnp.asarray(w))))
+    assert np.isclose(np.sum(r[:n_model] ** 2), ref, rtol=1e-9)
+
+
+def test_chamfer_fit_by_length_recovers_a_perturbed_pose():
+    from jaxpose.pipelines.monocular.scene import _fit_sample_weights
+
+    true, sc = _scene()
+    sc = sc._replace(fit_sample_w=_fit_sample_weights(tango(), True), fit_model_weight=0.25)
+    R0 = so3_exp(jnp.asarray([0.03, -0.04, 0.02])) @ true.R
+    t0 = true.t + jnp.asarray([0.04, -0.03, 0.15])
+    R, t = _chamfer_fit(R0, t0, sc, steps=12)
+    assert _angle_deg(R, true.R) < 1.0
+    assert float(jnp.linalg.norm(t - true.t)) < 0.05
+
+
+def test_fit_model_weight_is_checked():
+    import pytest
+
+    from jaxpose.pipelines.monocular import InitOptions, initialise_pose
+
+    img = np.zeros((64, 64), np.uint8)
+    cam = PinholeCamera(100.0, 100.0, 32.0, 32.0, width=64, height=64)
+    for bad in (0.0, -1.0, float("nan"), True):
+        with pytest.raises(ValueError, match="fit_model_weight"):
+            initialise_pose(img, cam, options=InitOptions(fit_model_weight=bad))

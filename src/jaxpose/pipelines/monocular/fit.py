@@ -44,7 +44,11 @@ def _chamfer_residuals(R, t, vis, sc: _EdgeScene, nearest=None):
     )
     m = vis[:, None] & (pc[..., 2] > 1e-3)
     dm = jnp.where(inside, jnp.minimum(_bilinear(dt, pix), tau), tau)
-    dm = jnp.where(m, dm, 0.0).reshape(-1)
+    # the model side: the weighted mean square over the visible samples (sc.fit_sample_w: each
+    # segment's weight; None: all alike), times sc.fit_model_weight
+    w = 1.0 if sc.fit_sample_w is None else sc.fit_sample_w[:, None]
+    wm = jnp.where(m, w, 0.0)
+    dm = (jnp.sqrt(wm * sc.fit_model_weight) * dm).reshape(-1)
     ends = _project(edges @ R.T + t, cam4)
     if nearest is None:
         d = _point_segment_distance(img_pts, ends[:, 0], ends[:, 1])
@@ -57,7 +61,7 @@ def _chamfer_residuals(R, t, vis, sc: _EdgeScene, nearest=None):
         e = ap - s[:, None] * ab
         d = jnp.where(vis[nearest], jnp.sqrt(jnp.sum(e * e, -1) + 1e-12), jnp.inf)
     di = jnp.where(img_mask, jnp.minimum(d, tau), 0.0)
-    nm = jnp.maximum(jnp.sum(m.astype(dm.dtype)), 1.0)
+    nm = jnp.maximum(jnp.sum(wm), 1e-9 if sc.fit_sample_w is not None else 1.0)
     ni = jnp.maximum(jnp.sum(img_mask.astype(di.dtype)), 1.0)
     return jnp.concatenate([dm / jnp.sqrt(nm), di / jnp.sqrt(ni)])
 

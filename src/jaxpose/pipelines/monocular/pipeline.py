@@ -75,6 +75,9 @@ def initialise_pose(
         w = getattr(options, name)
         if not np.isfinite(w) or w < 0:
             raise ValueError(f"{name} must be finite and >= 0 (0 turns its term off); got {w}")
+    w = options.fit_model_weight
+    if isinstance(w, bool) or not (np.isfinite(w) and w > 0):
+        raise ValueError(f"fit_model_weight must be finite and > 0; got {w!r}")
     g = options.attitude_grid
     if isinstance(g, bool) or not isinstance(g, int | np.integer) or g < 0:
         raise ValueError(f"attitude_grid must be an integer >= 0 (0 turns it off); got {g!r}")

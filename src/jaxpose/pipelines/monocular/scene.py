@@ -40,7 +40,9 @@ class _EdgeScene(NamedTuple):
     ``shade_val (P,)``, ``shade_sq (P,)``: :func:`jaxpose.vision.image_maps.shading_grid`, for
     the face-shading term (``None`` when the model has no faces or both its weights are 0), and
     ``shade_coarse``: their 2x2 pooling (:func:`_pool_shading`) for the quick score (``None``
-    when its weight is 0)."""
+    when its weight is 0); ``fit_sample_w (S,)``: the weight of each model segment's samples in
+    the model side of the shortlist's fit (:func:`_fit_sample_weights`; ``None``: all alike) and
+    ``fit_model_weight``: the model side's weight in that fit."""
 
     geom: tuple
     img_pts: jax.Array
@@ -71,6 +73,8 @@ class _EdgeScene(NamedTuple):
     spread_weight: float = 0.0
     shade_coarse: tuple | None = None
     spread_quick_weight: float = 0.0
+    fit_sample_w: jax.Array | None = None
+    fit_model_weight: float = 1.0
 
     def chamfer_inputs(self):
         """``(geom, img_pts, img_mask, dt, tau, cam4)``: the fields the chamfer terms use."""
@@ -122,7 +126,30 @@ def _edge_scene(det: Detection, model: WireframeModel, options: InitOptions) -> 
         float(options.spread_weight),
         coarse,
         float(options.spread_quick_weight),
+        _fit_sample_weights(model, bool(options.fit_by_length)),
+        float(options.fit_model_weight),
     )
+
+
+@functools.lru_cache(maxsize=16)
+def _fit_sample_weights(model: WireframeModel, by_length: bool) -> jax.Array | None:
+    """``(S,)`` weights of the model segments (edges, then antennas: :func:`_model_geometry`)
+    in the model side of the shortlist's edge fit (its weighted mean square), an edge 1 on
+    average; ``None`` (all alike) without ``by_length``.
+
+    With ``by_length`` each edge's samples count in proportion to its length and the antennas
+    not at all: every segment has the same number of samples, so counted alike the panel's 2 cm
+    sides weigh as much as its 77 cm edges, and the antennas, whose directions on the mock-up
+    differ from the model's by 13-16 degrees (:func:`jaxpose.vision.models.build_tango`), pull
+    the fit as much as the body's edges. Without it (the default), every segment counts
+    alike."""
+    if not by_length:
+        return None
+    segs = np.asarray(_model_geometry(model)[0])
+    n_edges = len(model.edges)
+    w = np.linalg.norm(segs[:, 1] - segs[:, 0], axis=-1)
+    w[n_edges:] = 0.0
+    return jnp.asarray(w / w[:n_edges].mean())
 
 
 def _pool_cells(grid: int, pts, *values):
