@@ -72,6 +72,11 @@ class StereoMatchOptions:
             Features without a coarse match are searched over their whole range.
         coarse_window, coarse_window_rows, coarse_ncc_threshold, coarse_radius_px: the
             coarse level's window, its acceptance score and the fine search's half-width.
+        line_trim_px: ``None``: eq. 5 on every matched sample of a segment (the paper). A
+            distance (pixels): the line is fitted again to the samples within three times this
+            distance of the first fit, then again to those within this distance (a sample's ZNCC match on a neighbouring repeated
+            edge is dropped instead of spoiling the fit), and eq. 5 and the counts above apply
+            to the samples kept.
     """
 
     window: int = 15
@@ -89,12 +94,16 @@ class StereoMatchOptions:
     coarse_window_rows: int = 5
     coarse_ncc_threshold: float = 0.7
     coarse_radius_px: int = 3
+    line_trim_px: float | None = None
 
     def __post_init__(self):
         for name in ("window", "window_rows", "coarse_window", "coarse_window_rows"):
             w = getattr(self, name)
             if w is not None and (w < 3 or w % 2 == 0):
                 raise ValueError(f"{name} must be an odd integer >= 3; got {w}")
+        t = self.line_trim_px
+        if t is not None and not (np.isfinite(t) and t > 0):
+            raise ValueError(f"line_trim_px must be None or a distance > 0 (pixels); got {t}")
 
 
 @dataclass
@@ -385,6 +394,24 @@ def _line_samples(segments: np.ndarray, d: np.ndarray, n: np.ndarray):
     return segments[owner, 0] + frac[:, None] * d[owner], owner
 
 
+def _tls_lines(owner, pts, use, M):
+    """Total-least-squares line of the samples ``use`` of each of ``M`` segments, all at once:
+    the centroid ``(M, 2)``, the direction and the normal ``(M, 2)`` (the principal axis of the
+    2x2 scatter matrix, closed form), the mean distance of the samples to it ``(M,)`` and their
+    count ``(M,)``."""
+    who, p = owner[use], pts[use]
+    n = np.bincount(who, minlength=M)
+    count = np.maximum(n, 1)
+    c = np.stack([np.bincount(who, p[:, k], M) for k in (0, 1)], 1) / count[:, None]
+    q = p - c[who]
+    sxx, sxy, syy = (np.bincount(who, q[:, a] * q[:, b], M) for a, b in ((0, 0), (0, 1), (1, 1)))
+    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    direction = np.stack([np.cos(theta), np.sin(theta)], 1)
+    normal = np.stack([-direction[:, 1], direction[:, 0]], 1)
+    delta = np.bincount(who, np.abs((q * normal[who]).sum(1)), M) / count
+    return c, direction, normal, delta, n
+
+
 def match_lines_stereo(
     left: np.ndarray,
     right: np.ndarray,
@@ -421,18 +448,14 @@ def match_lines_stereo(
     cand = (n_matched >= options.line_min_matches) & (2 * n_matched >= n_samples) & steep
     cos_eps = np.cos(np.radians(options.eps_theta_deg))
     sin_min = np.sin(np.radians(options.min_epipolar_angle_deg))
-    # total-least-squares line of each segment's matches, all segments at once: the centroid
-    # and the principal axis of the 2x2 scatter matrix (closed form)
     use = pm.ok & cand[owner]
-    who, pts = owner[use], pm.pixels_right[use]
-    count = np.maximum(np.bincount(who, minlength=M), 1)
-    c = np.stack([np.bincount(who, pts[:, k], M) for k in (0, 1)], 1) / count[:, None]
-    q = pts - c[who]
-    sxx, sxy, syy = (np.bincount(who, q[:, a] * q[:, b], M) for a, b in ((0, 0), (0, 1), (1, 1)))
-    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    direction = np.stack([np.cos(theta), np.sin(theta)], 1)
-    normal = np.stack([-direction[:, 1], direction[:, 0]], 1)
-    delta = np.bincount(who, np.abs((q * normal[who]).sum(1)), M) / count
+    c, direction, normal, delta, count = _tls_lines(owner, pm.pixels_right, use, M)
+    if options.line_trim_px is not None:
+        for scale in (3.0, 1.0):  # refit to the samples near the previous fit
+            q = pm.pixels_right - c[owner]
+            use = use & (np.abs((q * normal[owner]).sum(1)) <= scale * options.line_trim_px)
+            c, direction, normal, delta, count = _tls_lines(owner, pm.pixels_right, use, M)
+        cand = cand & (count >= options.line_min_matches) & (2 * count >= n_samples)
     fit_error = np.where(cand, delta, np.inf)
     cos_angle = np.abs((direction * d).sum(1)) / np.maximum(length, 1e-12)
     ok = (
