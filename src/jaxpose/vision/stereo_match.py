@@ -74,9 +74,11 @@ class StereoMatchOptions:
             coarse level's window, its acceptance score and the fine search's half-width.
         line_trim_px: ``None``: eq. 5 on every matched sample of a segment (the paper). A
             distance (pixels): the line is fitted again to the samples within three times this
-            distance of the first fit, then again to those within this distance (a sample's ZNCC match on a neighbouring repeated
-            edge is dropped instead of spoiling the fit), and eq. 5 and the counts above apply
-            to the samples kept.
+            distance of the first fit, then again to those within this distance (a sample's
+            ZNCC match on a neighbouring repeated edge is dropped instead of spoiling the fit),
+            and eq. 5 and the counts above apply to the samples kept. Off by default: on the
+            development scenes with blur or glints it lowered some errors and raised others
+            (docs/stereo-evaluation.md, *More line features*).
     """
 
     window: int = 15
