@@ -17,7 +17,9 @@ pipeline (:func:`jaxpose.vision.features.detect`, default options), then:
   gradient is strongest across the edge (Gaussian sigma 1.5 px, within 15 px, 15 places along the
   edge), outward from the projected model's centre, over that edge's distance from the centre:
   about 0 when the target in the image is as large as the model at the label, -0.04 when it is
-  4% smaller.
+  4% smaller;
+- ``rematch_range``, ``rematch_close``: the labelled pose through the final re-matching
+  refinement alone (``_rematch_refine``, 2 rounds), independent of the fit's options.
 
 A very small ``--fit-model-weight`` (1e-6) leaves the image side alone in the fit, a very large
 one (1e6) the model side alone; ``--figure PATH`` runs four settings (``FIGURE_SETTINGS``: the
@@ -42,13 +44,16 @@ import cv2  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from jaxpose.core.geometry import Pose  # noqa: E402
 from jaxpose.io import load_camera, load_image, load_speed_labels  # noqa: E402
 from jaxpose.pipelines.monocular import InitOptions  # noqa: E402
 from jaxpose.pipelines.monocular.fit import _batched_fit  # noqa: E402
+from jaxpose.pipelines.monocular.rematch import _rematch_refine  # noqa: E402
 from jaxpose.pipelines.monocular.scene import _edge_scene  # noqa: E402
 from jaxpose.vision.coarse import model_extents  # noqa: E402
 from jaxpose.vision.features import detect  # noqa: E402
 from jaxpose.vision.models import tango  # noqa: E402
+from jaxpose.vision.roi import roi_diagonal  # noqa: E402
 
 
 def _angle_deg(Ra, Rb) -> float:
@@ -124,6 +129,19 @@ def fit_label(det, model, opts, Rt, tt) -> dict:
     }
 
 
+def rematch_label(det, model, Rt, tt) -> dict:
+    """The labelled pose through the final re-matching refinement alone (``_rematch_refine``,
+    2 rounds, as the pipeline runs it): range ratio (the box's centre), close or not."""
+    p = _rematch_refine(
+        [Pose(jnp.asarray(Rt), jnp.asarray(tt))], det, model, det.camera, roi_diagonal(det.roi), 2
+    )[0]
+    R, t = np.asarray(p.R), np.asarray(p.t)
+    c = model.vertices.mean(0)
+    rng = np.linalg.norm(R @ c + t) / np.linalg.norm(Rt @ c + tt)
+    deg, m = _angle_deg(R, Rt), float(np.linalg.norm(t - tt))
+    return {"rematch_range": round(float(rng), 4), "rematch_close": bool(deg < 10.0 and m < 0.30)}
+
+
 def _summary(rows, weight, by_length) -> dict:
     photos = [r for r in rows if r["domain"] == "lightbox"]
     return {
@@ -138,6 +156,10 @@ def _summary(rows, weight, by_length) -> dict:
         ),
         "close_photographs": sum(bool(r.get("close")) for r in photos),
         "close_all": sum(bool(r.get("close")) for r in rows),
+        "median_rematch_range_photographs": float(
+            np.median([r["rematch_range"] for r in photos if "rematch_range" in r])
+        ),
+        "rematch_close_photographs": sum(bool(r.get("rematch_close")) for r in photos),
     }
 
 
@@ -218,8 +240,11 @@ def main():
         )
         Rt, tt = np.asarray(lab.pose.R, float), np.asarray(lab.pose.t, float)
         offset = outline_offset(det.image, det.camera, model, Rt, tt)
+        extra = {"outline_offset": offset}
+        if det.roi is not None:
+            extra |= rematch_label(det, model, Rt, tt)
         for (weight, by_length, _), (_, rows) in zip(settings, runs, strict=True):
-            row = {"image": lab.image.name, "domain": lab.domain, "outline_offset": offset}
+            row = {"image": lab.image.name, "domain": lab.domain} | extra
             if det.roi is not None:
                 opts = InitOptions(fit_model_weight=weight, fit_by_length=by_length)
                 row |= fit_label(det, model, opts, Rt, tt)
