@@ -24,10 +24,11 @@ pipeline (:func:`jaxpose.vision.features.detect`, default options), then:
 A very small ``--fit-model-weight`` (1e-6) leaves the image side alone in the fit, a very large
 one (1e6) the model side alone; ``--figure PATH`` runs four settings (``FIGURE_SETTINGS``: the
 default, either side alone, the model side at 0.25 by edge length) and draws the photographs'
-range ratios (``docs/figures/monocular_label_fit.png``). Summary line: the median
-``fit_range`` and ``outline_offset`` over the photographs and the count of ``close`` fits (a
-list of four with ``--figure``). Development diagnostics (about a second per image and
-setting); the figures are in the docs' monocular evaluation page.
+range ratios (``docs/figures/monocular_label_fit.png``). Summary line: the medians of
+``fit_range``, ``outline_offset`` and ``rematch_range`` over the photographs and the counts of
+``close`` and ``rematch_close`` (a list of four with ``--figure``). Development diagnostics
+(about a second per image and setting); the figures are in the docs' monocular evaluation
+page.
 """
 
 from __future__ import annotations
@@ -131,7 +132,8 @@ def fit_label(det, model, opts, Rt, tt) -> dict:
 
 def rematch_label(det, model, Rt, tt) -> dict:
     """The labelled pose through the final re-matching refinement alone (``_rematch_refine``,
-    2 rounds, as the pipeline runs it): range ratio (the box's centre), close or not."""
+    2 rounds, as the pipeline runs it): range ratio (of the mean of the model's vertices), close
+    or not."""
     p = _rematch_refine(
         [Pose(jnp.asarray(Rt), jnp.asarray(tt))], det, model, det.camera, roi_diagonal(det.roi), 2
     )[0]
