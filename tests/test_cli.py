@@ -127,3 +127,83 @@ def test_annotations_are_checked_while_testing():
 
     with pytest.raises(jaxtyping.TypeCheckError):
         Scenario(range_m="5")
+
+
+def test_with_options_sets_fields_and_nested_groups():
+    import dataclasses
+
+    from jaxpose.pipelines.monocular import InitOptions
+    from jaxpose.pipelines.stereo import TrackerOptions
+
+    base = InitOptions()
+    got = _common.with_options(
+        base, ["fit_model_weight=0.25", "detection.detector=lsd", "top_k = 3", "trace=True"]
+    )
+    want = dataclasses.replace(
+        base,
+        fit_model_weight=0.25,
+        top_k=3,
+        trace=True,
+        detection=dataclasses.replace(base.detection, detector="lsd"),
+    )
+    assert got == want and base == InitOptions()  # the base is left alone
+    t = _common.with_options(TrackerOptions(), ["stereo.line_trim_px=1.5", "window_frames=6"])
+    assert t.stereo.line_trim_px == 1.5 and t.window_frames == 6
+    assert _common.with_options(base, []) is base
+
+
+@pytest.mark.parametrize(
+    "item, words",
+    [
+        ("nope=1", ["has no field 'nope'", "fit_model_weight"]),
+        ("detection.nope=1", ["DetectionOptions has no field 'nope'"]),
+        ("foo.x=1", ["'foo' is not an option group", "detection"]),
+        ("a.b.c=1", ["one level"]),
+        ("fit_model_weight", ["expected NAME=VALUE"]),
+        ("=3", ["expected NAME=VALUE"]),
+        ("top_k=[1,", ["neither a Python literal nor a bare word"]),
+    ],
+)
+def test_with_options_errors_name_the_item(item, words):
+    from jaxpose.pipelines.monocular import InitOptions
+
+    with pytest.raises(_common.CommandError) as err:
+        _common.with_options(InitOptions(), [item])
+    for w in words:
+        assert w in str(err.value), str(err.value)
+
+
+def test_with_options_passes_on_what_the_options_refuse():
+    from jaxpose.pipelines.stereo import TrackerOptions
+
+    with pytest.raises(_common.CommandError, match="subpixel_half_window"):
+        _common.with_options(TrackerOptions(), ["features.subpixel_half_window=0"])
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["eval-speedplus", "{tmp}", "--option", "nope=1"], ["--option 'nope=1'"]),
+        (["init", "{tmp}/x.png", "--camera", "{tmp}/c.json", "--option", "x"], ["NAME=VALUE"]),
+        (["stereo-track", "--frames", "3", "--option", "use_lines=False"], ["--points-only"]),
+    ],
+)
+def test_option_errors_are_one_line(argv, words, tmp_path, capsys):
+    if argv[0] == "init":  # the options are read after the files: give it readable ones
+        import json
+
+        import cv2
+        import numpy as np
+
+        cv2.imwrite(str(tmp_path / "x.png"), np.zeros((64, 64), np.uint8))
+        (tmp_path / "c.json").write_text(
+            json.dumps(
+                {"cameraMatrix": [[100, 0, 32], [0, 100, 32], [0, 0, 1]], "Nu": 64, "Nv": 64}
+            )
+        )
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"jaxpose {argv[0]}: error: "), err
+    for w in words:
+        assert w in err[0], err[0]

@@ -13,6 +13,8 @@
 * ``argparse`` types that refuse bad values naming the option: :func:`positive_float`,
   :func:`nonnegative_float`, :func:`finite_float`, :func:`positive_int`, :func:`nonnegative_int`.
 * :class:`HelpFormatter`: every option's help ends with its default.
+* :func:`add_option_argument` and :func:`with_options`: ``--option NAME=VALUE`` (repeatable)
+  sets any field of a command's frozen options object (``group.field`` for a nested group).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ __all__ = [
     "HelpFormatter",
     "add_figures_argument",
     "add_image_size_argument",
+    "add_option_argument",
     "add_out_argument",
     "add_progress_argument",
     "cache_dir",
@@ -44,6 +47,7 @@ __all__ = [
     "positive_int",
     "progress",
     "stage",
+    "with_options",
 ]
 
 DEFAULT_OUT_ROOT = Path("jaxpose-out")
@@ -289,3 +293,77 @@ class CommandParser(argparse.ArgumentParser):
 
     def error(self, message: str):  # type: ignore[override]
         raise CommandError(f"{message} (see {self.prog} --help)")
+
+
+# ----------------------------------------------------------------------------- --option NAME=VALUE
+def add_option_argument(parser: argparse.ArgumentParser, options_name: str) -> None:
+    """``--option NAME=VALUE``, repeatable: a field of ``options_name`` (e.g. ``InitOptions``)
+    set from the command line; see :func:`with_options`."""
+    parser.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help=f"set a field of {options_name} (repeat for several): NAME a field, or GROUP.FIELD "
+        "for a nested group (e.g. detection.detector=lsd); VALUE a Python literal (1.5, True, "
+        "None, (1, 2)) or a bare word taken as a string",
+    )
+
+
+def _literal(text: str):
+    import ast
+
+    try:
+        return ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        if text.replace("-", "_").isidentifier():  # a bare word: a string (lsd, dop, ...)
+            return text
+        raise CommandError(
+            f"--option value {text!r} is neither a Python literal nor a bare word"
+        ) from None
+
+
+def with_options(base, items: Iterable[str], flag: str = "--option"):
+    """``base`` (a frozen dataclass of options) with the ``NAME=VALUE`` items set, in order.
+
+    ``NAME`` is a field of ``base`` or ``GROUP.FIELD`` with ``GROUP`` a field of ``base`` that is
+    itself a dataclass. Raises :class:`CommandError` naming the item for a missing ``=``, an
+    unknown field (listing the known ones) or a value the options object refuses (its own
+    ``ValueError`` or ``TypeError``)."""
+    import dataclasses
+
+    options = base
+    for item in items:
+        name, eq, text = item.partition("=")
+        name = name.strip()
+        if not eq or not name:
+            raise CommandError(f"{flag} {item!r}: expected NAME=VALUE")
+        value = _literal(text.strip())
+        group, _, field = name.rpartition(".")
+        target = getattr(options, group, None) if group else options
+        if group and "." in group:
+            raise CommandError(f"{flag} {item!r}: one level of GROUP.FIELD at most")
+        if not dataclasses.is_dataclass(target):
+            known = [f.name for f in dataclasses.fields(options) if _is_group(options, f.name)]
+            raise CommandError(
+                f"{flag} {item!r}: {group!r} is not an option group of "
+                f"{type(options).__name__} (groups: {', '.join(known) or 'none'})"
+            )
+        names = [f.name for f in dataclasses.fields(target)]
+        if field not in names:
+            raise CommandError(
+                f"{flag} {item!r}: {type(target).__name__} has no field {field!r} (fields: "
+                f"{', '.join(names)})"
+            )
+        try:
+            inner = dataclasses.replace(target, **{field: value})
+            options = dataclasses.replace(options, **{group: inner}) if group else inner
+        except (ValueError, TypeError) as err:
+            raise CommandError(f"{flag} {item!r}: {err}") from None
+    return options
+
+
+def _is_group(options, name: str) -> bool:
+    import dataclasses
+
+    return dataclasses.is_dataclass(getattr(options, name, None))

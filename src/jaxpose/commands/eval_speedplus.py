@@ -1,4 +1,5 @@
-"""``jaxpose eval-speedplus ROOT [--domain NAME ...] [--json] [--limit N]``: run the monocular
+"""``jaxpose eval-speedplus ROOT [--domain NAME ...] [--json] [--limit N] [--option NAME=VALUE
+...]``: run the monocular
 initialisation on every labelled image of a SPEED+ folder and score it
 (:func:`jaxpose.studies.speedplus.evaluate_speedplus`).
 
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import json
 
-from jaxpose.commands._common import add_progress_argument
+from jaxpose.commands._common import add_option_argument, add_progress_argument, with_options
 
 
 def add_arguments(parser) -> None:
@@ -46,6 +47,7 @@ def add_arguments(parser) -> None:
         default="hough",
         help="line detector (default: hough)",
     )
+    add_option_argument(parser, "InitOptions (jaxpose.pipelines.monocular)")
     add_progress_argument(parser)
 
 
@@ -58,13 +60,16 @@ def evaluate(
     method="svd",
     detector="hough",
     progress=True,
+    option_items=(),
 ) -> dict:
-    """The evaluation as a dict (the fields of ``--json``)."""
+    """The evaluation as a dict (the fields of ``--json``); ``option_items``: ``NAME=VALUE``
+    strings of ``--option`` (:func:`jaxpose.commands._common.with_options`)."""
     from jaxpose.pipelines.monocular import InitOptions
     from jaxpose.studies.speedplus import evaluate_speedplus
     from jaxpose.vision.features import DetectionOptions
 
     opts = InitOptions(method=method, detection=DetectionOptions(detector=detector))
+    opts = with_options(opts, option_items)
     return evaluate_speedplus(
         directory, domains=domains, limit=limit, model=model, options=opts, progress=progress
     )
@@ -86,6 +91,7 @@ def run(args) -> int:
         method=args.method,
         detector=args.detector,
         progress=not args.no_progress,
+        option_items=args.option,
     )
     row = "{:28s} {:9s} {:13s} {:>7s} {:>8s} {:>6s} {:>6s} {:>6s} {:>6s} {}"
     print(

@@ -1,12 +1,12 @@
 """``jaxpose init IMAGE --camera CAMERA.json [--model tango|FILE] [--overlay OUT.png] [--roi U0 V0
-U1 V1]``: the pose of the target in one image with no prior (Sharma et al. 2018), printed as one
-JSON object."""
+U1 V1] [--option NAME=VALUE ...]``: the pose of the target in one image with no prior (Sharma et
+al. 2018), printed as one JSON object."""
 
 from __future__ import annotations
 
 import json
 
-from jaxpose.commands._common import add_progress_argument
+from jaxpose.commands._common import add_option_argument, add_progress_argument, with_options
 
 
 def add_arguments(parser) -> None:
@@ -37,6 +37,7 @@ def add_arguments(parser) -> None:
         help="the target's box in pixels of IMAGE (from a detector): replaces the ROI search "
         "(no silhouette terms then)",
     )
+    add_option_argument(parser, "InitOptions (jaxpose.pipelines.monocular)")
     add_progress_argument(parser)
 
 
@@ -55,6 +56,7 @@ def run(args) -> int:
     model = load_model(args.model)
     image = load_image(args.image)
     opts = InitOptions(method=args.method, detection=DetectionOptions(detector=args.detector))
+    opts = with_options(opts, args.option)
     # the first run compiles for about a minute: a ticker on stderr shows it is alive
     with stage("jaxpose init: pose search", enabled=not args.no_progress):
         result = initialise_pose(image, camera, model, opts, roi=args.roi)

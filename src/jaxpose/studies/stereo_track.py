@@ -70,6 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from jaxpose.commands._common import (
         add_figures_argument,
         add_image_size_argument,
+        add_option_argument,
         add_out_argument,
         add_progress_argument,
         finite_float,
@@ -153,6 +154,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="which N features: lowest DOP at the predicted pose, random, or strongest detector "
         "response (default: dop)",
     )
+    add_option_argument(parser, "TrackerOptions (jaxpose.pipelines.stereo)")
     add_out_argument(parser, "stereo-track", "trajectory, figures and summary")
     add_figures_argument(parser)
     add_progress_argument(parser)
@@ -372,6 +374,7 @@ def _rendered(args):
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from jaxpose.commands._common import with_options
     from jaxpose.core.geometry import Pose
     from jaxpose.pipelines.stereo import TrackerOptions
 
@@ -429,6 +432,9 @@ def run(args: argparse.Namespace) -> int:
         feature_budget=args.feature_budget,
         budget_rule=args.budget_rule,
     )
+    opts = with_options(opts, args.option)
+    if opts.use_lines != use_lines:
+        raise ValueError("set use_lines with --points-only, not with --option")
     with tqdm(total=n, disable=args.no_progress, desc="stereo-track", unit="frame") as bar:
         results, truths, seconds = track_sequence(
             frames, rig, use_lines=use_lines, initial_pose=initial, options=opts, progress=bar
