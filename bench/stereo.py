@@ -29,7 +29,6 @@ is lower than points-only on every axis (asked for the scenes with blur or glint
 from __future__ import annotations
 
 import argparse
-import ast
 import json
 import os
 import sys
@@ -140,25 +139,15 @@ def depth_range(scene: StereoScene) -> tuple[float, float]:
 
 
 def tracker_options(items, base: TrackerOptions | None = None) -> TrackerOptions:
-    """``base`` (default ``TrackerOptions()``) with the ``NAME=VALUE`` items of ``--option`` (a
-    Python literal each; ``features.mu=0.03`` sets a field of a nested option group)."""
-    options = TrackerOptions() if base is None else base
-    for item in items:
-        key, _, value = item.partition("=")
-        group, _, field = key.rpartition(".")
-        try:
-            literal = ast.literal_eval(value)
-            if group:
-                inner = replace(getattr(options, group), **{field: literal})
-                options = replace(options, **{group: inner})
-            else:
-                options = replace(options, **{key: literal})
-        except (ValueError, SyntaxError, TypeError, AttributeError) as e:
-            raise ValueError(
-                f"--option {item!r}: expected NAME=VALUE with NAME a TrackerOptions field (or "
-                f"group.field) and VALUE a Python literal ({type(e).__name__}: {e})"
-            ) from e
-    return options
+    """``base`` (default ``TrackerOptions()``) with the ``NAME=VALUE`` items of ``--option``
+    (``features.mu=0.03`` sets a field of a nested option group): the CLI's own
+    :func:`jaxpose.commands._common.with_options`, its errors as ``ValueError``."""
+    from jaxpose.commands._common import CommandError, with_options
+
+    try:
+        return with_options(TrackerOptions() if base is None else base, items)
+    except CommandError as err:
+        raise ValueError(str(err)) from None
 
 
 def meets_targets(summary: dict, range_m: float) -> bool:

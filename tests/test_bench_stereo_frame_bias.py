@@ -81,4 +81,4 @@ def test_a_bad_tracker_option_is_a_usage_error(capsys, option):
     with pytest.raises(SystemExit):
         bench.main(["d1-clean-2m", "--option", option])
     err = capsys.readouterr().err
-    assert f"--option {option!r}" in err and "TrackerOptions field" in err
+    assert f"--option {option!r}" in err and "TrackerOptions" in err

@@ -147,21 +147,27 @@ def test_with_options_sets_fields_and_nested_groups():
         detection=dataclasses.replace(base.detection, detector="lsd"),
     )
     assert got == want and base == InitOptions()  # the base is left alone
-    t = _common.with_options(TrackerOptions(), ["stereo.line_trim_px=1.5", "window_frames=6"])
-    assert t.stereo.line_trim_px == 1.5 and t.window_frames == 6
+    t = _common.with_options(
+        TrackerOptions(), ["stereo.line_trim_px=1.5", "window_frames=6", "features.subpixel=peak"]
+    )
+    assert t.stereo.line_trim_px == 1.5 and t.window_frames == 6 and t.features.subpixel == "peak"
     assert _common.with_options(base, []) is base
 
 
 @pytest.mark.parametrize(
     "item, words",
     [
-        ("nope=1", ["has no field 'nope'", "fit_model_weight"]),
-        ("detection.nope=1", ["DetectionOptions has no field 'nope'"]),
-        ("foo.x=1", ["'foo' is not an option group", "detection"]),
+        ("nope=1", ["InitOptions has no field 'nope'", "fit_model_weight"]),
+        ("detection.nope=1", ["DetectionOptions (InitOptions.detection) has no field 'nope'"]),
+        ("foo.x=1", ["InitOptions has no option group 'foo'", "detection"]),
         ("a.b.c=1", ["one level"]),
         ("fit_model_weight", ["expected NAME=VALUE"]),
         ("=3", ["expected NAME=VALUE"]),
-        ("top_k=[1,", ["neither a Python literal nor a bare word"]),
+        ("top_k=[1,", ["neither a Python literal nor a word"]),
+        ("top_k=three", ["InitOptions.top_k takes an integer; got 'three'"]),
+        ("top_k=2.5", ["takes an integer"]),
+        ("trace=1", ["takes True or False"]),
+        ("fit_model_weight=lsd", ["takes a number"]),
     ],
 )
 def test_with_options_errors_name_the_item(item, words):

@@ -318,48 +318,75 @@ def _literal(text: str):
     except (ValueError, SyntaxError):
         if text.replace("-", "_").isidentifier():  # a bare word: a string (lsd, dop, ...)
             return text
-        raise CommandError(
-            f"--option value {text!r} is neither a Python literal nor a bare word"
-        ) from None
+        return _NOT_A_VALUE
+
+
+_NOT_A_VALUE = object()
+
+
+def _checked_value(value, annotation, where: str):
+    """``value`` for a field annotated ``annotation`` (its string or type): ``bool`` takes True or
+    False, ``int`` an integer, ``float`` a number (an integer is taken as a float); any other
+    annotation (a union, a string, a container) is left to the options object's own checks."""
+    kind = annotation if isinstance(annotation, str) else getattr(annotation, "__name__", "")
+    if kind == "bool" and not isinstance(value, bool):
+        raise CommandError(f"{where} takes True or False; got {value!r}")
+    if kind == "int" and (isinstance(value, bool) or not isinstance(value, int)):
+        raise CommandError(f"{where} takes an integer; got {value!r}")
+    if kind == "float":
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise CommandError(f"{where} takes a number; got {value!r}")
+        value = float(value)
+    return value
 
 
 def with_options(base, items: Iterable[str], flag: str = "--option"):
     """``base`` (a frozen dataclass of options) with the ``NAME=VALUE`` items set, in order.
 
     ``NAME`` is a field of ``base`` or ``GROUP.FIELD`` with ``GROUP`` a field of ``base`` that is
-    itself a dataclass. Raises :class:`CommandError` naming the item for a missing ``=``, an
-    unknown field (listing the known ones) or a value the options object refuses (its own
+    itself a dataclass; ``VALUE`` a Python literal, or a bare word taken as a string. A field
+    annotated ``float``, ``int`` or ``bool`` takes only that kind. Raises
+    :class:`CommandError` naming the item for a missing ``=``, an unknown field (listing the
+    known ones), a value of the wrong kind, or one the options object refuses (its own
     ``ValueError`` or ``TypeError``)."""
     import dataclasses
 
     options = base
+    kind = type(base).__name__
     for item in items:
         name, eq, text = item.partition("=")
         name = name.strip()
+        head = f"{flag} {item!r}"
         if not eq or not name:
-            raise CommandError(f"{flag} {item!r}: expected NAME=VALUE")
-        value = _literal(text.strip())
-        group, _, field = name.rpartition(".")
-        target = getattr(options, group, None) if group else options
-        if group and "." in group:
-            raise CommandError(f"{flag} {item!r}: one level of GROUP.FIELD at most")
-        if not dataclasses.is_dataclass(target):
-            known = [f.name for f in dataclasses.fields(options) if _is_group(options, f.name)]
             raise CommandError(
-                f"{flag} {item!r}: {group!r} is not an option group of "
-                f"{type(options).__name__} (groups: {', '.join(known) or 'none'})"
+                f"{head}: expected NAME=VALUE (NAME: a field of {kind}, or GROUP.FIELD)"
+            )
+        group, _, field = name.rpartition(".")
+        if "." in group:
+            raise CommandError(f"{head}: one level of GROUP.FIELD at most")
+        target = getattr(options, group, None) if group else options
+        if not dataclasses.is_dataclass(target):
+            groups = [f.name for f in dataclasses.fields(options) if _is_group(options, f.name)]
+            raise CommandError(
+                f"{head}: {kind} has no option group {group!r} (groups: "
+                f"{', '.join(groups) or 'none'})"
             )
         names = [f.name for f in dataclasses.fields(target)]
         if field not in names:
+            owner = kind if not group else f"{type(target).__name__} ({kind}.{group})"
             raise CommandError(
-                f"{flag} {item!r}: {type(target).__name__} has no field {field!r} (fields: "
-                f"{', '.join(names)})"
+                f"{head}: {owner} has no field {field!r} (fields: {', '.join(names)})"
             )
+        value = _literal(text.strip())
+        if value is _NOT_A_VALUE:
+            raise CommandError(f"{head}: {text.strip()!r} is neither a Python literal nor a word")
+        annotation = next(f.type for f in dataclasses.fields(target) if f.name == field)
+        value = _checked_value(value, annotation, f"{head}: {kind}.{name}")
         try:
             inner = dataclasses.replace(target, **{field: value})
             options = dataclasses.replace(options, **{group: inner}) if group else inner
         except (ValueError, TypeError) as err:
-            raise CommandError(f"{flag} {item!r}: {err}") from None
+            raise CommandError(f"{head}: {err}") from None
     return options
 
 
