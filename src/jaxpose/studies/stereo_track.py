@@ -386,6 +386,8 @@ def run(args: argparse.Namespace) -> int:
     if w < 64 or h < 48:
         raise ValueError(f"--image-size must be at least 64x48; got {w}x{h}")
     use_lines = not args.points_only
+    if with_options(TrackerOptions(use_lines=use_lines), args.option).use_lines != use_lines:
+        raise ValueError("set use_lines with --points-only, not with --option")  # before rendering
     dt = 1.0 / args.frame_rate_hz
     if args.images is not None:
         given = [
@@ -433,8 +435,6 @@ def run(args: argparse.Namespace) -> int:
         budget_rule=args.budget_rule,
     )
     opts = with_options(opts, args.option)
-    if opts.use_lines != use_lines:
-        raise ValueError("set use_lines with --points-only, not with --option")
     with tqdm(total=n, disable=args.no_progress, desc="stereo-track", unit="frame") as bar:
         results, truths, seconds = track_sequence(
             frames, rig, use_lines=use_lines, initial_pose=initial, options=opts, progress=bar
