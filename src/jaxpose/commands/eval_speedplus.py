@@ -1,6 +1,5 @@
 """``jaxpose eval-speedplus ROOT [--domain NAME ...] [--json] [--limit N] [--option NAME=VALUE
-...]``: run the monocular
-initialisation on every labelled image of a SPEED+ folder and score it
+...]``: run the monocular initialisation on every labelled image of a SPEED+ folder and score it
 (:func:`jaxpose.studies.speedplus.evaluate_speedplus`).
 
 ``ROOT`` is the SPEED+ data set's root (``camera.json`` and per domain ``images/`` with a JSON
