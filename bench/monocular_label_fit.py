@@ -46,6 +46,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxpose.core.geometry import Pose  # noqa: E402
+from jaxpose.core.metrics import rotation_error, success  # noqa: E402
 from jaxpose.io import load_camera, load_image, load_speed_labels  # noqa: E402
 from jaxpose.pipelines.monocular import InitOptions  # noqa: E402
 from jaxpose.pipelines.monocular.fit import _batched_fit  # noqa: E402
@@ -54,12 +55,16 @@ from jaxpose.pipelines.monocular.scene import _edge_scene  # noqa: E402
 from jaxpose.vision.coarse import model_extents  # noqa: E402
 from jaxpose.vision.features import detect  # noqa: E402
 from jaxpose.vision.models import tango  # noqa: E402
+from jaxpose.vision.render import _front_facing, project_points  # noqa: E402
 from jaxpose.vision.roi import roi_diagonal  # noqa: E402
 
 
-def _angle_deg(Ra, Rb) -> float:
-    c = (np.trace(Ra @ Rb.T) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+def _errors(R, t, Rt, tt) -> tuple[float, float, bool]:
+    """Rotation error (deg), position error (m) and the success criterion
+    (:func:`jaxpose.core.metrics.success`: 10 deg, 0.30 m) of ``(R, t)`` against the label."""
+    est, true = Pose(jnp.asarray(R), jnp.asarray(t)), Pose(jnp.asarray(Rt), jnp.asarray(tt))
+    deg = float(np.degrees(rotation_error(est.R, true.R)))
+    return deg, float(np.linalg.norm(t - tt)), bool(success(est, true))
 
 
 def outline_offset(image: np.ndarray, camera, model, R, t) -> float | None:
@@ -68,9 +73,8 @@ def outline_offset(image: np.ndarray, camera, model, R, t) -> float | None:
     smooth = cv2.GaussianBlur(image.astype(np.float32), (0, 0), 1.5)
     gx = cv2.Sobel(smooth, cv2.CV_32F, 1, 0)
     gy = cv2.Sobel(smooth, cv2.CV_32F, 0, 1)
-    V = model.vertices @ R.T + t
-    P = V[:, :2] / V[:, 2:] * [camera.fx, camera.fy] + [camera.cx, camera.cy]
-    front = np.sum((model.face_normals @ R.T) * (model.face_centres @ R.T + t), 1) < 0
+    P = project_points(camera, model.vertices @ R.T + t)
+    front = _front_facing(model, R, t)
     centre = P[np.unique(model.edges)].mean(0)
     H, W = image.shape
     steps = np.arange(-15.0, 15.5, 0.5)
@@ -86,19 +90,19 @@ def outline_offset(image: np.ndarray, camera, model, R, t) -> float | None:
         n = np.array([-d[1], d[0]]) / length
         if np.dot(a + d / 2 - centre, n) < 0:
             n = -n
-        peaks = []
-        for s in np.linspace(0.15, 0.85, 15):
-            q = (a + s * d)[None] + steps[:, None] * n[None]
-            if q.min() < 2 or np.any(q[:, 0] > W - 3) or np.any(q[:, 1] > H - 3):
-                continue
-            mx, my = (q[:, k].astype(np.float32)[None] for k in (0, 1))
-            g = (
-                cv2.remap(gx, mx, my, cv2.INTER_LINEAR).ravel() * n[0]
-                + cv2.remap(gy, mx, my, cv2.INTER_LINEAR).ravel() * n[1]
-            )
-            k = int(np.argmax(np.abs(g)))
-            if abs(g[k]) >= 40:
-                peaks.append(steps[k])
+        # 15 places along the edge (rows) x 61 steps across it, those wholly inside the image
+        q = (a + np.linspace(0.15, 0.85, 15)[:, None] * d)[:, None] + steps[:, None] * n
+        q = q[(q.min(axis=(1, 2)) >= 2) & (q[..., 0].max(1) <= W - 3) & (q[..., 1].max(1) <= H - 3)]
+        if not len(q):
+            continue
+        mx, my = q[..., 0].astype(np.float32), q[..., 1].astype(np.float32)
+        g = (
+            cv2.remap(gx, mx, my, cv2.INTER_LINEAR) * n[0]
+            + cv2.remap(gy, mx, my, cv2.INTER_LINEAR) * n[1]
+        )
+        k = np.argmax(np.abs(g), axis=1)
+        strong = np.abs(g[np.arange(len(k)), k]) >= 40
+        peaks = steps[k[strong]]
         if len(peaks) >= 5:
             rel.append(np.median(peaks) / abs(np.dot(a + d / 2 - centre, n)))
     return float(np.median(rel)) if rel else None
@@ -121,12 +125,12 @@ def fit_label(det, model, opts, Rt, tt) -> dict:
     Rf, tf = _batched_fit()(jnp.asarray(Rt[None]), jnp.asarray(tt[None]), sc)
     Rf, tf = np.asarray(Rf[0]), np.asarray(tf[0])
     rng = np.linalg.norm(Rf @ c_fit + tf) / np.linalg.norm(Rt @ c_fit + tt)
-    deg, m = _angle_deg(Rf, Rt), float(np.linalg.norm(tf - tt))
+    deg, m, close = _errors(Rf, tf, Rt, tt)
     return {
         "fit_range": round(float(rng), 4),
         "fit_deg": round(deg, 2),
         "fit_m": round(m, 3),
-        "close": bool(deg < 10.0 and m < 0.30),
+        "close": close,
     }
 
 
@@ -140,8 +144,7 @@ def rematch_label(det, model, Rt, tt) -> dict:
     R, t = np.asarray(p.R), np.asarray(p.t)
     c = model.vertices.mean(0)
     rng = np.linalg.norm(R @ c + t) / np.linalg.norm(Rt @ c + tt)
-    deg, m = _angle_deg(R, Rt), float(np.linalg.norm(t - tt))
-    return {"rematch_range": round(float(rng), 4), "rematch_close": bool(deg < 10.0 and m < 0.30)}
+    return {"rematch_range": round(float(rng), 4), "rematch_close": _errors(R, t, Rt, tt)[2]}
 
 
 def _summary(rows, weight, by_length) -> dict:
