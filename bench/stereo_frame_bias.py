@@ -27,8 +27,6 @@ of the tracker's options as in ``bench/stereo.py`` (``features.subpixel=False``,
 from __future__ import annotations
 
 import argparse
-import ast
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -37,6 +35,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from stereo_bound import check_scenes, observation_jacobians, project  # noqa: E402
+
+from jaxpose.commands._common import CommandError, with_options  # noqa: E402
 
 
 def _rotvec(R: np.ndarray) -> np.ndarray:
@@ -80,8 +80,9 @@ def frame_fit(pixels, points, offsets, R, t, focal, centre, iterations: int = 10
     return R, t, normal
 
 
-def frame_bias(name: str, frames: int, seed: int, scene_options: dict, option=()) -> dict:
-    """Per frame: the fitted attitude error and its bound (module docstring)."""
+def frame_bias(name: str, frames: int, seed: int, scene_options=(), option=()) -> dict:
+    """Per frame: the fitted attitude error and its bound (module docstring). ``scene_options``
+    and ``option``: ``NAME=VALUE`` items for the scene and the tracker's options."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -89,7 +90,7 @@ def frame_bias(name: str, frames: int, seed: int, scene_options: dict, option=()
 
     from jaxpose.vision.stereo_render import tumbler_model
 
-    scene = dataclasses.replace(_scene_by_name(name, frames, seed), **scene_options)
+    scene = with_options(_scene_by_name(name, frames, seed), scene_options, "--scene-option")
     rig, seq, tracker, _ = track_with_history(scene, option)
     model = tumbler_model(scene.size_m)
     cam = rig.left
@@ -132,22 +133,12 @@ def frame_bias(name: str, frames: int, seed: int, scene_options: dict, option=()
     return {
         "scene": name,
         "seed": seed,
-        "scene_options": scene_options,
+        "scene_options": list(scene_options),
         "tracker_options": list(option),
         "frames": rows,
         "median_abs_z": np.round(np.median(z, axis=0), 1).tolist(),
         "share_abs_z_above_3": np.round(np.mean(z > 3, axis=0), 2).tolist(),
     }
-
-
-def _scene_option(text: str) -> tuple[str, object]:
-    name, sep, value = text.partition("=")
-    if not sep:
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE; got {text!r}")
-    try:
-        return name.strip(), ast.literal_eval(value.strip())
-    except (ValueError, SyntaxError) as e:
-        raise argparse.ArgumentTypeError(f"{text!r}: the value is not a Python literal") from e
 
 
 def main(argv=None) -> None:
@@ -159,7 +150,6 @@ def main(argv=None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument(
         "--scene-option",
-        type=_scene_option,
         action="append",
         default=[],
         metavar="NAME=VALUE",
@@ -175,16 +165,15 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     if args.frames < 3:
         ap.error(f"--frames must be at least 3; got {args.frames}")
-    from jaxpose.vision.stereo_render import StereoScene
-
-    fields = {f.name for f in dataclasses.fields(StereoScene)}
-    options = dict(args.scene_option)
-    for key in options:
-        if key not in fields:
-            ap.error(
-                f"--scene-option {key!r}: not a StereoScene field ({', '.join(sorted(fields))})"
-            )
     check_scenes(ap, args.scenes)
+    from stereo_diagnose import _scene_by_name
+
+    try:  # the same parser as the command line's --option; checked before any rendering
+        for name in args.scenes:
+            with_options(_scene_by_name(name, args.frames, 0), args.scene_option, "--scene-option")
+    except CommandError as e:
+        ap.error(str(e))
+    options = args.scene_option
     from stereo import tracker_options
 
     try:
@@ -196,7 +185,7 @@ def main(argv=None) -> None:
         for seed in args.seeds:
             r = frame_bias(name, args.frames, seed, options, args.option)
             runs.append(r)
-            print(f"{name} seed {seed} {options or ''} {' '.join(args.option)}")
+            print(f"{name} seed {seed} {' '.join(options)} {' '.join(args.option)}")
             print("| frame | obs | sigma px | error x, y, z deg | left only | bound | z |")
             print("|---|---|---|---|---|---|---|")
             for f in r["frames"]:

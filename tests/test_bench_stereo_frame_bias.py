@@ -68,7 +68,7 @@ def test_frame_fit_normal_matrix_matches_finite_differences():
 def test_an_unknown_scene_field_is_a_usage_error(capsys):
     with pytest.raises(SystemExit):
         bench.main(["d1-clean-2m", "--scene-option", "pixel_sample=3"])
-    assert "'pixel_sample': not a StereoScene field" in capsys.readouterr().err
+    assert "StereoScene has no field 'pixel_sample'" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         bench.main(["d1-clean-2m", "--scene-option", "pixel_samples"])
     assert "NAME=VALUE" in capsys.readouterr().err
