@@ -29,6 +29,7 @@ def test_each_command_has_help_with_its_options(command, capsys):
     assert main([command, "--help"]) == 0
     out = capsys.readouterr().out
     assert f"jaxpose {command}" in out and "--" in out.split("options:", 1)[-1]
+    assert "(default: )" not in out  # a repeatable option given nothing shows no default
 
 
 @pytest.mark.parametrize("command", DOCUMENTED)

@@ -261,7 +261,8 @@ def nonnegative_int(text: str) -> int:
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
     """Keeps the description's line breaks and ends each option's help with its default (none
-    for flags, ``--help``, options whose default is ``None`` and helps that state it already)."""
+    for flags, ``--help``, options whose default is ``None`` or empty (a repeatable option given
+    no value) and helps that state it already)."""
 
     def _format_args(self, action: argparse.Action, default_metavar: str | None) -> str:
         if isinstance(action, _ImageSize):  # two numbers (or one WxH), shown as the two
@@ -274,6 +275,7 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
             "default" in text  # the help states its default itself
             or action.default is None
             or action.default is argparse.SUPPRESS
+            or (isinstance(action.default, list | tuple) and not action.default)
             or isinstance(action.default, bool)
             or not action.option_strings
             or isinstance(action, argparse._HelpAction | argparse._VersionAction)
