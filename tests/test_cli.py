@@ -214,3 +214,25 @@ def test_option_errors_are_one_line(argv, words, tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith(f"jaxpose {argv[0]}: error: "), err
     for w in words:
         assert w in err[0], err[0]
+
+
+@pytest.mark.parametrize(
+    "command, options",
+    [
+        ("init", "jaxpose.pipelines.monocular:InitOptions"),
+        ("eval-speedplus", "jaxpose.pipelines.monocular:InitOptions"),
+        ("stereo-track", "jaxpose.pipelines.stereo:TrackerOptions"),
+    ],
+)
+def test_the_option_example_in_each_help_is_a_valid_setting(command, options):
+    import importlib
+    import re
+
+    module, name = options.split(":")
+    cls = getattr(importlib.import_module(module), name)
+    action = next(a for a in command_parser(command)._actions if "--option" in a.option_strings)
+    example = re.search(r"\(e\.g\. ([^)]*)\)", action.help).group(1)
+    group, field_value = example.split(".", 1)
+    field, value = field_value.split("=")
+    got = _common.with_options(cls(), [example])
+    assert str(getattr(getattr(got, group), field)) == value

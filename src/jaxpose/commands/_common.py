@@ -298,16 +298,17 @@ class CommandParser(argparse.ArgumentParser):
 
 
 # ----------------------------------------------------------------------------- --option NAME=VALUE
-def add_option_argument(parser: argparse.ArgumentParser, options_name: str) -> None:
+def add_option_argument(parser: argparse.ArgumentParser, options_name: str, example: str) -> None:
     """``--option NAME=VALUE``, repeatable: a field of ``options_name`` (e.g. ``InitOptions``)
-    set from the command line; see :func:`with_options`."""
+    set from the command line; see :func:`with_options`. ``example``: a ``GROUP.FIELD=VALUE`` of
+    those options, shown in the help."""
     parser.add_argument(
         "--option",
         action="append",
         default=[],
         metavar="NAME=VALUE",
         help=f"set a field of {options_name} (repeat for several): NAME a field, or GROUP.FIELD "
-        "for a nested group (e.g. detection.detector=lsd); VALUE a Python literal (1.5, True, "
+        f"for a nested group (e.g. {example}); VALUE a Python literal (1.5, True, "
         "None, (1, 2)) or a bare word taken as a string",
     )
 

@@ -46,7 +46,9 @@ def add_arguments(parser) -> None:
         default="hough",
         help="line detector (default: hough)",
     )
-    add_option_argument(parser, "InitOptions (jaxpose.pipelines.monocular)")
+    add_option_argument(
+        parser, "InitOptions (jaxpose.pipelines.monocular)", "detection.detector=lsd"
+    )
     add_progress_argument(parser)
 
 

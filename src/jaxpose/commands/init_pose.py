@@ -37,7 +37,9 @@ def add_arguments(parser) -> None:
         help="the target's box in pixels of IMAGE (from a detector): replaces the ROI search "
         "(no silhouette terms then)",
     )
-    add_option_argument(parser, "InitOptions (jaxpose.pipelines.monocular)")
+    add_option_argument(
+        parser, "InitOptions (jaxpose.pipelines.monocular)", "detection.detector=lsd"
+    )
     add_progress_argument(parser)
 
 

@@ -154,7 +154,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="which N features: lowest DOP at the predicted pose, random, or strongest detector "
         "response (default: dop)",
     )
-    add_option_argument(parser, "TrackerOptions (jaxpose.pipelines.stereo)")
+    add_option_argument(
+        parser, "TrackerOptions (jaxpose.pipelines.stereo)", "stereo.line_trim_px=1.5"
+    )
     add_out_argument(parser, "stereo-track", "trajectory, figures and summary")
     add_figures_argument(parser)
     add_progress_argument(parser)
