@@ -352,6 +352,11 @@ def main(argv=None) -> int:
     p.add_argument("--budget-noise", choices=BUDGET_NOISE, default="pixel")
     p.add_argument("--budget-subsample", type=float, default=1.0)
     p.add_argument(
+        "--budget-window",
+        action="store_true",
+        help="the budgeted trackers' windowed adjustment takes in the budget's features only",
+    )
+    p.add_argument(
         "--measured-point-sigma",
         action="store_true",
         help="weight the all-features solve by the landmarks' measured residual RMS",
@@ -372,6 +377,7 @@ def main(argv=None) -> int:
         extra = dict(
             budget_noise=args.budget_noise,
             budget_subsample=args.budget_subsample,
+            budget_window=args.budget_window,
             measured_point_sigma=args.measured_point_sigma,
         )
         r = run_scene(name, args.frames, args.budgets, args.rules, seed=args.seed, extra=extra)

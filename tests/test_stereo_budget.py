@@ -383,3 +383,48 @@ def test_dop_selection_with_landmark_noise_against_brute_force(monkeypatch):
     opt = min(B.budget_criterion(blocks[s].sum(0), W) for s in subsets)
     assert crit <= 1.1 * opt
     assert pixel_pick[0] not in got
+
+
+@pytest.mark.parametrize("window", [False, True])
+def test_the_budget_covers_the_window_only_when_asked(window, monkeypatch):
+    """``budget_window``: the observations handed to the windowed adjustment are the budget's
+    features (points kept by the solve, inlier lines among the chosen); without it, every
+    matched point within ``reject_px`` of the budgeted pose and every inlier line."""
+    from jaxpose.pipelines.stereo.frame_pose import PoseFit, postfit_summary
+
+    landmarks, feats, stereo, matches, rig = _matches()
+    n_p, n_l = len(matches[0]), len(matches[2])
+    e_p = np.full(n_p, 0.5)
+    e_p[[10, 11]] = 9.0  # beyond reject_px
+    e_l = np.full(n_l, 0.5)
+    e_l[0] = 9.0
+
+    def fake_fit(lm, ft, st, sub, pose, rg, o, ls):
+        k = len(sub[0])
+        kept = np.ones(k, bool)
+        kept[0] = False  # the solve dropped its first point
+        return PoseFit(pose, True, *[np.zeros(0)] * 4, kept, (np.zeros(0), np.zeros(0)), k, 0.5)
+
+    monkeypatch.setattr(B, "fit_pose", fake_fit)
+    monkeypatch.setattr(B, "postfit_errors", lambda *a: (e_p, e_l))
+    o = TrackerOptions(feature_budget=12, budget_rule="random", budget_window=window)
+    fit = B.fit_pose_budgeted(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
+    kp, kl = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
+    chosen = np.flatnonzero(kp)
+    want = np.zeros(n_p, bool) if window else e_p < o.reject_px
+    want[chosen] = True
+    want[chosen[0]] = False
+    np.testing.assert_array_equal(fit.kept_points, want)
+    in_l = postfit_summary(e_p, e_l, o.inlier_px)["in_lines"]
+    np.testing.assert_array_equal(fit.in_lines, in_l)  # the frame's inliers are all matches'
+    if window:
+        np.testing.assert_array_equal(fit.window_lines, in_l & kl)
+    else:
+        assert fit.window_lines is None
+
+
+def test_a_budget_over_the_window_tracks_a_short_run(frames):
+    res = _track(frames, TrackerOptions(feature_budget=20, budget_window=True))
+    for r, fr in zip(res, frames, strict=True):
+        assert r.status == Status.OK
+        assert np.linalg.norm(r.t - np.asarray(fr.pose.t)) < 0.05

@@ -610,6 +610,9 @@ def fit_pose_budgeted(
     e_p, e_l = postfit_errors(landmarks, feats, matches, fit.pose, rig.left)
     if fit.solver_ok and o.budget_noise in ("measured", "both"):
         residual_spread(landmarks).update(landmarks.points.ids[i_m], e_p, o.sigma_px)
-    kept = e_p < o.reject_px
+    # the window's observations: every match near the budgeted pose, or the budget's own
+    kept = np.zeros(len(e_p), bool) if o.budget_window else e_p < o.reject_px
     kept[keep_p] = fit.kept_points
-    return replace(fit, kept_points=kept, **postfit_summary(e_p, e_l, o.inlier_px))
+    summary = postfit_summary(e_p, e_l, o.inlier_px)
+    window_lines = summary["in_lines"] & keep_l if o.budget_window else None
+    return replace(fit, kept_points=kept, window_lines=window_lines, **summary)

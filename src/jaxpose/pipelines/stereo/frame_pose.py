@@ -64,10 +64,13 @@ class PoseFit:
         pose: the fitted pose; ``solver_ok``: the solver returned ``OK`` or ``NOT_CONVERGED``.
         e_points, e_lines: post-fit errors (pixels) of the left-image matches, ``(n_p,)`` and
             ``(n_l,)``; ``in_points``, ``in_lines``: those below ``inlier_px``.
-        kept_points, kept_lines: the left-image matches left in the last pass (below
+        kept_points: the left-image point matches left in the last pass (below
             ``reject_px`` after the pass before); ``kept_errors``: the errors of every feature
             (left and right) left in the last pass, points and lines.
         inliers, rms_px: inlier count and RMS of the inliers' errors (``inf`` without inliers).
+        window_lines: the line matches whose observations the windowed adjustment may take in
+            (``None``: the inliers, ``in_lines``); set by a feature budget that covers the
+            window (``TrackerOptions.budget_window``).
     """
 
     pose: Pose
@@ -80,6 +83,7 @@ class PoseFit:
     kept_errors: tuple[np.ndarray, np.ndarray]
     inliers: int
     rms_px: float
+    window_lines: np.ndarray | None = None
 
 
 def fit_pose(

@@ -174,6 +174,10 @@ class TrackerOptions:
             ``"measured"`` (the running RMS of its landmark's post-fit residual) or ``"both"``.
         budget_subsample: the ``"dop"`` rule's greedy runs on this random share of the
             candidates (a new draw each frame; at least ``2 N``).
+        budget_window: with a ``feature_budget``, the frame's observations that the windowed
+            adjustment and the landmarks' ray priors take in are the budget's features too
+            (off: every matched feature within ``reject_px`` of the budgeted pose, so the budget
+            bounds the frame's own solve only).
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
         landmark_point_sigma: weight each point of the all-features solve by its landmark's
@@ -253,6 +257,7 @@ class TrackerOptions:
     budget_rule: str = "dop"
     budget_noise: str = "pixel"
     budget_subsample: float = 1.0
+    budget_window: bool = False
     measured_point_sigma: bool = False
     landmark_point_sigma: bool = False
 

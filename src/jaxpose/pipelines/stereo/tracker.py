@@ -628,9 +628,10 @@ class StereoTracker:
                         log=self._rays,
                     )
                 self.map.record("lines", lcand, l_m[in_l], k)
-                if self._rays is not None and in_l.any():
-                    self._rays.line_ids = self.map.lines.ids[l_m[in_l]]
-                    self._rays.lines = lines_from_segments(feats.segments[l_cur[in_l]])
+                in_w = in_l if fit.window_lines is None else fit.window_lines
+                if self._rays is not None and in_w.any():
+                    self._rays.line_ids = self.map.lines.ids[l_m[in_w]]
+                    self._rays.lines = lines_from_segments(feats.segments[l_cur[in_w]])
                     self._rays.line_weight = 1.0 / line_sigma**2
                 self._since_kf += 1
                 update = (
