@@ -45,7 +45,7 @@ import numpy as np  # noqa: E402
 import jaxpose.pipelines.stereo.budget as budget_mod  # noqa: E402
 import jaxpose.pipelines.stereo.tracker as tracker_mod  # noqa: E402
 from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions  # noqa: E402
-from jaxpose.pipelines.stereo.options import BUDGET_NOISE  # noqa: E402
+from jaxpose.pipelines.stereo.options import BUDGET_NOISE, BUDGET_WEIGHTS  # noqa: E402
 from jaxpose.studies.stereo_track import summarize  # noqa: E402
 from jaxpose.vision.stereo_render import default_rig, render_sequence  # noqa: E402
 
@@ -351,6 +351,7 @@ def main(argv=None) -> int:
     p.add_argument("--rules", nargs="+", choices=RULES, default=list(RULES))
     p.add_argument("--budget-noise", choices=BUDGET_NOISE, default="pixel")
     p.add_argument("--budget-subsample", type=float, default=1.0)
+    p.add_argument("--budget-weight", choices=BUDGET_WEIGHTS, default="chaser")
     p.add_argument(
         "--budget-window",
         action="store_true",
@@ -378,6 +379,7 @@ def main(argv=None) -> int:
             budget_noise=args.budget_noise,
             budget_subsample=args.budget_subsample,
             budget_window=args.budget_window,
+            budget_weight=args.budget_weight,
             measured_point_sigma=args.measured_point_sigma,
         )
         r = run_scene(name, args.frames, args.budgets, args.rules, seed=args.seed, extra=extra)

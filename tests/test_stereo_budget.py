@@ -428,3 +428,45 @@ def test_a_budget_over_the_window_tracks_a_short_run(frames):
     for r, fr in zip(res, frames, strict=True):
         assert r.status == Status.OK
         assert np.linalg.norm(r.t - np.asarray(fr.pose.t)) < 0.05
+
+
+def test_relative_weight_sums_the_per_axis_variance_ratios():
+    """``trace(W Q_S)`` of the ``"relative"`` weight against the per-axis variances computed apart:
+    the chaser's position ``-R^T t`` differentiated by finite differences (attitude perturbed as
+    ``exp([d]_x) R``, translation added) and the attitude about the camera's axes."""
+    from scipy.linalg import expm
+
+    rng = np.random.default_rng(5)
+    R = np.asarray(Pose.from_euler(np.radians([25.0, -40.0, 70.0]), np.zeros(3)).R, float)
+    t = np.array([0.2, -0.1, 3.0])
+
+    def chaser(x):
+        d = x[3:]
+        Rd = expm(np.array([[0, -d[2], d[1]], [d[2], 0, -d[0]], [-d[1], d[0], 0]])) @ R
+        return -Rd.T @ (t + x[:3])
+
+    h = 1e-6
+    J = np.stack([(chaser(h * e) - chaser(-h * e)) / (2 * h) for e in np.eye(6)], 1)
+    axes = np.concatenate([J, np.eye(6)[3:]])
+    A = rng.normal(size=(40, 6))
+    A_all = A.T @ A
+    A_sub = A[:12].T @ A[:12]
+    W = B.relative_weight(A_all, R, t)
+    Q_all, Q_sub = np.linalg.inv(A_all), np.linalg.inv(A_sub)
+    want = sum((g @ Q_sub @ g) / (g @ Q_all @ g) for g in axes)
+    np.testing.assert_allclose(B.budget_criterion(A_sub, W), want, rtol=1e-6)
+    np.testing.assert_allclose(B.budget_criterion(A_all, W), 6.0, rtol=1e-9)
+
+
+def test_the_relative_weight_reaches_the_selection(monkeypatch):
+    landmarks, feats, stereo, matches, rig = _matches()
+    seen = []
+    real = B.select_dop
+    monkeypatch.setattr(B, "select_dop", lambda *a, **k: seen.append(a[3]) or real(*a, **k))
+    for weight in ("chaser", "relative"):
+        o = TrackerOptions(feature_budget=12, budget_weight=weight)
+        kp, kl = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
+        assert kp.sum() + kl.sum() == 12
+    assert not np.allclose(seen[0], seen[1])
+    with pytest.raises(ValueError, match="budget_weight"):
+        TrackerOptions(budget_weight="pdop")

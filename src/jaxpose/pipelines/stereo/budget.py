@@ -85,6 +85,7 @@ __all__ = [
     "fit_pose_budgeted",
     "landmark_covariance",
     "point_sigma_eff",
+    "relative_weight",
     "residual_spread",
     "select_budget",
     "select_dop",
@@ -130,18 +131,41 @@ def feature_rows(points_body, points_right, segments_body, segments_right, pose,
     return jnp.where(jnp.isfinite(rows), rows, 0.0)
 
 
+def _chaser_rows(t_cam) -> np.ndarray:
+    """``G = [I, [t]_x]`` (``3 x 6``): the chaser's position error, before ``-R^T``, of a
+    translation error ``dt`` and a tangent attitude error ``d(theta)`` at ``t_cam`` (metres;
+    ``None``: the target origin's position, ``[I, 0]``)."""
+    G = np.zeros((3, 6))
+    G[:, :3] = np.eye(3)
+    if t_cam is not None:
+        x, y, z = np.asarray(t_cam, float)
+        G[:, 3:] = [[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]
+    return G
+
+
 def criterion_weight(arm_m: float, t_cam=None) -> np.ndarray:
     """``W`` (``6 x 6``) of the ``"dop"`` criterion ``trace(W Q)``: the variance of the chaser's
     position in the target frame, ``G Q G^T`` with ``G = [I, [t]_x]`` (``-R^T (dt + [t]_x
     d(theta))`` to first order for a translation error ``dt`` and a tangent attitude error
     ``d(theta)`` at the translation ``t_cam``, metres; ``None``: the target origin's position),
     plus ``arm_m^2`` times the attitude variance (a landmark ``arm_m`` from the centre)."""
-    G = np.zeros((3, 6))
-    G[:, :3] = np.eye(3)
-    if t_cam is not None:
-        x, y, z = np.asarray(t_cam, float)
-        G[:, 3:] = [[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]]
+    G = _chaser_rows(t_cam)
     return G.T @ G + np.diag(np.r_[np.zeros(3), np.full(3, float(arm_m) ** 2)])
+
+
+def relative_weight(information, R_cam, t_cam) -> np.ndarray:
+    """``W`` (``6 x 6``) of the ``"relative"`` criterion: ``trace(W Q) = sum_i (g_i^T Q g_i) /
+    (g_i^T Q_all g_i)`` over the six axes ``g_i`` of the tracker's error metric, the chaser's
+    position in the target frame (rows of ``R^T G``, ``G`` of :func:`criterion_weight` at
+    ``t_cam``) and the attitude about the camera's axes, with ``Q_all`` the inverse of
+    ``information`` (``6 x 6``: every candidate's summed). A subset's criterion is then the sum
+    of its per-axis variance ratios to all candidates (6 for all of them); ``Q_all`` is taken
+    as the pseudo-inverse if singular."""
+    axes = np.concatenate([np.asarray(R_cam, float).T @ _chaser_rows(t_cam), np.eye(6)[3:]])
+    Q_all = np.linalg.pinv(np.asarray(information, float))
+    var = np.einsum("ij,jk,ik->i", axes, Q_all, axes)
+    var = np.where(var > 0, var, np.inf)
+    return np.einsum("i,ij,ik->jk", 1.0 / var, axes, axes)
 
 
 def budget_criterion(information, weight):
@@ -340,7 +364,12 @@ def select_budget(
     pix[B_p : B_p + n_l] = feats.segments[l_cur].mean(axis=1)
     span = np.ptp(pix[valid], axis=0)
     spacing = SPACING * float(np.sqrt(span[0] * span[1] / N))
-    W = criterion_weight(arm, np.asarray(pose_pred.t, float))
+    if o.budget_weight == "relative":
+        r = np.asarray(rows, float)[valid]
+        info = np.einsum("nki,nkj->ij", r, r)
+        W = relative_weight(info, np.asarray(pose_pred.R, float), np.asarray(pose_pred.t, float))
+    else:
+        W = criterion_weight(arm, np.asarray(pose_pred.t, float))
     chosen = select_dop(rows, valid, N, W, pixels=pix, spacing_px=spacing)
     keep_p[chosen[chosen < B_p]] = True
     keep_l[chosen[chosen >= B_p] - B_p] = True

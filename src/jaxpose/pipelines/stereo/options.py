@@ -21,6 +21,9 @@ BUDGET_RULES = ("dop", "random", "response")
 #: Feature noise models of the ``"dop"`` budget rule (:mod:`jaxpose.pipelines.stereo.budget`).
 BUDGET_NOISE = ("pixel", "landmark", "measured", "both")
 
+#: Weights of the ``"dop"`` budget rule's criterion (:mod:`jaxpose.pipelines.stereo.budget`).
+BUDGET_WEIGHTS = ("chaser", "relative")
+
 
 @dataclass(frozen=True)
 class TrackerOptions:
@@ -174,6 +177,12 @@ class TrackerOptions:
             ``"measured"`` (the running RMS of its landmark's post-fit residual) or ``"both"``.
         budget_subsample: the ``"dop"`` rule's greedy runs on this random share of the
             candidates (a new draw each frame; at least ``2 N``).
+        budget_weight: the ``"dop"`` rule's criterion: ``"chaser"``, the variance of the
+            chaser's position plus the lever arm squared times the attitude variance;
+            ``"relative"``, the sum over the six axes of the tracker's error metric (the
+            chaser's position in the target frame, the attitude about the camera's axes) of
+            each axis's variance over its variance with every candidate (so that no axis loses
+            much more of its precision than the others).
         budget_window: with a ``feature_budget``, the frame's observations that the windowed
             adjustment and the landmarks' ray priors take in are the budget's features too
             (off: every matched feature within ``reject_px`` of the budgeted pose, so the budget
@@ -258,6 +267,7 @@ class TrackerOptions:
     budget_noise: str = "pixel"
     budget_subsample: float = 1.0
     budget_window: bool = False
+    budget_weight: str = "chaser"
     measured_point_sigma: bool = False
     landmark_point_sigma: bool = False
 
@@ -272,6 +282,10 @@ class TrackerOptions:
         if self.budget_noise not in BUDGET_NOISE:
             raise ValueError(
                 f"budget_noise must be one of {BUDGET_NOISE}; got {self.budget_noise!r}"
+            )
+        if self.budget_weight not in BUDGET_WEIGHTS:
+            raise ValueError(
+                f"budget_weight must be one of {BUDGET_WEIGHTS}; got {self.budget_weight!r}"
             )
         if not 0.0 < self.budget_subsample <= 1.0:
             raise ValueError(f"budget_subsample must be in (0, 1]; got {self.budget_subsample}")
