@@ -2,20 +2,15 @@
 to a thin bar and not to an edge or a wide band, and on renders of the Tango model it finds the
 antennas where the renderer drew them (the renderer, not the measurement, knows the model)."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from bench_module import load_bench
 
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.vision.models import tango
 from jaxpose.vision.render import random_pose, render
 
-_PATH = Path(__file__).resolve().parents[1] / "bench" / "monocular_antennas.py"
-_spec = importlib.util.spec_from_file_location("monocular_antennas", _PATH)
-bench = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench)
+bench = load_bench("monocular_antennas")
 
 
 def test_thin_bar_map_answers_to_a_bar_not_to_an_edge_or_a_wide_band():

@@ -2,19 +2,14 @@
 finds the outline where the renderer drew it, and reads a model drawn too small (the pose moved
 away from the camera) as image edges outside the model by that much."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
+from bench_module import load_bench
 
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.vision.models import tango
 from jaxpose.vision.render import random_pose, render
 
-_PATH = Path(__file__).resolve().parents[1] / "bench" / "monocular_label_fit.py"
-_spec = importlib.util.spec_from_file_location("monocular_label_fit", _PATH)
-bench = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench)
+bench = load_bench("monocular_label_fit")
 
 
 def test_outline_offset_is_zero_at_the_rendered_pose_and_reads_a_scale_error():

@@ -2,17 +2,12 @@
 they see, at the body point whose projection they are (a closed form: the pinhole projection of
 points drawn on the faces), and pixels off the model get no point."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
+from bench_module import load_bench
 
 from jaxpose.vision.models import tango
 
-_PATH = Path(__file__).resolve().parents[1] / "bench" / "monocular_sift.py"
-_spec = importlib.util.spec_from_file_location("monocular_sift", _PATH)
-bench = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench)
+bench = load_bench("monocular_sift")
 
 K = np.array([[1500.0, 0, 400.0], [0, 1500.0, 300.0], [0, 0, 1]])
 

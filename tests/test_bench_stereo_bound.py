@@ -1,16 +1,11 @@
 """The Cramer-Rao bound of ``bench/stereo_bound.py``: its Jacobians against finite differences,
 and its Schur-complement covariance against the inverse of the whole information matrix."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
+from bench_module import load_bench
 from scipy.spatial.transform import Rotation
 
-_PATH = Path(__file__).resolve().parents[1] / "bench" / "stereo_bound.py"
-_spec = importlib.util.spec_from_file_location("stereo_bound", _PATH)
-bench = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench)
+bench = load_bench("stereo_bound")
 
 FOCAL = (800.0, 790.0)
 OFFSET = np.array([-0.3, 0.0, 0.0])  # the right camera of a 0.3 m rig

@@ -1,19 +1,12 @@
 """The per-frame fit of ``bench/stereo_frame_bias.py``: it recovers a known pose from exact
 pixels of known points (a closed form), and its normal matrix is that of finite differences."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from bench_module import load_bench
 from scipy.spatial.transform import Rotation
 
-_BENCH = Path(__file__).resolve().parents[1] / "bench"
-sys.path.insert(0, str(_BENCH))  # the bench imports its sibling stereo_bound
-_spec = importlib.util.spec_from_file_location("stereo_frame_bias", _BENCH / "stereo_frame_bias.py")
-bench = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench)
+bench = load_bench("stereo_frame_bias")  # it imports its sibling stereo_bound
 
 FOCAL, CENTRE = (800.0, 790.0), (320.0, 240.0)
 T_RL = np.array([-0.3, 0.0, 0.0])

@@ -3,22 +3,17 @@ from straight below, the body hides the part of the panel's underside over its f
 per-face ZNCC against NumPy's correlation coefficients, and a texture read at one pose scoring 1
 there and less at a pose turned away."""
 
-import importlib.util
-from pathlib import Path
-
 import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
+from bench_module import load_bench
 
 from jaxpose.vision.models import tango
 
 jax.config.update("jax_enable_x64", True)
 
-_PATH = Path(__file__).resolve().parents[1] / "bench" / "monocular_texture.py"
-_spec = importlib.util.spec_from_file_location("monocular_texture", _PATH)
-bench = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench)
+bench = load_bench("monocular_texture")
 
 K = jnp.asarray([[1500.0, 0, 400.0], [0, 1500.0, 300.0], [0, 0, 1]])
 
