@@ -75,3 +75,16 @@ def test_a_bad_tracker_option_is_a_usage_error(capsys, option):
         bench.main(["d1-clean-2m", "--option", option])
     err = capsys.readouterr().err
     assert f"--option {option!r}" in err and "TrackerOptions" in err
+
+
+def test_motion_summary_reads_a_displacement_along_the_motion():
+    rng = np.random.default_rng(2)
+    motion = rng.normal(0.0, 4.0, (500, 2))
+    length = np.linalg.norm(motion, axis=1, keepdims=True)
+    residuals = 0.2 * motion + 0.3 * motion / length + rng.normal(0.0, 0.05, (500, 2))
+    got = bench.motion_summary(residuals, motion)
+    assert abs(got["slope_along_motion"] - 0.2) < 0.01
+    assert abs(got["intercept_px"] - 0.3) < 0.02
+    np.testing.assert_allclose(got["mean_residual_uv_px"], residuals.mean(0), atol=1e-3)
+    across = bench.motion_summary(motion[:, ::-1] * [1, -1] * 0.2, motion)  # perpendicular
+    assert abs(across["slope_along_motion"]) < 1e-9 and abs(across["intercept_px"]) < 1e-9
