@@ -24,7 +24,10 @@ the pose solve (:func:`jaxpose.pipelines.stereo.frame_pose.fit_pose`):
   attitude: what a rendezvous needs and the tracker's error metric) plus ``l^2`` times the attitude
   variance, ``l`` the RMS distance of the matched landmarks from their centroid (the displacement
   an attitude error gives a landmark). Without the range term it is ``PDOP^2 + (l ADOP)^2`` (Ning
-  et al.'s PDOP and ADOP). The subset is chosen by forward greedy selection (each step adds the
+  et al.'s PDOP and ADOP). With ``budget_weight="relative"`` the weight is
+  :func:`relative_weight` instead: the criterion is the sum over the six axes of the error metric
+  of each axis's variance over its variance with every candidate. The subset is chosen by forward
+  greedy selection (each step adds the
   feature that lowers the criterion most, scored for every candidate at once by rank-one
   Sherman-Morrison updates of ``Q``, from a small prior ``1e-6`` times the mean block so that the
   first picks are defined) in one compiled call per frame at padded sizes, on a random share
@@ -44,7 +47,9 @@ point matches that follow the frame's motion (an affine map of the predicted ont
 pixels) and, while at least ``2 N`` remain, the landmarks that were inliers on the frame before.
 The pose is solved on the kept features only; the post-fit checks and the map update use every
 matched feature at the fitted pose (a projection, cheap next to the solve), so that a frame is
-judged and the map maintained as without a budget. The core's backward elimination
+judged and the map maintained as without a budget; the windowed adjustment takes in every
+matched point within ``reject_px`` of the budgeted pose and every inlier line, or, with
+``budget_window``, the budget's features only. The core's backward elimination
 (:func:`jaxpose.core.select.greedy`) scores ``n`` removals on each of ``n - N`` steps, ``O(n^3)``
 for the hundreds of matched features of a frame, and its branch and bound and exhaustive search
 minimise the PDOP or the ADOP alone: hence the forward greedy here.
