@@ -50,6 +50,7 @@ from jaxpose.core.metrics import rotation_error, success  # noqa: E402
 from jaxpose.io import load_camera, load_image, load_speed_labels  # noqa: E402
 from jaxpose.pipelines.monocular import InitOptions  # noqa: E402
 from jaxpose.pipelines.monocular.fit import _batched_fit  # noqa: E402
+from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR  # noqa: E402
 from jaxpose.pipelines.monocular.rematch import _rematch_refine  # noqa: E402
 from jaxpose.pipelines.monocular.scene import _edge_scene  # noqa: E402
 from jaxpose.vision.coarse import model_extents  # noqa: E402
@@ -239,7 +240,7 @@ def main():
         det = detect(
             load_image(lab.image),
             camera,
-            model.characteristic_length,
+            model.characteristic_length * ROI_LENGTH_FACTOR,  # the pipeline's, as it calls it
             base.detection,
             extents=model_extents(model),
         )

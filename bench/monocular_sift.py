@@ -85,13 +85,7 @@ def main(argv=None):
         g[:8, :8] = g[8, 8]  # the sample's coloured corner pixels (its README)
         kp, des = sift.detectAndCompute(g, None)
         px = np.array([k.pt for k in kp]).reshape(-1, 2)
-        K = np.array(
-            [
-                [float(ideal.fx), 0, float(ideal.cx)],
-                [0, float(ideal.fy), float(ideal.cy)],
-                [0, 0, 1],
-            ]
-        )
+        K = np.asarray(ideal.K, float)
         R, t = np.asarray(lab.pose.R, float), np.asarray(lab.pose.t, float)
         X = lift(model, R, t, K, px)
         on = np.isfinite(X[:, 0])

@@ -189,13 +189,7 @@ def main(argv=None):
         g[:8, :8] = g[8, 8]  # the sample's coloured corner pixels (its README)
         sigma = max(0.5, 0.6 * a.step * float(ideal.fx) / float(np.linalg.norm(t)))
         img = jnp.asarray(cv2.GaussianBlur(g, (0, 0), sigma), jnp.float64)
-        K = jnp.asarray(
-            [
-                [float(ideal.fx), 0, float(ideal.cx)],
-                [0, float(ideal.fy), float(ideal.cy)],
-                [0, 0, 1],
-            ]
-        )
+        K = jnp.asarray(np.asarray(ideal.K, float))
         z = standardised(*one(jnp.asarray(R), jnp.asarray(t), img, K), fid, nf)
         seen[lab.image.name] = (lab, img, K, z)
     photos = [n for n, (lab, *_) in seen.items() if lab.domain == "lightbox"]

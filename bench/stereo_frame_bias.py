@@ -126,7 +126,7 @@ def frame_bias(name: str, frames: int, seed: int, scene_options=(), option=()) -
     R0, t0 = np.asarray(seq[0].pose.R, float), np.asarray(seq[0].pose.t, float)
     X = raycast(px0[~right0], R0, t0, cam, model)
     truth = {int(i): x for i, x in zip(ids0[~right0], X, strict=True) if np.all(np.isfinite(x))}
-    rows, speed, resid = [], [], []
+    rows, motion, resid = [], [], []
     for log in logs[1:]:
         ids, px, right, _ = log.arrays()
         keep = np.array([int(i) in truth for i in ids], bool)
@@ -136,17 +136,16 @@ def frame_bias(name: str, frames: int, seed: int, scene_options=(), option=()) -
         pix, rt = px[keep], right[keep]
         offsets = np.where(rt[:, None], t_rl, 0.0)
         R, t = np.asarray(seq[log.index].pose.R, float), np.asarray(seq[log.index].pose.t, float)
+        proj = project(R, t, pts, offsets, focal, centre)
         prev = seq[log.index - 1].pose
-        left_pts, zero = pts[~rt], np.zeros((int((~rt).sum()), 3))
-        now = project(R, t, left_pts, zero, focal, centre)
-        move = now - project(np.asarray(prev.R), np.asarray(prev.t), left_pts, zero, focal, centre)
-        resid.append(pix[~rt] - now)
-        speed.append(move)
-        sigma = _mad_std((project(R, t, pts, offsets, focal, centre) - pix).ravel())
+        left = ~rt  # the image motion of the left observations since the frame before
+        before = project(np.asarray(prev.R), np.asarray(prev.t), pts[left], 0.0, focal, centre)
+        resid.append(pix[left] - proj[left])
+        motion.append(proj[left] - before)
+        sigma = _mad_std((proj - pix).ravel())
         Rf, _, normal = frame_fit(pix, pts, offsets, R, t, focal, centre)
         bound = np.degrees(sigma * np.sqrt(np.diag(np.linalg.inv(normal))[:3]))
         err = np.degrees(_rotvec(Rf @ R.T))
-        left = ~rt
         Rl, _, _ = frame_fit(pix[left], pts[left], offsets[left], R, t, focal, centre)
         rows.append(
             {
@@ -168,7 +167,7 @@ def frame_bias(name: str, frames: int, seed: int, scene_options=(), option=()) -
         "frames": rows,
         "median_abs_z": np.round(np.median(z, axis=0), 1).tolist(),
         "share_abs_z_above_3": np.round(np.mean(z > 3, axis=0), 2).tolist(),
-        "motion": motion_summary(np.concatenate(resid), np.concatenate(speed)),
+        "motion": motion_summary(np.concatenate(resid), np.concatenate(motion)),
     }
 
 
@@ -204,7 +203,6 @@ def main(argv=None) -> None:
             with_options(_scene_by_name(name, args.frames, 0), args.scene_option, "--scene-option")
     except CommandError as e:
         ap.error(str(e))
-    options = args.scene_option
     from stereo import tracker_options
 
     try:
@@ -214,9 +212,9 @@ def main(argv=None) -> None:
     runs = []
     for name in args.scenes:
         for seed in args.seeds:
-            r = frame_bias(name, args.frames, seed, options, args.option)
+            r = frame_bias(name, args.frames, seed, args.scene_option, args.option)
             runs.append(r)
-            print(f"{name} seed {seed} {' '.join(options)} {' '.join(args.option)}")
+            print(f"{name} seed {seed} {' '.join(args.scene_option)} {' '.join(args.option)}")
             print("| frame | obs | sigma px | error x, y, z deg | left only | bound | z |")
             print("|---|---|---|---|---|---|---|")
             for f in r["frames"]:
