@@ -246,12 +246,13 @@ def update_map(
     frame: int,
     *,
     log=None,
-) -> None:
+) -> tuple[np.ndarray, np.ndarray]:
     """Keyframe update at ``pose``: the frame's triangulated features matched to a landmark refine
     it (when the new depth agrees with the landmark's to ``refine_disparity_px``); the others are
     added as new landmarks (unless rejected by the frame's fit, ``rejected_*``, or an unmatched
     landmark projects within ``duplicate_px``); then the map is culled. ``assoc_*``: current
-    feature index -> landmark index; ``log``: records the point rays (``observe_point_rays``)."""
+    feature index -> landmark index; ``log``: records the point rays (``observe_point_rays``).
+    Returns the stable ids of the new point landmarks and their left pixels ``(n, 2)``."""
     o = options
     fb = float(rig.left.fx) * float(rig.baseline)
     R, t = rt(pose)
@@ -278,6 +279,7 @@ def update_map(
             d, _ = tree.query(feats.points[ip[new]], distance_upper_bound=o.duplicate_px)
             new[np.nonzero(new)[0][np.isfinite(d)]] = False
     ids = landmarks.add("points", Pb[new], feats.point_desc[ip[new]], pose, frame)
+    added = (landmarks.points.ids[ids], feats.points[ip[new]])
     observe_point_rays(landmarks, rig, ids, feats.points[ip[new]], pose, right=False, log=log)
     observe_point_rays(landmarks, rig, ids, pr[new], pose, right=True, log=log)
     if o.use_lines and len(il):
@@ -296,3 +298,4 @@ def update_map(
         if o.line_planes:
             observe_line_planes(landmarks, rig, ids_l, S[new_l], pose, log=log)
     landmarks.cull()
+    return added

@@ -187,6 +187,19 @@ class TrackerOptions:
             adjustment and the landmarks' ray priors take in are the budget's features too
             (off: every matched feature within ``reject_px`` of the budgeted pose, so the budget
             bounds the frame's own solve only).
+        anchor_points: observe each matched point landmark at the pixel where its patch from
+            the frame that created it, warped by the predicted pose, aligns best near the
+            detected keypoint (:mod:`jaxpose.pipelines.stereo.anchor`; SVO's feature
+            alignment), instead of at the keypoint ORB finds anew, so that every frame observes
+            the same physical point. ``anchor_turn_deg``: a landmark's patch is taken anew
+            (at its aligned pixel) once the view has turned this far from its reference
+            (``None``: never). ``anchor_half_px``: the aligned template is ``2 half + 1``
+            pixels square. ``anchor_cornerness``: the least ratio of the aligned window's
+            gradient eigenvalues (0: any; along an edge the shift is not fixed). Off: on the
+            development scenes (noise seeds 0-2, ``anchor_half_px=3, anchor_cornerness=0.1``)
+            it lowered the error of five scenes of six by 7-28% and raised the 5 m scene's by
+            a third, which then missed its target on one seed (``docs/stereo-evaluation.md``).
+            Its time (about 17 ms of CPU for 1000 landmarks) is in the ``match`` stage.
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
         landmark_point_sigma: weight each point of the all-features solve by its landmark's
@@ -267,6 +280,10 @@ class TrackerOptions:
     budget_noise: str = "pixel"
     budget_subsample: float = 1.0
     budget_window: bool = False
+    anchor_points: bool = False
+    anchor_turn_deg: float | None = 10.0
+    anchor_half_px: int = 5
+    anchor_cornerness: float = 0.0
     budget_weight: str = "chaser"
     measured_point_sigma: bool = False
     landmark_point_sigma: bool = False
@@ -319,6 +336,7 @@ class TrackerOptions:
         if not (isinstance(self.window_anchors, int | np.integer) and self.window_anchors >= 0):
             raise ValueError(f"window_anchors must be an integer >= 0; got {self.window_anchors!r}")
         for name in (
+            "anchor_half_px",
             "window_every",
             "window_points",
             "window_anchor_every",
@@ -338,6 +356,10 @@ class TrackerOptions:
             raise ValueError(
                 f"window_every must be at most window_frames ({self.window_frames}); "
                 f"got {self.window_every}"
+            )
+        if self.anchor_turn_deg is not None and not self.anchor_turn_deg > 0:
+            raise ValueError(
+                f"anchor_turn_deg must be positive or None; got {self.anchor_turn_deg}"
             )
         if not 0.0 <= self.line_scale_memory < 1.0:
             raise ValueError(f"line_scale_memory must be in [0, 1); got {self.line_scale_memory}")

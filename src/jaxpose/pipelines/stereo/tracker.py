@@ -61,6 +61,7 @@ from jaxpose.pipelines.stereo._arrays import (
     warm_up_projection,
 )
 from jaxpose.pipelines.stereo._clock import StageClock
+from jaxpose.pipelines.stereo.anchor import PatchAnchors
 from jaxpose.pipelines.stereo.budget import fit_pose_budgeted
 from jaxpose.pipelines.stereo.guided import match_by_projection
 from jaxpose.pipelines.stereo.keyframes import (
@@ -210,6 +211,12 @@ class StereoTracker:
             if options.window_frames
             else None
         )
+        self._anchors = (
+            PatchAnchors(half=options.anchor_half_px, min_cornerness=options.anchor_cornerness)
+            if options.anchor_points
+            else None
+        )
+        self._image = None  # the frame being tracked (anchor_points)
         self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
         self._since_adjust = 0  # tracked frames since the last adjustment (window_every)
         self._since_global = 0  # tracked frames since the last global adjustment
@@ -429,7 +436,10 @@ class StereoTracker:
             R, t = rt(pose)
             log = self._window.start(R, t, fixed=True, index=k)  # the gauge
         with clock.stage("map"):
-            update_map(self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k, log=log)
+            added = update_map(
+                self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k, log=log
+            )
+            self._capture(left, added, pose)
         if o.mature_obs > 1:  # the first frame's landmarks sit at the given pose: mature
             self.map.points.n_obs[:] = np.maximum(self.map.points.n_obs, o.mature_obs)
         self._started = True
@@ -470,6 +480,7 @@ class StereoTracker:
             )
         k = self.index
         self.index += 1
+        self._image = left  # the patches' source (anchor_points)
         if not self._started:
             return self._first_frame(left, right, feats, clock)
 
@@ -493,6 +504,8 @@ class StereoTracker:
                 keep = np.argsort(-self.map.points.n_obs[i_m], kind="stable")[: o.max_points // 2]
                 i_m, i_cur = i_m[keep], i_cur[keep]
             l_m, l_cur = l_m[: o.max_lines], l_cur[: o.max_lines]
+            if self._anchors is not None and len(i_m):
+                feats = self._align(left, feats, i_m, i_cur, pose_pred)
         stereo = None
         if o.stereo_residuals or o.keyframe_every <= 1:
             stereo = self._stereo(left, right, feats, clock, pose_pred, (i_m, i_cur, l_m, l_cur))
@@ -509,7 +522,7 @@ class StereoTracker:
             if stereo is None:
                 stereo = self._stereo(left, right, feats, clock, pose_pred)
             with clock.stage("map"):
-                update_map(
+                added = update_map(
                     self.map,
                     self.rig,
                     o,
@@ -522,6 +535,7 @@ class StereoTracker:
                     k,
                     log=self._rays,
                 )
+                self._capture(left, added, result.pose)
             self._since_kf = 0
             result.keyframe = True
         if self._rays is not None:
@@ -536,6 +550,26 @@ class StereoTracker:
                 with clock.stage("map"):
                     self._adjust_window(result, spanning=spanning)
         return result
+
+    def _capture(self, left, added, pose: Pose) -> None:
+        """Keep the reference patches of the new point landmarks (``anchor_points``)."""
+        if self._anchors is None:
+            return
+        R, t = rt(pose)
+        self._anchors.capture(left, added[0], added[1], R, t)
+        if len(self._anchors) > 2 * max(len(self.map.points), 1000):
+            self._anchors.keep(self.map.points.ids)
+
+    def _align(self, left, feats, i_m, i_cur, pose: Pose):
+        """The features with the matched keypoints moved to their landmarks' aligned patches."""
+        R, t = rt(pose)
+        m = self.map.points
+        px, _ = self._anchors.align(
+            left, self.rig.left, m.ids[i_m], m.X[i_m], feats.points[i_cur], R, t
+        )
+        points = feats.points.copy()
+        points[i_cur] = px
+        return replace(feats, points=points)
 
     def _window_every(self, depth: float) -> int:
         """Frames between two adjustments: ``window_depth_m / depth`` (rounded down) within
@@ -616,6 +650,19 @@ class StereoTracker:
                     R, t = rt(pose)
                     self._rays = self._window.start(R, t, index=k)
                 self.map.record("points", cand, i_m[in_p], k)
+                if self._anchors is not None and o.anchor_turn_deg:
+                    R, t = rt(pose)
+                    m = self.map.points
+                    j = i_m[in_p]
+                    self._anchors.reanchor(
+                        self._image,
+                        m.ids[j],
+                        feats.points[i_cur[in_p]],
+                        m.X[j],
+                        R,
+                        t,
+                        o.anchor_turn_deg,
+                    )
                 if o.frame_rays:
                     kept = fit.kept_points  # left in the last pass: residual below reject_px
                     observe_point_rays(
