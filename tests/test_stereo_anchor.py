@@ -191,3 +191,20 @@ def test_an_edge_is_not_aligned_when_corners_are_asked_for():
         loose = PatchAnchors(background=None)
         loose.capture(image, [3], np.array([[52.0, 60.0]]), np.eye(3), np.zeros(3))
         assert loose.match(image, np.array([3]), np.eye(2)[None], np.array([[52.4, 60.3]]))[1][0]
+
+
+def test_reanchoring_keeps_the_old_patch_where_the_new_one_reaches_the_sky():
+    yy, xx = np.mgrid[0:120, 0:120].astype(float)
+    lit = np.clip(texture(xx, yy), 20, 255).astype(np.float32)
+    anchors = PatchAnchors()
+    anchors.capture(lit, [4], np.array([[60.0, 60.0]]), np.eye(3), np.array([0.0, 0.0, 2.0]))
+    before = anchors.patches.copy()
+    sky = lit.copy()
+    sky[:, 62:] = 0.0  # the target's outline moved next to the landmark
+    a = np.radians(20.0)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    turned = anchors.reanchor(
+        sky, [4], np.array([[60.0, 60.0]]), np.zeros((1, 3)), R, np.array([0, 0, 2.0]), 10.0
+    )
+    assert turned == 0
+    np.testing.assert_array_equal(anchors.patches, before)

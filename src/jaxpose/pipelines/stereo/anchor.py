@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from jaxpose.core.camera import PinholeCamera
+from jaxpose.vision.stereo_match import parabolic_offset
 
 __all__ = ["PatchAnchors", "affine_to_reference"]
 
@@ -100,6 +101,7 @@ class PatchAnchors:
             the body); ``None``: keep every patch.
         min_cornerness: the smaller over the larger eigenvalue of the aligned window's gradient
             moments must reach this (0: any; along an edge the shift is not fixed).
+        lk_iterations: Gauss-Newton steps of the alignment (the last below 0.1 px to count).
     """
 
     def __init__(
@@ -111,10 +113,11 @@ class PatchAnchors:
         max_scale: float = 1.6,
         background: float | None = 10.0,
         min_cornerness: float = 0.0,
+        lk_iterations: int = 4,
     ):
         self.half, self.search = int(half), int(search_px)
         self.min_zncc, self.max_scale = float(min_zncc), float(max_scale)
-        self.lk_iterations = 4
+        self.lk_iterations = int(lk_iterations)
         self.background = background
         self.min_cornerness = min_cornerness
         self.margin = int(np.ceil(self.half * self.max_scale * np.sqrt(2))) + 2
@@ -128,24 +131,33 @@ class PatchAnchors:
     def __len__(self) -> int:
         return len(self.ids)
 
-    def capture(self, image: np.ndarray, ids, uv, R: np.ndarray, t: np.ndarray) -> None:
-        """Store the patches around ``uv (n, 2)`` of the landmarks ``ids`` (new, increasing)
-        created in ``image`` at the pose ``R, t``; landmarks too near the border get none."""
-        ids, uv = np.asarray(ids, np.int64), np.asarray(uv, float).reshape(-1, 2)
+    def _cut(self, image: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The patches around ``uv (n, 2)`` that can be kept (inside the image, not over the
+        sky) and which those are ``(n,)``."""
         h, w = image.shape[:2]
         m = self.margin
         c = np.round(uv).astype(int)
         ok = (c[:, 0] >= m) & (c[:, 0] < w - m) & (c[:, 1] >= m) & (c[:, 1] < h - m)
-        ids, uv, c = ids[ok], uv[ok], c[ok]
-        if not len(ids):
-            return
+        c = c[ok]
         r = np.arange(-m, m + 1)
         patches = image[c[:, 1, None, None] + r[None, :, None], c[:, 0, None, None] + r[None, None]]
-        if self.background is not None:  # a patch over the outline does not move with the body
+        if self.background is not None and len(c):  # the sky does not move with the body
             q = self.half + self.search + 1
             core = patches[:, m - q : m + q + 1, m - q : m + q + 1]
             fg = core.reshape(len(core), -1).min(axis=1) > self.background
-            ids, uv, patches = ids[fg], uv[fg], patches[fg]
+            patches = patches[fg]
+            ok[np.nonzero(ok)[0][~fg]] = False
+        return patches, ok
+
+    def capture(self, image: np.ndarray, ids, uv, R: np.ndarray, t: np.ndarray) -> None:
+        """Store the patches around ``uv (n, 2)`` of the landmarks ``ids`` (new, increasing)
+        created in ``image`` at the pose ``R, t``; landmarks too near the border or over the
+        sky get none."""
+        ids, uv = np.asarray(ids, np.int64), np.asarray(uv, float).reshape(-1, 2)
+        patches, ok = self._cut(image, uv)
+        ids, uv = ids[ok], uv[ok]
+        if not len(ids):
+            return
         if not len(self.ids):  # 8-bit images keep 8-bit patches (a quarter of the memory)
             self.patches = self.patches.astype(np.uint8 if image.dtype == np.uint8 else np.float32)
         self.ids = np.concatenate([self.ids, ids])
@@ -174,15 +186,10 @@ class PatchAnchors:
         turn = cos < np.cos(np.radians(min_deg))
         if not turn.any():
             return 0
-        h, w = image.shape[:2]
-        m = self.margin
         sel = np.nonzero(has)[0][turn]
-        c = np.round(uv[sel]).astype(int)
-        ok = (c[:, 0] >= m) & (c[:, 0] < w - m) & (c[:, 1] >= m) & (c[:, 1] < h - m)
-        sel, c, p = sel[ok], c[ok], p[turn][ok]
-        r = np.arange(-m, m + 1)
-        patch = image[c[:, 1, None, None] + r[None, :, None], c[:, 0, None, None] + r[None, None]]
-        self.patches[p] = patch
+        patches, ok = self._cut(image, uv[sel])
+        sel, p = sel[ok], p[turn][ok]
+        self.patches[p] = patches
         self.uv[p] = uv[sel]
         self.R[p], self.t[p] = R, t
         return len(p)
@@ -208,8 +215,9 @@ class PatchAnchors:
         ``pixels (n, 2)`` in ``image``, the current frame at the pose ``R_cur, t_cur``.
 
         Returns ``(pixels (n, 2), aligned (n,) bool)``: the aligned pixel where the alignment
-        holds (a patch, a warp within ``max_scale``, a peak inside the search of ZNCC at least
-        ``min_zncc``), the detected pixel elsewhere."""
+        holds (a patch, a warp within ``max_scale``, Lucas-Kanade converged within
+        ``search_px + 1.5`` px of the detection, ZNCC at least ``min_zncc``, cornerness at least
+        ``min_cornerness``), the detected pixel elsewhere."""
         pixels = np.asarray(pixels, float).reshape(-1, 2)
         ids = np.asarray(ids, np.int64)
         A = np.full((len(ids), 2, 2), np.nan)
@@ -298,13 +306,9 @@ def _integer_search(image, T, half: int, search: int, cc: np.ndarray) -> np.ndar
     i = np.arange(len(cc))
     bxc, byc = np.clip(bx, 1, n_s - 2), np.clip(by, 1, n_s - 2)
 
-    def peak(lo, mid, hi):
-        den = lo - 2 * mid + hi
-        return np.where(den < 0, 0.5 * (lo - hi) / np.where(den < 0, den, -1.0), 0.0)
-
-    ox = peak(grid[i, byc, bxc - 1], grid[i, byc, bxc], grid[i, byc, bxc + 1])
-    oy = peak(grid[i, byc - 1, bxc], grid[i, byc, bxc], grid[i, byc + 1, bxc])
-    return cc + sh[best] + np.clip(np.stack([ox, oy], axis=1), -0.5, 0.5)
+    ox = parabolic_offset(grid[i, byc, bxc - 1], grid[i, byc, bxc], grid[i, byc, bxc + 1])
+    oy = parabolic_offset(grid[i, byc - 1, bxc], grid[i, byc, bxc], grid[i, byc + 1, bxc])
+    return cc + sh[best] + np.stack([ox, oy], axis=1)
 
 
 def _lucas_kanade(image, T, half: int, centre, iterations: int):
