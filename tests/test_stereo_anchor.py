@@ -165,6 +165,8 @@ def test_no_patch_over_the_dark_background():
         (dict(anchor_half_px=0), "anchor_half_px"),
         (dict(anchor_turn_deg=0.0), "anchor_turn_deg"),
         (dict(anchor_turn_deg=-5.0), "anchor_turn_deg"),
+        (dict(anchor_cornerness=1.5), "anchor_cornerness"),
+        (dict(anchor_cornerness=-0.1), "anchor_cornerness"),
     ],
 )
 def test_bad_anchor_options_are_refused_by_name(bad, name):

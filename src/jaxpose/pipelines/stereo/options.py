@@ -196,9 +196,9 @@ class TrackerOptions:
             (``None``: never). ``anchor_half_px``: the aligned template is ``2 half + 1``
             pixels square. ``anchor_cornerness``: the least ratio of the aligned window's
             gradient eigenvalues (0: any; along an edge the shift is not fixed). Off: on the
-            development scenes (noise seeds 0-2, ``anchor_half_px=3, anchor_cornerness=0.1``)
-            it lowered the error of five scenes of six by 7-28% and raised the 5 m scene's by
-            a third, which then missed its target on one seed (``docs/stereo-evaluation.md``).
+            development scenes (noise seeds 0-2, these defaults) it lowered the error of five
+            scenes of six by 7-28% and raised the 5 m scene's by a third, which then missed its
+            target on one seed (``docs/stereo-evaluation.md``).
             Its time (about 17 ms of CPU for 1000 landmarks) is in the ``match`` stage.
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
@@ -280,11 +280,11 @@ class TrackerOptions:
     budget_noise: str = "pixel"
     budget_subsample: float = 1.0
     budget_window: bool = False
+    budget_weight: str = "chaser"
     anchor_points: bool = False
     anchor_turn_deg: float | None = 10.0
-    anchor_half_px: int = 5
-    anchor_cornerness: float = 0.0
-    budget_weight: str = "chaser"
+    anchor_half_px: int = 3
+    anchor_cornerness: float = 0.1
     measured_point_sigma: bool = False
     landmark_point_sigma: bool = False
 
@@ -357,6 +357,8 @@ class TrackerOptions:
                 f"window_every must be at most window_frames ({self.window_frames}); "
                 f"got {self.window_every}"
             )
+        if not 0.0 <= self.anchor_cornerness <= 1.0:
+            raise ValueError(f"anchor_cornerness must be in [0, 1]; got {self.anchor_cornerness}")
         if self.anchor_turn_deg is not None and not self.anchor_turn_deg > 0:
             raise ValueError(
                 f"anchor_turn_deg must be positive or None; got {self.anchor_turn_deg}"
