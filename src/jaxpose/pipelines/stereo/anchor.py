@@ -276,7 +276,7 @@ class PatchAnchors:
         )  # (n, k*k)
         cc = c[sel]
         if self.search:  # the integer shift of best ZNCC around the detected keypoint first
-            start = _integer_search(image, T, self.half, self.search, cc)
+            start = _integer_search(image, T, d, self.search, cc)
         else:
             start = pixels[sel]
         new, conv, zncc, corner = _lucas_kanade(image, T, self.half, start, self.lk_iterations)
@@ -287,16 +287,16 @@ class PatchAnchors:
         return out, aligned
 
 
-def _integer_search(image, T, half: int, search: int, cc: np.ndarray) -> np.ndarray:
-    """The integer shift within ``search`` of ``cc (n, 2)`` where the templates ``T`` correlate
-    best (ZNCC), moved to the sub-pixel peak of a parabola per axis (at most half a pixel)."""
-    g = np.arange(-half, half + 1)
-    dx, dy = np.meshgrid(g, g)
+def _integer_search(image, T, d: np.ndarray, search: int, cc: np.ndarray) -> np.ndarray:
+    """The integer shift within ``search`` of ``cc (n, 2)`` where the templates ``T`` (sampled
+    at the integer offsets ``d (2, k)``) correlate best (ZNCC), moved to the sub-pixel peak of a
+    parabola per axis (at most half a pixel)."""
+    dx, dy = d.astype(int)
     s = np.arange(-search, search + 1)
     sx, sy = np.meshgrid(s, s)
     sh = np.stack([sx.ravel(), sy.ravel()], axis=1)  # (S, 2)
-    cols = cc[:, None, None, 0] + sh[None, :, None, 0] + dx.ravel()[None, None]
-    rows = cc[:, None, None, 1] + sh[None, :, None, 1] + dy.ravel()[None, None]
+    cols = cc[:, None, None, 0] + sh[None, :, None, 0] + dx[None, None]
+    rows = cc[:, None, None, 1] + sh[None, :, None, 1] + dy[None, None]
     C = _standardise(image[rows, cols].astype(np.float32))  # (n, S, k*k)
     score = (C @ T[..., None])[..., 0]
     best = np.argmax(score, axis=1)

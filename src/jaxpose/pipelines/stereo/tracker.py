@@ -216,7 +216,6 @@ class StereoTracker:
             if options.anchor_points
             else None
         )
-        self._image = None  # the frame being tracked (anchor_points)
         self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
         self._since_adjust = 0  # tracked frames since the last adjustment (window_every)
         self._since_global = 0  # tracked frames since the last global adjustment
@@ -480,7 +479,6 @@ class StereoTracker:
             )
         k = self.index
         self.index += 1
-        self._image = left  # the patches' source (anchor_points)
         if not self._started:
             return self._first_frame(left, right, feats, clock)
 
@@ -512,7 +510,7 @@ class StereoTracker:
 
         with clock.stage("pose"):
             result, update = self._fit_frame(
-                k, feats, stereo, pose_pred, (i_m, i_cur, cand, l_m, l_cur, lcand), clock
+                k, left, feats, stereo, pose_pred, (i_m, i_cur, cand, l_m, l_cur, lcand), clock
             )
         for seconds in (clock.wall, clock.cpu):  # the budget's selection is its own stage
             seconds["pose"] -= seconds["budget"]
@@ -560,6 +558,17 @@ class StereoTracker:
         if len(self._anchors) > 2 * max(len(self.map.points), 1000):
             self._anchors.keep(self.map.points.ids)
 
+    def _reanchor(self, left, feats, i_cur, j, pose: Pose) -> None:
+        """Take anew, at their (aligned) pixels ``feats.points[i_cur]``, the patches of the
+        landmarks ``j`` whose view has turned ``anchor_turn_deg`` from their reference
+        (``anchor_points``)."""
+        o = self.options
+        if self._anchors is None or not o.anchor_turn_deg:
+            return
+        R, t = rt(pose)
+        m = self.map.points
+        self._anchors.reanchor(left, m.ids[j], feats.points[i_cur], m.X[j], R, t, o.anchor_turn_deg)
+
     def _align(self, left, feats, i_m, i_cur, pose: Pose):
         """The features with the matched keypoints moved to their landmarks' aligned patches."""
         R, t = rt(pose)
@@ -597,9 +606,10 @@ class StereoTracker:
         result.pose = pose
         self._last_depth = float(last.t[2])
 
-    def _fit_frame(self, k, feats, stereo, pose_pred, matches, clock: StageClock):
-        """The pose of frame ``k`` from its matches, the tracker's state moved on when it is good;
-        returns the frame's result and the map update (matched feature to landmark, or ``None``)."""
+    def _fit_frame(self, k, left, feats, stereo, pose_pred, matches, clock: StageClock):
+        """The pose of frame ``k`` (left image ``left``) from its matches, the tracker's state
+        moved on when it is good; returns the frame's result and the map update (matched feature
+        to landmark, or ``None``)."""
         o = self.options
         i_m, i_cur, cand, l_m, l_cur, lcand = matches
         n_p, n_l = len(i_m), len(l_m)
@@ -650,19 +660,7 @@ class StereoTracker:
                     R, t = rt(pose)
                     self._rays = self._window.start(R, t, index=k)
                 self.map.record("points", cand, i_m[in_p], k)
-                if self._anchors is not None and o.anchor_turn_deg:
-                    R, t = rt(pose)
-                    m = self.map.points
-                    j = i_m[in_p]
-                    self._anchors.reanchor(
-                        self._image,
-                        m.ids[j],
-                        feats.points[i_cur[in_p]],
-                        m.X[j],
-                        R,
-                        t,
-                        o.anchor_turn_deg,
-                    )
+                self._reanchor(left, feats, i_cur[in_p], i_m[in_p], pose)
                 if o.frame_rays:
                     kept = fit.kept_points  # left in the last pass: residual below reject_px
                     observe_point_rays(
