@@ -154,6 +154,36 @@ def test_window_every_and_points_options():
     assert ks == [3, 3, 2, 2, 1, 1]
 
 
+def test_a_budget_over_the_window_adjusts_every_frame():
+    """``budget_window`` (on by default) with a ``feature_budget``: the window is the budgeted
+    pose's estimator and runs on every tracked frame, whatever ``window_every`` and the depth
+    rule; off, or without a budget, the cadence is ``window_every``."""
+    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
+    from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
+
+    assert TrackerOptions().budget_window
+    rig = default_rig()
+    frames = list(render_sequence(StereoScene(frames=4), rig))
+    calls = {}
+    cases = {
+        "budget, window": dict(feature_budget=20),
+        "budget, no window": dict(feature_budget=20, budget_window=False),
+        "no budget": dict(),
+    }
+    for name, extra in cases.items():
+        options = TrackerOptions(window_every=3, window_depth_m=None, **extra)
+        tracker = StereoTracker(rig, frames[0].pose, options=options)
+        tracker._window.adjust = lambda m, n=name, **_: calls.__setitem__(n, calls.get(n, 0) + 1)
+        for fr in frames:
+            tracker.process(fr.left, fr.right)
+    # 3 tracked frames after the first (map start): every one, or the third
+    assert calls == {"budget, window": 3, "budget, no window": 1, "no budget": 1}
+    # the depth rule gives way to the budget's window at every depth
+    o = TrackerOptions(feature_budget=20, window_every=3, window_depth_m=6.0)
+    tracker = StereoTracker(rig, None, options=o)
+    assert [tracker._window_every(z) for z in (1.0, 2.5, 5.0)] == [1, 1, 1]
+
+
 def test_motion_prior_weights_only_frames_between_their_neighbours():
     """``window_motion_sigma``: the constant-twist prior is weighted at a window frame only when
     the frames before and after it are its neighbours in the sequence (no frame lost between),

@@ -47,12 +47,12 @@ point matches that follow the frame's motion (an affine map of the predicted ont
 pixels) and, while at least ``2 N`` remain, the landmarks that were inliers on the frame before.
 The pose is solved on the kept features only; the post-fit checks and the map update use every
 matched feature at the fitted pose (a projection, cheap next to the solve), so that a frame is
-judged and the map maintained as without a budget; the windowed adjustment takes in every
-matched point within ``reject_px`` of the budgeted pose and every inlier line, or, with
-``budget_window``, the budget's features only. The core's backward elimination
-(:func:`jaxpose.core.select.greedy`) scores ``n`` removals on each of ``n - N`` steps, ``O(n^3)``
-for the hundreds of matched features of a frame, and its branch and bound and exhaustive search
-minimise the PDOP or the ADOP alone: hence the forward greedy here.
+judged and the map maintained as without a budget. The windowed adjustment takes in the
+budget's features only and runs every frame (``budget_window``, the default), or, without it,
+every matched point within ``reject_px`` of the budgeted pose and every inlier line. The core's
+backward elimination (:func:`jaxpose.core.select.greedy`) scores ``n`` removals on each of
+``n - N`` steps, ``O(n^3)`` for the hundreds of matched features of a frame, and its branch and
+bound and exhaustive search minimise the PDOP or the ADOP alone: hence the forward greedy here.
 """
 
 from __future__ import annotations

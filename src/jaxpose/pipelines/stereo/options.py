@@ -183,10 +183,15 @@ class TrackerOptions:
             chaser's position in the target frame, the attitude about the camera's axes) of
             each axis's variance over its variance with every candidate (so that no axis loses
             much more of its precision than the others).
-        budget_window: with a ``feature_budget``, the frame's observations that the windowed
-            adjustment and the landmarks' ray priors take in are the budget's features too
-            (off: every matched feature within ``reject_px`` of the budgeted pose, so the budget
-            bounds the frame's own solve only).
+        budget_window: with a ``feature_budget``, the windowed adjustment is the budgeted
+            pose's estimator: the frame's observations that it and the landmarks' ray priors
+            take in are the budget's features, and it runs on every tracked frame (whatever
+            ``window_every`` and ``window_depth_m``), so each reported pose is fitted to the
+            last ``window_frames`` frames' ``N`` features each. Off: every matched feature
+            within ``reject_px`` of the budgeted pose, at the depth's cadence, so the budget
+            bounds the frame's own solve only (and at depths where the window runs every frame,
+            not the reported pose). On: measured on the development scenes
+            (``docs/stereo-evaluation.md``, *The window's cadence under a budget*).
         anchor_points: observe each matched point landmark at the pixel where its patch from
             the frame that created it, warped by the predicted pose, aligns best near the
             detected keypoint (:mod:`jaxpose.pipelines.stereo.anchor`; SVO's feature
@@ -279,7 +284,7 @@ class TrackerOptions:
     budget_rule: str = "dop"
     budget_noise: str = "pixel"
     budget_subsample: float = 1.0
-    budget_window: bool = False
+    budget_window: bool = True
     budget_weight: str = "chaser"
     anchor_points: bool = False
     anchor_turn_deg: float | None = 10.0

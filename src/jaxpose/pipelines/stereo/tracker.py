@@ -584,8 +584,12 @@ class StereoTracker:
         """Frames between two adjustments: ``window_depth_m / depth`` (rounded down) within
         ``[1, window_every]``, or ``window_every`` without ``window_depth_m``. Near the target
         the single-frame poses are already good (many features, wide apparent size) and the
-        adjustment is at its most expensive (the most landmarks)."""
+        adjustment is at its most expensive (the most landmarks). With a feature budget over
+        the window (``budget_window``) every frame: the window is then the budgeted pose's
+        estimator, and a small one (the budget's features)."""
         o = self.options
+        if o.feature_budget is not None and o.budget_window:
+            return 1  # the window is the budgeted pose's estimator (budget_window)
         if o.window_depth_m is None or not depth > 0:
             return o.window_every
         return int(min(o.window_every, max(1, np.floor(o.window_depth_m / depth))))
