@@ -375,6 +375,13 @@ def main(argv=None) -> int:
         "depth's cadence)",
     )
     p.add_argument(
+        "--budget-repeat-discount",
+        type=float,
+        default=2.0,
+        help="the dop rule's discount of landmarks it chose in the window's earlier frames "
+        "(TrackerOptions.budget_repeat_discount; 0: independent frames)",
+    )
+    p.add_argument(
         "--measured-point-sigma",
         action="store_true",
         help="weight the all-features solve by the landmarks' measured residual RMS",
@@ -396,6 +403,7 @@ def main(argv=None) -> int:
             budget_noise=args.budget_noise,
             budget_subsample=args.budget_subsample,
             budget_window=args.budget_window,
+            budget_repeat_discount=args.budget_repeat_discount,
             budget_weight=args.budget_weight,
             measured_point_sigma=args.measured_point_sigma,
         )

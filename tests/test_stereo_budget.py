@@ -118,6 +118,9 @@ def test_fewer_candidates_than_the_budget_keeps_all():
         (dict(feature_budget=30, budget_rule=None), "budget_rule"),
         (dict(budget_noise="blur"), "budget_noise"),
         (dict(budget_subsample=0.0), "budget_subsample"),
+        (dict(budget_repeat_discount=float("nan")), "budget_repeat_discount"),
+        (dict(budget_repeat_discount="2"), "budget_repeat_discount"),
+        (dict(budget_repeat_discount=True), "budget_repeat_discount"),
         (dict(measured_point_sigma=True, landmark_point_sigma=True), "landmark_point_sigma"),
     ],
 )
@@ -144,7 +147,7 @@ def _matches(n_p=40, n_l=6, seed=3):
     last_seen[-8:] = 1  # not inliers on the frame before: left out while 2 N others remain
     M = np.zeros((n_p, 3, 3))  # no rays yet: one stereo triangulation's covariance
     points = SimpleNamespace(X=X, n_obs=n_obs, last_seen=last_seen, ids=np.arange(n_p), M=M)
-    landmarks = _Map(points=points, lines=SimpleNamespace(X=L))  # keyed weakly by the module
+    landmarks = _Map(points=points, lines=SimpleNamespace(X=L, ids=np.arange(n_l)))  # weak key
     seg = rng.uniform(0, 400, (n_l, 2, 2))
     pixels = np.asarray(CAM.project(POSE.apply(X))) + rng.normal(0, 0.3, (n_p, 2)) + [4.0, -2.0]
     pixels[[10, 11]] += [[15.0, 0.0], [0.0, -12.0]]  # two wrong matches
@@ -167,8 +170,11 @@ def test_select_budget_rules(rule):
     assert not kp[[10, 11]].any()  # wrong matches (off the frame's motion) are left out
     assert not kp[-8:].any()  # not inliers on the frame before
     allowed = np.r_[np.arange(5, 10), np.arange(12, 32)]
-    again = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
-    np.testing.assert_array_equal(np.r_[kp, kl], np.r_[again])  # deterministic
+    # deterministic (on a fresh map: the dop rule remembers its choices on a map's window,
+    # budget_repeat_discount)
+    fresh = _matches()
+    again = B.select_budget(*fresh[:4], POSE, fresh[4], o, 1.0, frame=4)
+    np.testing.assert_array_equal(np.r_[kp, kl], np.r_[again])
     if rule == "response":
         # points and lines in proportion (25 allowed points : 6), the strongest of each kind
         assert (kp.sum(), kl.sum()) == (10, 2)
@@ -470,3 +476,49 @@ def test_the_relative_weight_reaches_the_selection(monkeypatch):
     assert not np.allclose(seen[0], seen[1])
     with pytest.raises(ValueError, match="budget_weight"):
         TrackerOptions(budget_weight="pdop")
+
+
+def test_selection_history_counts_the_last_frames():
+    """:class:`~jaxpose.pipelines.stereo.repeats.SelectionHistory`: the counts over the last
+    ``frames`` selections against a count written out, and the rows' factor
+    ``(1 + k) ** (-power / 2)``."""
+    from jaxpose.pipelines.stereo.repeats import SelectionHistory
+
+    rng = np.random.default_rng(11)
+    h = SelectionHistory(3)
+    pushed = []
+    for _ in range(6):
+        p, q = rng.choice(20, 6, replace=False), rng.choice(5, 2, replace=False)
+        h.push(p, q)
+        pushed.append((p, q))
+    ids_p, ids_l = np.arange(25), np.arange(6)
+    kp, kl = h.counts(ids_p, ids_l)
+    want_p = [sum(int(i in p) for p, _ in pushed[-3:]) for i in ids_p]
+    want_l = [sum(int(i in q) for _, q in pushed[-3:]) for i in ids_l]
+    np.testing.assert_array_equal(kp, want_p)
+    np.testing.assert_array_equal(kl, want_l)
+    fp, fl = h.scale(ids_p, ids_l, 2.0)
+    np.testing.assert_allclose(fp, 1.0 / (1.0 + np.array(want_p)))
+    np.testing.assert_allclose(fl, 1.0 / (1.0 + np.array(want_l)))
+    assert not SelectionHistory(0).counts(ids_p, ids_l)[0].any()
+    with pytest.raises(ValueError, match="frames"):
+        SelectionHistory(-1)
+    with pytest.raises(ValueError, match="budget_repeat_discount"):
+        TrackerOptions(budget_repeat_discount=-0.5)
+
+
+@pytest.mark.parametrize("discount", [0.0, 1.0])
+def test_the_dop_rule_spreads_its_choice_over_the_window(discount):
+    """``budget_repeat_discount``: the same frame selected twice gives the same features without
+    the discount (the rule sees independent frames), and fewer repeated landmarks with it (those
+    chosen the first time count with half their information the second)."""
+    landmarks, feats, stereo, matches, rig = _matches(n_p=60, seed=8)
+    o = TrackerOptions(feature_budget=12, budget_rule="dop", budget_repeat_discount=discount)
+    first = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
+    second = B.select_budget(landmarks, feats, stereo, matches, POSE, rig, o, 1.0, frame=4)
+    assert first[0].sum() + first[1].sum() == second[0].sum() + second[1].sum() == 12
+    same = (first[0] & second[0]).sum() + (first[1] & second[1]).sum()
+    if discount == 0:
+        assert same == 12
+    else:
+        assert same < 10

@@ -37,7 +37,10 @@ the pose solve (:func:`jaxpose.pipelines.stereo.frame_pose.fit_pose`):
   every subset is scored and the optimum kept. The greedy keeps its picks ``SPACING sqrt(area /
   N)`` pixels apart while it can (``area`` the box the candidates span): ORB finds one corner at
   several scales, and such near-twins share their landmark's error, which the DOP counts as
-  independent.
+  independent. For the same reason across frames, with the budget over the window a landmark
+  the rule chose in ``k`` of its last ``window_frames - 1`` selections counts with its
+  information divided by ``(1 + k) ** budget_repeat_discount``
+  (:mod:`jaxpose.pipelines.stereo.repeats`).
 * ``"random"``: ``N`` of the matched features at random (seeded by the frame number).
 * ``"response"``: the strongest detector responses: ORB (Harris) response of the points, pixel
   length of the segments, the two kinds in proportion to their matched counts.
@@ -79,6 +82,7 @@ from jaxpose.pipelines.stereo.frame_pose import (
     postfit_summary,
 )
 from jaxpose.pipelines.stereo.options import TrackerOptions
+from jaxpose.pipelines.stereo.repeats import selection_history
 
 __all__ = [
     "EXACT_SUBSETS",
@@ -369,6 +373,15 @@ def select_budget(
     pix[B_p : B_p + n_l] = feats.segments[l_cur].mean(axis=1)
     span = np.ptp(pix[valid], axis=0)
     spacing = SPACING * float(np.sqrt(span[0] * span[1] / N))
+    history = None
+    if o.budget_repeat_discount > 0 and o.budget_window and o.window_frames > 1:
+        # landmarks chosen in the window's earlier frames share their position error there
+        history = selection_history(landmarks, o.window_frames - 1)
+        ids_p, ids_l = landmarks.points.ids[i_m], landmarks.lines.ids[l_m]
+        f_p, f_l = history.scale(ids_p, ids_l, o.budget_repeat_discount)
+        f = np.ones(len(valid))
+        f[:n_p], f[B_p : B_p + n_l] = f_p, f_l
+        rows = np.asarray(rows, float) * f[:, None, None]
     if o.budget_weight == "relative":
         r = np.asarray(rows, float)[valid]
         info = np.einsum("nki,nkj->ij", r, r)
@@ -378,6 +391,8 @@ def select_budget(
     chosen = select_dop(rows, valid, N, W, pixels=pix, spacing_px=spacing)
     keep_p[chosen[chosen < B_p]] = True
     keep_l[chosen[chosen >= B_p] - B_p] = True
+    if history is not None:
+        history.push(ids_p[keep_p], ids_l[keep_l])
     return keep_p, keep_l
 
 

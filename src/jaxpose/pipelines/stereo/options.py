@@ -183,6 +183,12 @@ class TrackerOptions:
             chaser's position in the target frame, the attitude about the camera's axes) of
             each axis's variance over its variance with every candidate (so that no axis loses
             much more of its precision than the others).
+        budget_repeat_discount: with ``budget_window``, the ``"dop"`` rule counts a landmark it
+            chose in ``k`` of its last ``window_frames - 1`` selections with its information
+            divided by ``(1 + k) ** budget_repeat_discount``: the observations of one landmark
+            across the window share its position error
+            (:mod:`jaxpose.pipelines.stereo.repeats`). 0: every frame's features taken as
+            independent.
         budget_window: with a ``feature_budget``, the windowed adjustment is the budgeted
             pose's estimator: the frame's observations that it and the landmarks' ray priors
             take in are the budget's features, and it runs on every tracked frame (whatever
@@ -286,6 +292,7 @@ class TrackerOptions:
     budget_subsample: float = 1.0
     budget_window: bool = True
     budget_weight: str = "chaser"
+    budget_repeat_discount: float = 2.0
     anchor_points: bool = False
     anchor_turn_deg: float | None = 10.0
     anchor_half_px: int = 3
@@ -308,6 +315,13 @@ class TrackerOptions:
         if self.budget_weight not in BUDGET_WEIGHTS:
             raise ValueError(
                 f"budget_weight must be one of {BUDGET_WEIGHTS}; got {self.budget_weight!r}"
+            )
+        d = self.budget_repeat_discount
+        if isinstance(d, bool) or not isinstance(d, int | float | np.integer | np.floating):
+            raise ValueError(f"budget_repeat_discount must be a number >= 0; got {d!r}")
+        if not (np.isfinite(d) and d >= 0):
+            raise ValueError(
+                f"budget_repeat_discount must be finite and >= 0; got {self.budget_repeat_discount}"
             )
         if not 0.0 < self.budget_subsample <= 1.0:
             raise ValueError(f"budget_subsample must be in (0, 1]; got {self.budget_subsample}")
