@@ -253,6 +253,7 @@ def figure(results: list[dict], path: Path) -> None:
     """Sum over axes of the RMS position and attitude (median over scenes, relative to all
     features) and the pose-stage CPU time, against ``N``, one line per rule."""
     import matplotlib
+    import matplotlib.ticker
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -283,6 +284,9 @@ def figure(results: list[dict], path: Path) -> None:
         ax.axhline(1.0, color="k", lw=0.8, label="all features")
         ax.axhline(1.5, color="red", lw=0.8, ls="--", label="1.5x all")
         ax.set_yscale("log")
+        # plain ratios on the log axis (not 1.5 x 10^0)
+        ax.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%.2g"))
+        ax.yaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%.2g"))
     axes[2].plot([x_all], [cpu_all], "ks", label="all features")
     axes[0].set_ylabel("RMS position, sum over x, y, z (ratio to all)")
     axes[1].set_ylabel("RMS attitude, sum over r, p, y (ratio to all)")
