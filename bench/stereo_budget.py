@@ -321,24 +321,23 @@ def table(results: list[dict]) -> list[str]:
     return lines
 
 
+def _medians(results: list[dict], key: str) -> dict:
+    """Median over the scenes of a run's ``key`` for all features and each rule at
+    ``TARGET_N`` (NaN where a run lacks it: results from before the key existed)."""
+    return {
+        f"{rule}@{n}" if n else rule: round(
+            float(np.median([_run(s, rule, n).get(key, np.nan) for s in results])), 2
+        )
+        for rule, n in [(ALL, None)] + [(r, TARGET_N) for r in RULES]
+        if all(_run(s, rule, n) for s in results)
+    }
+
+
 def report(results: list[dict], out: Path, frames, load0) -> dict:
     print("\n".join(table(results)))
     figure(results, out / "budget.png")
     per_scene = {s["scene"]["name"]: s["target"] for s in results}
-    cpu = {
-        f"{rule}@{n}" if n else rule: round(
-            float(np.median([_run(s, rule, n)["pose_cpu_ms"] for s in results])), 2
-        )
-        for rule, n in [(ALL, None)] + [(r, TARGET_N) for r in RULES]
-        if all(_run(s, rule, n) for s in results)
-    }
-    map_cpu = {
-        f"{rule}@{n}" if n else rule: round(
-            float(np.median([_run(s, rule, n).get("map_cpu_ms", np.nan) for s in results])), 2
-        )
-        for rule, n in [(ALL, None)] + [(r, TARGET_N) for r in RULES]
-        if all(_run(s, rule, n) for s in results)
-    }
+    cpu, map_cpu = _medians(results, "pose_cpu_ms"), _medians(results, "map_cpu_ms")
     summary = {
         "bench": "stereo-budget",
         "scenes": len(results),

@@ -317,12 +317,9 @@ class TrackerOptions:
                 f"budget_weight must be one of {BUDGET_WEIGHTS}; got {self.budget_weight!r}"
             )
         d = self.budget_repeat_discount
-        if isinstance(d, bool) or not isinstance(d, int | float | np.integer | np.floating):
-            raise ValueError(f"budget_repeat_discount must be a number >= 0; got {d!r}")
-        if not (np.isfinite(d) and d >= 0):
-            raise ValueError(
-                f"budget_repeat_discount must be finite and >= 0; got {self.budget_repeat_discount}"
-            )
+        number = isinstance(d, int | float | np.integer | np.floating) and not isinstance(d, bool)
+        if not (number and np.isfinite(d) and d >= 0):
+            raise ValueError(f"budget_repeat_discount must be a finite number >= 0; got {d!r}")
         if not 0.0 < self.budget_subsample <= 1.0:
             raise ValueError(f"budget_subsample must be in (0, 1]; got {self.budget_subsample}")
         if self.lsd_area_px is not None and not self.lsd_area_px > 0:
