@@ -411,6 +411,10 @@ def bench_all_cores(entry, repeats):
     import subprocess
     import sys
 
+    if jax.default_backend() != "cpu":
+        backend = jax.default_backend()
+        print(f"\n  (the run with one JAX device per core is for a CPU; this one is on {backend})")
+        return
     cores = os.cpu_count()
     env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={cores}")
     cmd = [sys.executable, __file__, "--all-cores-child", str(cores), "--repeats", str(repeats)]
@@ -539,6 +543,7 @@ def main(argv=None):
         json.dumps(
             {
                 "bench": "pnp",
+                "backend": jax.default_backend(),
                 "cpus": os.cpu_count(),
                 "load_average": [load0[0], load1[0]],
                 "grid": grid,

@@ -8,12 +8,31 @@ from pathlib import Path
 # are the same functions at other optimisation). Speed is measured by the benches in bench/, which
 # use the package's defaults. Set JAXPOSE_TEST_XLA_OPT=1 to test at XLA's default optimisation.
 # Subprocesses that the tests start (CLI, notebooks, README) inherit the flags.
-if os.environ.get("JAXPOSE_TEST_XLA_OPT") != "1":
-    _FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
-    _given = os.environ.get("XLA_FLAGS", "")
-    os.environ["XLA_FLAGS"] = " ".join(
-        [_given] + [f for f in _FLAGS if f.split("=")[0] not in _given]
-    ).strip()
+# XLA aborts the process on a flag it does not know, and flag names change between releases
+# (jaxlib 0.11 refuses --xla_cpu_use_fusion_emitters), so the flags are tried in a child process
+# first, once per run (the xdist workers inherit the result), and an unknown one is left out.
+
+
+def _xla_takes(flags: list[str]) -> bool:
+    import subprocess
+    import sys
+
+    env = dict(os.environ, XLA_FLAGS=" ".join(flags), JAX_PLATFORMS="cpu")
+    probe = [sys.executable, "-c", "import jax; jax.numpy.zeros(1).block_until_ready()"]
+    return subprocess.run(probe, env=env, capture_output=True, timeout=300).returncode == 0
+
+
+if os.environ.get("JAXPOSE_TEST_XLA_OPT") != "1" and "JAXPOSE_TEST_XLA_FLAGS" not in os.environ:
+    _given = os.environ.get("XLA_FLAGS", "").split()
+    _flags = [
+        f
+        for f in ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+        if not any(g.split("=")[0] == f.split("=")[0] for g in _given)
+    ]
+    if not _xla_takes(_given + _flags):
+        _flags = [f for f in _flags if _xla_takes(_given + [f])]
+    os.environ["XLA_FLAGS"] = " ".join(_given + _flags)
+    os.environ["JAXPOSE_TEST_XLA_FLAGS"] = " ".join(_flags)
 
 import jax  # noqa: E402
 

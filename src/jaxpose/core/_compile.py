@@ -17,6 +17,27 @@ compilation is what a user waits for: these options compile ``jp.dop`` several t
 point is traced into the caller's program and compiled with the caller's options."""
 
 
+@functools.cache
+def _known_option(name: str, value) -> bool:
+    """Whether the installed XLA takes ``name`` as a compile option (one tiny compilation on the
+    CPU, once per option and process)."""
+    try:
+        x = jax.device_put(1.0, jax.devices("cpu")[0])
+        jax.jit(lambda v: v + 1.0, compiler_options={name: value}).lower(x).compile()
+    except Exception:  # "No such compile option"
+        return False
+    return True
+
+
+def known_cpu_options(options: dict) -> dict:
+    """``options`` less those that the installed XLA does not know. XLA's option names come and
+    go between releases (``xla_cpu_use_fusion_emitters`` is known to jaxlib 0.10 and refused as
+    a flag by jaxlib 0.11, ``xla_cpu_experimental_ynn_fusion_type`` is new), and an unknown
+    name makes the whole compilation fail; these options only change compile and run times,
+    never results, so an unknown one is dropped."""
+    return {k: v for k, v in options.items() if _known_option(k, v)}
+
+
 def eager_jit(fn, static_argnums: tuple[int, ...], cpu_options: dict | None = None):
     """``jax.jit(fn)`` with ``cpu_options`` (default :data:`EAGER_COMPILER_OPTIONS_CPU`) on a
     CPU, built on first use for the backend then in use (importing jaxpose picks no backend).
@@ -28,7 +49,7 @@ def eager_jit(fn, static_argnums: tuple[int, ...], cpu_options: dict | None = No
 
     @functools.cache
     def compiled(backend: str):
-        options = cpu if backend == "cpu" else None
+        options = known_cpu_options(cpu) if backend == "cpu" else None
         return jax.jit(fn, static_argnums=static_argnums, compiler_options=options)
 
     traced = jax.jit(fn, static_argnums=static_argnums)

@@ -31,6 +31,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxpose.core._checks import float_dtype
+from jaxpose.core._compile import known_cpu_options
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.pnp._batch import (
@@ -281,20 +282,13 @@ COMPILER_OPTIONS_CPU = {
 code (hundreds of small fused kernels) about 1.6x faster than its MLIR fusion emitters for the
 same run time (EPnP alone: 4.5 s -> 2.8 s of CPU time). No YNNPACK fusions: XLA hands the
 reductions over a problem's points (``(256, 20) -> (256,)``) to YNNPACK, whose calls cost more
-than the sums (EPnP 13.6 -> 11.6 us a problem, profiled with ``jax.profiler``); the option is
-dropped where the installed XLA does not know it."""
+than the sums (EPnP 13.6 -> 11.6 us a problem, profiled with ``jax.profiler``). Each option is
+dropped where the installed XLA does not know it (``known_cpu_options``)."""
 
 
-@functools.cache
 def _cpu_options() -> dict:
     """:data:`COMPILER_OPTIONS_CPU` less the options that the installed XLA does not know."""
-    options = dict(COMPILER_OPTIONS_CPU)
-    for name in ("xla_cpu_experimental_ynn_fusion_type",):
-        try:
-            jax.jit(lambda x: x + 1.0, compiler_options={name: options[name]}).lower(1.0).compile()
-        except Exception:  # an older XLA: "No such compile option"
-            options.pop(name)
-    return options
+    return known_cpu_options(COMPILER_OPTIONS_CPU)
 
 
 @functools.cache
