@@ -11,6 +11,8 @@ from the frame rate. The first tracked frame compiles the solver and is left out
     python bench/stereo.py --frames 60 --split dev          # a quicker look at the dev scenes
     python bench/stereo.py --scenes d1-clean-2m --timing-only --frames 30   # time by stage
     python bench/stereo.py --budget-sweep --frames 20       # feature budget: stereo_budget.py
+    python bench/stereo.py --scene 'far={"range_m": 4.5, "nutation_deg": 15}' --frames 30
+                                      # a scene of your own (StereoScene fields), split "own"
 
 Writes ``runs/bench-stereo/results.json`` (per scene and mode: the stereo-track summary and the
 mean time per stage; with ``--frame-rows`` each frame's row too), ``rms_vs_range_rate.png``
@@ -288,7 +290,8 @@ def figure(results: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     colours = {"x": "tab:blue", "y": "tab:orange", "z": "tab:green"}
-    markers = {"dev": "o", "check": "^", "held-out": "s"}  # held-out: bench/stereo_heldout.py
+    # held-out: bench/stereo_heldout.py; own: --scene
+    markers = {"dev": "o", "check": "^", "held-out": "s", "own": "D"}
     fig, axes = plt.subplots(2, 2, figsize=(10, 7.5))
     for r in results:
         m = r.get("points+lines")
@@ -354,6 +357,15 @@ def main(argv=None) -> int:
     )
     p.add_argument("--scenes", nargs="+", default=None, choices=list(SCENES))
     p.add_argument("--split", choices=("dev", "check", "all"), default="all")
+    p.add_argument(
+        "--scene",
+        action="append",
+        default=[],
+        metavar="NAME=JSON",
+        help="a scene of your own, its StereoScene parameters as a JSON object, e.g. "
+        """'tumble-4.5m={"range_m": 4.5, "rate_deg_s": 8, "nutation_deg": 15}' (split "own"; """
+        "run alone, or with --scenes)",
+    )
     p.add_argument("--frames", type=int, default=None, help="frames per scene (default: one turn)")
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
     p.add_argument("--points-lines-only", action="store_true", help="skip the points-only mode")
@@ -405,7 +417,9 @@ def main(argv=None) -> int:
         modes = tuple(m for m in MODES if m in results[0])
         report(results, modes, args.out, results[0]["scene"]["frames"], None)
         return 0
+    own = [_own_scene(p, spec) for spec in args.scene]
     names = args.scenes or [n for n, (s, _) in SCENES.items() if args.split in ("all", s)]
+    names = [*(args.scenes or []), *own] if own else names
     modes = ("points+lines",) if args.timing_only or args.points_lines_only else MODES
     if args.timing_only:
         names = names[:1]
@@ -426,6 +440,23 @@ def main(argv=None) -> int:
     )
     report(results, modes, args.out, args.frames, load0, timing=args.timing_only)
     return 0
+
+
+def _own_scene(parser, spec: str) -> str:
+    """``--scene NAME=JSON``: the scene added to :data:`SCENES` (split ``own``); its name."""
+    name, sep, text = spec.partition("=")
+    if not sep or not name or name in SCENES:
+        parser.error(f"--scene wants NAME=JSON with a new name; got {spec!r}")
+    try:
+        params = json.loads(text)
+        if not isinstance(params, dict):
+            raise ValueError(f"a JSON object of StereoScene fields, not {type(params).__name__}")
+        params = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
+        StereoScene(frames=2, **params)  # the scene's own checks
+    except (ValueError, TypeError) as e:  # JSONDecodeError is a ValueError
+        parser.error(f"--scene {name}: {e}")
+    SCENES[name] = ("own", params)
+    return name
 
 
 def _met_by_split(results, run, splits) -> dict:
@@ -484,10 +515,13 @@ def report(results, modes, out: Path, frames, load0, *, timing: bool = False) ->
         )
     figure(results, out / "rms_vs_range_rate.png")
     fps = [r["points+lines"]["fps"] for r in results if r["points+lines"]["fps"]]
+    splits = ("dev", "check") + (
+        ("own",) if any(r["scene"]["split"] == "own" for r in results) else ()
+    )
     summary = {
         "scenes": len(results),
         "frames_per_scene": frames,
-        "meets_targets": _met_by_split(results, lambda m: m, ("dev", "check")),
+        "meets_targets": _met_by_split(results, lambda m: m, splits),
         "lines_help_with_blur_or_glints": [
             r["scene"]["name"]
             for r in results

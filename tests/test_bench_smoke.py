@@ -46,6 +46,8 @@ def test_stereo_bench_runs_and_ends_with_its_figures(tmp_path):
             str(REPO / "bench" / "stereo.py"),
             "--scenes",
             "d1-clean-2m",
+            "--scene",
+            'own-2.5m={"range_m": 2.5, "spin_axis_body": [0.3, -0.2, 1.0], "nutation_deg": 10}',
             "--frames",
             "3",
             "--points-lines-only",
@@ -54,7 +56,8 @@ def test_stereo_bench_runs_and_ends_with_its_figures(tmp_path):
         ],
         tmp_path,
     )
-    assert out["scenes"] == 1 and out["frames_per_scene"] == 3
+    assert out["scenes"] == 2 and out["frames_per_scene"] == 3
+    assert set(out["meets_targets"]) == {"dev", "check", "own"}  # the --scene counted apart
     assert out["median_fps"] > 0
     assert {"features", "stereo", "pose", "map"} <= set(out["median_stage_ms"])
     assert (tmp_path / "st" / "results.json").is_file()

@@ -236,3 +236,31 @@ def test_area_sampling_keeps_the_image_at_the_pixel_centres_and_follows_a_subpix
     moved = centroid(4, eqx.tree_at(lambda r: r.left.cx, rig, rig.left.cx + 0.3))
     np.testing.assert_allclose(moved - c4, [0.3, 0.0], atol=0.02)
     assert np.abs(centroid(1, exact_faces=False) - c8).max() > 0.15
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(range_m=0.0),
+        dict(range_m=-1.0),
+        dict(range_m=float("nan")),
+        dict(range_m="3"),
+        dict(frame_rate_hz=0.0),
+        dict(size_m=-0.5),
+        dict(glints=-0.1),
+        dict(noise_sigma=float("inf")),
+        dict(rate_deg_s=float("nan")),
+        dict(nutation_deg=float("inf")),
+        dict(sun_dir_cam=(0.0, 0.0, 0.0)),
+        dict(spin_axis_body=(1.0, 2.0)),
+        dict(frames=1),
+        dict(frames=2.5),
+        dict(frames="10"),
+    ],
+)
+@pytest.mark.typecheck_off
+def test_a_scene_with_a_bad_parameter_is_refused_naming_it(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        StereoScene(**bad)
+    # numbers of any real type pass (a draw's NumPy floats)
+    StereoScene(range_m=np.float32(3.0), frames=np.int64(4), rate_deg_s=np.float64(-5.0))

@@ -26,6 +26,8 @@ textures) once per camera and turned into an 8-bit image by
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -204,6 +206,42 @@ class StereoScene:
     seed: int = 0
 
     def __post_init__(self):
+        def real(value) -> bool:
+            return (
+                isinstance(value, numbers.Real)
+                and not isinstance(value, bool)
+                and math.isfinite(value)
+            )
+
+        for name in ("range_m", "frame_rate_hz", "size_m", "shininess"):
+            value = getattr(self, name)
+            if not (real(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number; got {value!r}")
+        for name in ("glints", "noise_sigma", "defocus_px", "ambient"):
+            value = getattr(self, name)
+            if not (real(value) and value >= 0):
+                raise ValueError(f"{name} must be a number >= 0; got {value!r}")
+        for name in (
+            "rate_deg_s",
+            "tilt_deg",
+            "nutation_deg",
+            "precession_deg_s",
+            "sun_rate_deg_s",
+            "sun_sweep_deg",
+        ):
+            value = getattr(self, name)
+            if not real(value):
+                raise ValueError(f"{name} must be a finite number; got {value!r}")
+        for name in ("spin_axis_body", "sun_dir_cam"):
+            v = np.asarray(getattr(self, name), dtype=float)
+            if v.shape != (3,) or not np.all(np.isfinite(v)) or not np.any(v != 0):
+                raise ValueError(f"{name} must be a non-zero 3-vector; got {getattr(self, name)!r}")
+        if self.frames is not None and not (
+            real(self.frames) and int(self.frames) == self.frames and self.frames >= 2
+        ):
+            raise ValueError(
+                f"frames must be an integer >= 2 (None: two turns); got {self.frames!r}"
+            )
         if not self.blur >= 0:
             raise ValueError(f"blur must be >= 0 (exposure / frame interval); got {self.blur}")
         if not self.blur_step_px > 0:
