@@ -149,7 +149,12 @@ class TrackerOptions:
             to a constant twist (a rigid body spinning about a fixed axis at a constant rate,
             seen from a camera at rest), the second difference of consecutive frames' relative
             motions with these standard deviations against 1 px of the pixel residuals
-            (:func:`jaxpose.core.refine.motion_residual`); ``None``: no motion prior.
+            (:func:`jaxpose.core.refine.motion_residual`); ``None``: no motion prior. On by
+            default since 2026-11-25 at the values first measured (0.3 degree, 5 mm), chosen
+            on the development scenes (seeds 0-1) and a development draw of fast turns at
+            range, where the rotation about an axis across the line of sight and the lateral
+            translation are told apart by little else (``docs/stereo-evaluation.md``). It
+            assumes evenly spaced frames.
         window_free_lines: the windowed adjustment adjusts the line landmarks with the poses
             (their endpoints free, observed by the stereo planes of the window's frames, the
             planes of older frames as a prior; the adjusted planes re-solve the lines); off,
@@ -279,7 +284,7 @@ class TrackerOptions:
     window_every: int = 4
     window_depth_m: float | None = 6.0
     window_points: int = 300
-    window_motion_sigma: tuple[float, float] | None = None
+    window_motion_sigma: tuple[float, float] | None = (0.3, 5.0)
     window_free_lines: bool = True
     window_anchors: int = 0
     window_anchor_every: int = 8
