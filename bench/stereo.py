@@ -50,6 +50,7 @@ from jaxpose.pipelines.stereo import (  # noqa: E402
     TrackerOptions,
     smooth_sequence,
 )
+from jaxpose.studies._plotting import plain_log_labels  # noqa: E402
 from jaxpose.studies.stereo_track import summarize  # noqa: E402
 from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence  # noqa: E402
 
@@ -324,6 +325,8 @@ def figure(results: list[dict], path: Path) -> None:
         ]
         + [plt.Line2D([], [], color="red", ls="--", lw=0.8, label="target")]
     )
+    for ax in axes.flat:  # plain numbers on the log axes (0.5, 2, not 5 x 10^-1, 2 x 10^0)
+        plain_log_labels(ax.yaxis, ax.get_ylim())
     fig.suptitle("Stereo tracking, points+lines: per-axis RMS per scene", y=0.99)
     fig.legend(handles=handles, loc="upper center", ncol=6, fontsize=8, bbox_to_anchor=(0.5, 0.955))
     fig.tight_layout(rect=(0, 0, 1, 0.91))
