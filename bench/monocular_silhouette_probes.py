@@ -149,22 +149,19 @@ def _panel_patch(placement: str):
         return 1.0 - iou_with_unknown(model, val, (inside[0] & ~body).astype(val.dtype))
 
     def place_body(R, t, sc):
-        # _place_on_silhouette with the model's area and centroid counted on the body alone
-        pts, val, _, body = covers(R, t, sc, True)
-        cover = body.astype(val.dtype)
-        centre = jnp.mean(sc.face_poly.reshape(-1, 3), axis=0)
-        a_model, a_img = jnp.sum(cover), jnp.sum(val)
-        g_model = cover @ pts / jnp.maximum(a_model, 1.0)
-        g_img = val @ pts / jnp.maximum(a_img, 1e-9)
-        c = R @ centre + t
-        k = jnp.sqrt(a_model / jnp.maximum(a_img, 1e-9))
-        z = c[2] * k
-        uv = g_img - (g_model - S._project(c, sc.cam4)) / k
-        c_new = jnp.stack(
-            [(uv[0] - sc.cam4[2]) / sc.cam4[0] * z, (uv[1] - sc.cam4[3]) / sc.cam4[1] * z, z]
-        )
-        ok = (a_model > 0) & (a_img > 0) & (c[2] > 1e-3)
-        return jnp.where(ok, c_new - R @ centre, t)
+        # _place_on_silhouette with the model's area and centroid counted on the body alone:
+        # the package's function, its face cover without the panel's top while it is traced
+        own_cover = H._face_cover
+
+        def body_only(*args, **kw):
+            inside, depth = own_cover(*args, **kw)
+            return inside.at[0].set(False), depth
+
+        H._face_cover = body_only
+        try:
+            return own[2](R, t, sc)
+        finally:
+            H._face_cover = own_cover
 
     def placed_both(det, opts, sc, on_roi):
         R1, t1 = own[3](det, opts, sc, on_roi)
