@@ -253,6 +253,7 @@ def test_area_sampling_keeps_the_image_at_the_pixel_centres_and_follows_a_subpix
         dict(nutation_deg=float("inf")),
         dict(sun_dir_cam=(0.0, 0.0, 0.0)),
         dict(spin_axis_body=(1.0, 2.0)),
+        dict(spin_axis_body="up"),
         dict(frames=1),
         dict(frames=2.5),
         dict(frames="10"),

@@ -233,7 +233,10 @@ class StereoScene:
             if not real(value):
                 raise ValueError(f"{name} must be a finite number; got {value!r}")
         for name in ("spin_axis_body", "sun_dir_cam"):
-            v = np.asarray(getattr(self, name), dtype=float)
+            try:
+                v = np.asarray(getattr(self, name), dtype=float)
+            except (TypeError, ValueError):
+                v = np.zeros(0)
             if v.shape != (3,) or not np.all(np.isfinite(v)) or not np.any(v != 0):
                 raise ValueError(f"{name} must be a non-zero 3-vector; got {getattr(self, name)!r}")
         if self.frames is not None and not (
