@@ -101,3 +101,11 @@ def check_positive(x, name: str) -> None:
     values = np.asarray(x, dtype=float)
     if not np.all(np.isfinite(values) & (values > 0)):
         raise ValueError(f"{name} must be positive and finite; got {values.tolist()}")
+
+
+def is_finite_number(x) -> bool:
+    """Whether ``x`` is one finite real number given as a Python or NumPy integer or float (not a
+    bool, a string or an array): the test behind the option and scene checks that name their
+    field in their own message."""
+    number = isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
+    return bool(number and np.isfinite(x))

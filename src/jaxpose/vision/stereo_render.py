@@ -26,12 +26,11 @@ textures) once per camera and turned into an 8-bit image by
 
 from __future__ import annotations
 
-import math
-import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from jaxpose.core._checks import is_finite_number
 from jaxpose.core.camera import PinholeCamera, StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.vision.models import WireframeModel
@@ -206,20 +205,13 @@ class StereoScene:
     seed: int = 0
 
     def __post_init__(self):
-        def real(value) -> bool:
-            return (
-                isinstance(value, numbers.Real)
-                and not isinstance(value, bool)
-                and math.isfinite(value)
-            )
-
         for name in ("range_m", "frame_rate_hz", "size_m", "shininess"):
             value = getattr(self, name)
-            if not (real(value) and value > 0):
+            if not (is_finite_number(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number; got {value!r}")
         for name in ("glints", "noise_sigma", "defocus_px", "ambient"):
             value = getattr(self, name)
-            if not (real(value) and value >= 0):
+            if not (is_finite_number(value) and value >= 0):
                 raise ValueError(f"{name} must be a number >= 0; got {value!r}")
         for name in (
             "rate_deg_s",
@@ -230,7 +222,7 @@ class StereoScene:
             "sun_sweep_deg",
         ):
             value = getattr(self, name)
-            if not real(value):
+            if not is_finite_number(value):
                 raise ValueError(f"{name} must be a finite number; got {value!r}")
         for name in ("spin_axis_body", "sun_dir_cam"):
             try:
@@ -240,7 +232,7 @@ class StereoScene:
             if v.shape != (3,) or not np.all(np.isfinite(v)) or not np.any(v != 0):
                 raise ValueError(f"{name} must be a non-zero 3-vector; got {getattr(self, name)!r}")
         if self.frames is not None and not (
-            real(self.frames) and int(self.frames) == self.frames and self.frames >= 2
+            is_finite_number(self.frames) and int(self.frames) == self.frames and self.frames >= 2
         ):
             raise ValueError(
                 f"frames must be an integer >= 2 (None: two turns); got {self.frames!r}"

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from jaxpose.core._checks import is_finite_number
 from jaxpose.core.geometry import Pose
 from jaxpose.vision.stereo_features import FeatureOptions
 from jaxpose.vision.stereo_match import StereoMatchOptions
@@ -322,8 +323,7 @@ class TrackerOptions:
                 f"budget_weight must be one of {BUDGET_WEIGHTS}; got {self.budget_weight!r}"
             )
         d = self.budget_repeat_discount
-        number = isinstance(d, int | float | np.integer | np.floating) and not isinstance(d, bool)
-        if not (number and np.isfinite(d) and d >= 0):
+        if not (is_finite_number(d) and d >= 0):
             raise ValueError(f"budget_repeat_discount must be a finite number >= 0; got {d!r}")
         if not 0.0 < self.budget_subsample <= 1.0:
             raise ValueError(f"budget_subsample must be in (0, 1]; got {self.budget_subsample}")
