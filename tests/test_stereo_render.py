@@ -265,3 +265,33 @@ def test_a_scene_with_a_bad_parameter_is_refused_naming_it(bad):
         StereoScene(**bad)
     # numbers of any real type pass (a draw's NumPy floats)
     StereoScene(range_m=np.float32(3.0), frames=np.int64(4), rate_deg_s=np.float64(-5.0))
+
+
+def test_a_frame_renders_on_one_blas_thread_and_leaves_the_library_as_it_was(monkeypatch):
+    """The ray cast's BLAS threads would spin after the frame and take a tracker's cores: the
+    frame is drawn with BLAS on one thread, the caller's setting restored after, and the images
+    are the same bits as those drawn without the limit."""
+    import threadpoolctl
+
+    import jaxpose.vision.stereo_render as sr
+
+    def blas_threads():
+        return [p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"]
+
+    before = blas_threads()
+    seen = []
+    draw = sr._render_stereo_frame
+
+    def spy(*args):
+        seen.append(blas_threads())
+        return draw(*args)
+
+    monkeypatch.setattr(sr, "_render_stereo_frame", spy)
+    rig = default_rig(320, 240)
+    scene = StereoScene(frames=2, range_m=2.5, glints=1.0, blur=0.5)
+    limited = render_stereo_frame(scene, rig, 1)
+    assert seen and all(n == 1 for n in seen[0])
+    assert blas_threads() == before
+    free = draw(scene, rig, 1, None, None, None, None)
+    np.testing.assert_array_equal(limited.left, free.left)
+    np.testing.assert_array_equal(limited.right, free.right)

@@ -442,7 +442,31 @@ def render_stereo_frame(
     rng: np.random.Generator | None = None,
     _rays: dict | None = None,
 ) -> StereoFrame:
-    """Render frame ``index`` of ``scene`` with ``rig`` (both images) and its ground truth."""
+    """Render frame ``index`` of ``scene`` with ``rig`` (both images) and its ground truth.
+
+    The frame is drawn with the BLAS library (OpenBLAS) held to one thread: its worker threads
+    otherwise keep spinning for about a tenth of a second after the ray cast's matrix product
+    returns and take the cores of whatever runs next, a tracker fed frame by frame among them
+    (on the 2-core machine they cost it about a fifth of its frame rate; the frame itself
+    renders faster with one thread there, to the same bits).
+    """
+    with _one_blas_thread():
+        return _render_stereo_frame(scene, rig, index, model, textures, rng, _rays)
+
+
+_BLAS: list = []
+
+
+def _one_blas_thread():
+    """A context in which the BLAS library behind NumPy runs on one thread (threadpoolctl)."""
+    if not _BLAS:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS.append(ThreadpoolController())
+    return _BLAS[0].limit(limits=1, user_api="blas")
+
+
+def _render_stereo_frame(scene, rig, index, model, textures, rng, _rays) -> StereoFrame:
     if rig.left.width <= 0 or rig.left.height <= 0:
         raise ValueError("the rig's cameras need an image size (width, height)")
     model = tumbler_model(scene.size_m) if model is None else model
