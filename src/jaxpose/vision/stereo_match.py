@@ -274,10 +274,18 @@ def match_points_stereo(
     # widths rounded up to a power of two: a few groups, each searched at its largest width
     group = np.ceil(np.log2(D)).astype(np.int64)
     for g in np.unique(group):
-        sel = np.nonzero(group == g)[0]
-        uv_r, best, ok = _search_rows(L, padded, p[sel], d_max[sel], D[sel], options)
-        out.pixels_right[sel], out.score[sel], out.ok[sel] = uv_r, best, ok
+        group_sel = np.nonzero(group == g)[0]
+        for start in range(0, len(group_sel), _CHUNK):
+            sel = group_sel[start : start + _CHUNK]
+            uv_r, best, ok = _search_rows(L, padded, p[sel], d_max[sel], D[sel], options)
+            out.pixels_right[sel], out.score[sel], out.ok[sel] = uv_r, best, ok
     return out
+
+
+# points searched together: the (points x disparities) temporaries of a few hundred points stay
+# in the processor's cache (about 1 MB); all of a 1.5 m frame's at once took 1.7 times as long
+# (a point's match does not depend on the points searched with it)
+_CHUNK = 256
 
 
 def _coarse_ranges(L, Rimg, p, d_min, d_max, wide, options: StereoMatchOptions):
@@ -343,8 +351,11 @@ def _search_rows(L, padded, p, d_max, widths, options: StereoMatchOptions):
     np.cumsum(col1, 1, dtype=np.float64, out=c1[:, 1:])
     np.cumsum(col2, 1, dtype=np.float64, out=c2[:, 1:])
     s1 = c1[:, w:] - c1[:, :-w]  # (N, D)
-    s2 = c2[:, w:] - c2[:, :-w]
-    bb = np.maximum(s2 - s1 * s1 / (w * wr), 0.0)
+    bb = c2[:, w:] - c2[:, :-w]  # the windows' sums of squares, then their variance (in place)
+    s1 *= s1
+    s1 /= w * wr
+    bb -= s1
+    np.maximum(bb, 0.0, out=bb)
     # cross term sum_ik a[n,i,k] strip[n,i,j+k], one window column at a time (no (N,w,D,w)
     # copy), in float32: 8-bit pixels times zero-mean patch values over wr * w terms keep about
     # six significant digits, and float32 is several times faster here than float64
@@ -352,14 +363,21 @@ def _search_rows(L, padded, p, d_max, widths, options: StereoMatchOptions):
     ab = np.zeros((N, D), np.float32)
     for k in range(w):
         ab += np.einsum("ni,nij->nj", a32[:, :, k], strip[:, :, k : k + D])
-    den = np.sqrt(aa[:, None] * bb)
-    score = np.where(den > 1e-9, ab / np.where(den > 1e-9, den, 1.0), -1.0)
+    bb *= aa[:, None]
+    den = np.sqrt(bb, out=bb)
+    score = np.full((N, D), -1.0)
+    np.divide(ab, den, out=score, where=den > 1e-9)
     # candidates: the point's own disparities (j = d_max - disparity < width) whose window lies
-    # inside the right image (window centre c0 + h + j within [h, W - 1 - h])
-    j_lo = np.maximum(-c0, 0)[:, None]
-    j_hi = np.minimum(widths, W - 2 * h - c0)[:, None]
-    jj = np.arange(D)[None, :]
-    score = np.where((jj >= j_lo) & (jj < j_hi), score, -1.0)
+    # inside the right image (window centre c0 + h + j within [h, W - 1 - h]); only the rows with
+    # a candidate missing are masked
+    j_lo = np.maximum(-c0, 0)
+    j_hi = np.minimum(widths, W - 2 * h - c0)
+    edge = np.nonzero((j_lo > 0) | (j_hi < D))[0]
+    if len(edge):
+        jj = np.arange(D)[None, :]
+        masked = score[edge]
+        masked[(jj < j_lo[edge, None]) | (jj >= j_hi[edge, None])] = -1.0
+        score[edge] = masked
     j = np.argmax(score, axis=1)
     best = score[np.arange(N), j]
     inner = (j > 0) & (j < widths - 1)
