@@ -236,3 +236,29 @@ def test_line_trim_drops_samples_matched_on_a_neighbouring_edge(monkeypatch):
     np.testing.assert_allclose(trimmed.segments_right[0], seg[0] - [20.0, 0.0], atol=1e-9)
     with pytest.raises(ValueError, match="line_trim_px"):
         StereoMatchOptions(line_trim_px=0.0)
+
+
+def test_the_search_scores_each_window_by_its_zncc_in_chunks_of_any_size(pair, monkeypatch):
+    """The best score of each point is the largest ZNCC of its left window against the right
+    windows of its disparities, computed here window by window; the points searched in chunks
+    of 7 give the same matches as all at once (a point's match does not depend on its chunk)."""
+    import jaxpose.vision.stereo_match as sm
+
+    left, right, _ = pair
+    rng = np.random.default_rng(3)
+    pts = np.stack([rng.integers(120, W - 40, 40), rng.integers(20, H - 20, 40)], 1).astype(float)
+    o = StereoMatchOptions()
+    pm = match_points_stereo(left, right, pts, (5, 60), options=o)
+    h, hr = o.window // 2, o.window_rows // 2
+    L, R = left.astype(float), right.astype(float)
+    for (u, v), best in zip(pts.astype(int), pm.score, strict=True):
+        a = L[v - hr : v + hr + 1, u - h : u + h + 1]
+        scores = [
+            zncc(a[None], R[None, v - hr : v + hr + 1, u - d - h : u - d + h + 1])[0]
+            for d in range(5, 61)
+        ]
+        assert best == pytest.approx(max(scores), abs=1e-5)
+    monkeypatch.setattr(sm, "_CHUNK", 7)
+    chunked = match_points_stereo(left, right, pts, (5, 60), options=o)
+    np.testing.assert_array_equal(chunked.pixels_right, pm.pixels_right)
+    np.testing.assert_array_equal(chunked.ok, pm.ok)

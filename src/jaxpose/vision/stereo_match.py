@@ -343,15 +343,13 @@ def _search_rows(L, padded, p, d_max, widths, options: StereoMatchOptions):
     a = a - a.mean(axis=(1, 2), keepdims=True)
     aa = (a * a).sum(axis=(1, 2))
     # windowed sums of the strip along the row: column sums in float32 (at most wr * 255^2 a
-    # column), the running sums and the variance in float64
+    # column), the sums over w columns and the variance in float64. The sums over w columns are
+    # OpenCV box filters (forward windows, anchor at the first column): NumPy's running sums
+    # (np.cumsum) hold the GIL, which serialised the two threads of match_stereo
     col1 = strip.sum(axis=1)  # (N, D + w - 1)
     col2 = np.einsum("nij,nij->nj", strip, strip)
-    c1 = np.zeros((N, D + w), np.float64)
-    c2 = np.zeros((N, D + w), np.float64)
-    np.cumsum(col1, 1, dtype=np.float64, out=c1[:, 1:])
-    np.cumsum(col2, 1, dtype=np.float64, out=c2[:, 1:])
-    s1 = c1[:, w:] - c1[:, :-w]  # (N, D)
-    bb = c2[:, w:] - c2[:, :-w]  # the windows' sums of squares, then their variance (in place)
+    s1 = _window_sums(col1, w)[:, :D]  # (N, D)
+    bb = _window_sums(col2, w)[:, :D]  # the windows' sums of squares, then their variance
     s1 *= s1
     s1 /= w * wr
     bb -= s1
@@ -388,6 +386,19 @@ def _search_rows(L, padded, p, d_max, widths, options: StereoMatchOptions):
     inside = (v - hr >= 0) & (v + hr <= H - 1) & (u - h >= 0) & (u + h <= W - 1)
     ok = inner & (best >= options.ncc_threshold) & texture & inside
     return np.stack([u_right, v], 1), best, ok
+
+
+def _window_sums(rows: np.ndarray, w: int) -> np.ndarray:
+    """``out[n, j] = sum_{k < w} rows[n, j + k]`` in float64 (the last ``w - 1`` columns of
+    ``out`` sum past the end of the row and are not used)."""
+    return cv2.boxFilter(
+        rows.astype(np.float64),
+        -1,
+        (w, 1),
+        anchor=(0, 0),
+        normalize=False,
+        borderType=cv2.BORDER_CONSTANT,
+    )
 
 
 def _segment_sampling(segments: np.ndarray, options: StereoMatchOptions):
