@@ -128,6 +128,8 @@ def test_annotations_are_checked_while_testing():
 
     with pytest.raises(jaxtyping.TypeCheckError):
         Scenario(range_m="5")
+    with pytest.raises(ValueError, match="--range-m"):  # a bool passes as an int, not as a range
+        Scenario(range_m=True)
 
 
 def test_with_options_sets_fields_and_nested_groups():

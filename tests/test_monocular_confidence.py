@@ -61,6 +61,7 @@ def test_range_agreement_is_the_absolute_log_ratio_of_the_ranges():
         ({k: v for k, v in TH.items() if k != "silhouette_range"}, "give all three or none"),
         ({**TH, "high_margin": float("nan")}, "finite number"),
         ({**TH, "high_coverage": "0.9"}, "finite number"),
+        ({**TH, "high_coverage": True}, "finite number"),
     ],
 )
 def test_a_malformed_confidence_rule_is_named(rule, match):
@@ -72,6 +73,7 @@ def test_the_default_rule_and_one_without_the_silhouette_route_pass():
     check_thresholds(CONFIDENCE)
     no_route = {k: v for k, v in CONFIDENCE.items() if not k.startswith("silhouette_")}
     check_thresholds(no_route)
+    check_thresholds({k: np.float32(v) for k, v in CONFIDENCE.items()})  # NumPy scalars count
     # without the route, a pose that only the silhouette supports is "low"
     photo = dict(orientation=0.4, margin=0.002, spread=0.7, silhouette=0.75, range_agreement=0.03)
     assert classify(0.04, 0.7, CONFIDENCE, **photo) == "high"

@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpose.core._checks import is_finite_number
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.dilution import dop_from_information, information_blocks
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
@@ -119,7 +120,7 @@ class Scenario:
     def __post_init__(self) -> None:
         for name, option in _POSITIVE_FIELDS.items():
             value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            if not (is_finite_number(value) and value > 0):
                 raise ValueError(
                     f"Scenario.{name} ({option}) must be a positive finite number; got {value!r}"
                 )

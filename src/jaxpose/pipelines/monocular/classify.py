@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+from jaxpose.core._checks import is_finite_number
+
 __all__ = ["check_thresholds", "classify"]
 
 #: Keys of a confidence rule: always needed, optional one by one, and the silhouette route's,
@@ -35,7 +37,7 @@ def check_thresholds(thresholds) -> None:
             "give all three or none (none: no silhouette route)"
         )
     for k, v in thresholds.items():
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        if not is_finite_number(v):
             raise ValueError(f"confidence[{k!r}] must be a finite number; got {v!r}")
 
 
