@@ -276,7 +276,8 @@ def test_a_frame_renders_on_one_blas_thread_and_leaves_the_library_as_it_was(mon
     import jaxpose.vision.stereo_render as sr
 
     def blas_threads():
-        return [p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"]
+        info = threadpoolctl.threadpool_info()
+        return [p["num_threads"] for p in info if p["user_api"] == "blas"]
 
     before = blas_threads()
     seen = []
