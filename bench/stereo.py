@@ -216,7 +216,7 @@ def run_scene(
     }
     for mode, (results, truths, seconds) in logs.items():
         # frame 0 makes the first keyframe; frame 1 compiles the solver: both left out of timings
-        rep = summarize(results, truths, [0.0] + seconds[2:] if len(seconds) > 2 else seconds)
+        rep = summarize(results, truths, seconds)  # its fps leaves frames 0-1 out
         stage = {k: float(np.mean([r.timings[k] for r in results[2:]])) for k in STAGES}
         stage_cpu = {k: float(np.mean([r.cpu_timings[k] for r in results[2:]])) for k in STAGES}
         out[mode] = {

@@ -205,8 +205,16 @@ def test_stereo_track_command_json(tmp_path, capsys):
     assert code == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     summary = json.loads(last)
-    assert set(summary) == {"frames", "rms_position_mm", "rms_attitude_deg", "lost_frames", "fps"}
+    assert set(summary) == {
+        "frames",
+        "rms_position_mm",
+        "rms_attitude_deg",
+        "lost_frames",
+        "fps",
+        "start_s",
+    }
     assert summary["frames"] == 4 and summary["lost_frames"] == 0
+    assert summary["fps"] > 0 and summary["start_s"] > 0
     assert len(summary["rms_position_mm"]) == 3 and len(summary["rms_attitude_deg"]) == 3
     for name in (
         "trajectory.csv",
@@ -412,3 +420,33 @@ def test_monocular_start_feeds_the_tracker_and_falls_back_to_the_identity(frames
     np.testing.assert_allclose(np.asarray(start.R), np.eye(3))
     np.testing.assert_allclose(np.asarray(start.t), np.zeros(3))
     assert info["init"].startswith("identity") and info["message"] == "no target"
+
+
+def test_the_frame_rate_leaves_the_start_and_the_compilation_out():
+    """fps is the rate of the frames after the first two (the map's start, the solver's
+    compilation), whose seconds are start_s; with fewer than four frames, after the first."""
+    from types import SimpleNamespace
+
+    from jaxpose.studies.stereo_track import summarize
+
+    def frames(n):
+        eye = np.eye(3)
+        return [
+            SimpleNamespace(
+                index=k,
+                status=Status.OK,
+                keyframe=1,
+                n_points=1,
+                n_lines=0,
+                inliers=1,
+                rms_px=0.5,
+                R=eye,
+                t=np.array([0.0, 0.0, 2.0]),
+            )
+            for k in range(n)
+        ]
+
+    s = summarize(frames(5), [None] * 5, [5.0, 2.0, 0.1, 0.1, 0.2])["summary"]
+    assert s["fps"] == pytest.approx(3 / 0.4) and s["start_s"] == pytest.approx(7.0)
+    s = summarize(frames(3), [None] * 3, [5.0, 0.5, 0.5])["summary"]
+    assert s["fps"] == pytest.approx(2.0) and s["start_s"] == pytest.approx(5.0)
