@@ -425,28 +425,15 @@ def test_monocular_start_feeds_the_tracker_and_falls_back_to_the_identity(frames
 def test_the_frame_rate_leaves_the_start_and_the_compilation_out():
     """fps is the rate of the frames after the first two (the map's start, the solver's
     compilation), whose seconds are start_s; with fewer than four frames, after the first."""
-    from types import SimpleNamespace
-
+    from jaxpose.core.geometry import Pose
+    from jaxpose.pipelines.stereo import FrameResult
     from jaxpose.studies.stereo_track import summarize
 
-    def frames(n):
-        eye = np.eye(3)
-        return [
-            SimpleNamespace(
-                index=k,
-                status=Status.OK,
-                keyframe=1,
-                n_points=1,
-                n_lines=0,
-                inliers=1,
-                rms_px=0.5,
-                R=eye,
-                t=np.array([0.0, 0.0, 2.0]),
-            )
-            for k in range(n)
-        ]
+    def tracked(n):
+        pose = Pose(np.eye(3), np.array([0.0, 0.0, 2.0]))
+        return [FrameResult(k, pose, int(Status.OK), 1, 0, 1, 0.5, True) for k in range(n)]
 
-    s = summarize(frames(5), [None] * 5, [5.0, 2.0, 0.1, 0.1, 0.2])["summary"]
+    s = summarize(tracked(5), [None] * 5, [5.0, 2.0, 0.1, 0.1, 0.2])["summary"]
     assert s["fps"] == pytest.approx(3 / 0.4) and s["start_s"] == pytest.approx(7.0)
-    s = summarize(frames(3), [None] * 3, [5.0, 0.5, 0.5])["summary"]
+    s = summarize(tracked(3), [None] * 3, [5.0, 0.5, 0.5])["summary"]
     assert s["fps"] == pytest.approx(2.0) and s["start_s"] == pytest.approx(5.0)
