@@ -167,8 +167,9 @@ def test_options_are_checked():
     for bad in (-1, True, 2.5):
         with pytest.raises(ValueError, match="attitude_grid"):
             initialise_pose(img, cam, options=InitOptions(attitude_grid=bad))
-    with pytest.raises(ValueError, match="silhouette_weight"):
-        initialise_pose(img, cam, options=InitOptions(silhouette_weight=float("nan")))
+    for bad in (float("nan"), True, "1"):  # a bool was taken as weight 1, a string a TypeError
+        with pytest.raises(ValueError, match="silhouette_weight"):
+            initialise_pose(img, cam, options=InitOptions(silhouette_weight=bad))
 
 
 @pytest.mark.slow

@@ -8,6 +8,7 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpose.core._checks import is_finite_number
 from jaxpose.core._compile import in_float64
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.pipelines.monocular.classify import check_thresholds, classify
@@ -73,10 +74,10 @@ def initialise_pose(
         "spread_quick_weight",
     ):
         w = getattr(options, name)
-        if not np.isfinite(w) or w < 0:
+        if not (is_finite_number(w) and w >= 0):
             raise ValueError(f"{name} must be finite and >= 0 (0 turns its term off); got {w}")
     w = options.fit_model_weight
-    if isinstance(w, bool) or not (np.isfinite(w) and w > 0):
+    if not (is_finite_number(w) and w > 0):
         raise ValueError(f"fit_model_weight must be finite and > 0; got {w!r}")
     g = options.attitude_grid
     if isinstance(g, bool) or not isinstance(g, int | np.integer) or g < 0:
