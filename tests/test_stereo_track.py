@@ -125,6 +125,13 @@ def test_tracker_reports_lost_instead_of_a_pose(frames):
         tracker.process(black[:10], black[:10])
 
 
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
+def test_an_image_that_could_not_be_read_is_named(frames):
+    tracker = StereoTracker(RIG, frames[0].pose)
+    with pytest.raises(ValueError, match="right image is None"):  # what cv2.imread returns
+        tracker.process(frames[0].left, None)
+
+
 def test_tracker_rejects_unrectified_rigs():
     from jaxpose import PinholeCamera, StereoCamera
 

@@ -459,6 +459,9 @@ class StereoTracker:
         """Track one rectified stereo pair (grayscale; ``uint8``, or converted by
         :func:`as_gray_uint8`); returns its :class:`~jaxpose.pipelines.stereo.FrameResult`."""
         o = self.options
+        for name, image in (("left", left), ("right", right)):
+            if image is None:  # what cv2.imread returns for a file it cannot read
+                raise ValueError(f"the {name} image is None (a file that could not be read?)")
         left, right = np.asarray(left), np.asarray(right)
         H, W = self.rig.left.height, self.rig.left.width
         if left.shape[:2] != (H, W) or right.shape[:2] != (H, W):
