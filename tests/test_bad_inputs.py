@@ -1691,6 +1691,41 @@ row(
 )
 
 
+# ---- the second audit: surfaces added after the table (line blocks, tracker options, CLI) -----
+
+SEG = jnp.asarray(np.random.default_rng(3).uniform(-1.0, 1.0, (8, 2, 3)))
+
+# A sigma that is not a number: a bool was taken as 1 (True), a numeric string as its number.
+for name, s in [("bool", True), ("str", "1"), ("bool-array", np.ones(8, bool))]:
+    row(
+        "sigma-not-a-number",
+        f"lines-{name}",
+        lambda ctx, s=s: jp.line_information_blocks(SEG, POSE, CAM, sigma=s),
+        Raises("sigma"),
+    )
+row(
+    "sigma-not-a-number",
+    "blocks-bool",
+    lambda ctx: jp.information_blocks(P, POSE, CAM, sigma=True),
+    Raises("sigma"),
+)
+row("sigma-not-a-number", "dop-str", lambda ctx: jp.dop(P, POSE, CAM, sigma="2"), Raises("sigma"))
+row(
+    "sigma-not-a-number",
+    "refine-bool",
+    lambda ctx: jp.refine_pose(P, U, POSE, CAM, sigma=True),
+    Raises("sigma"),
+)
+# (held) the line blocks refuse a non-positive sigma as the point blocks do
+for name, s in [("negative", -1.0), ("zero", 0.0), ("nan", np.nan)]:
+    row(
+        "bad-sigma",
+        f"lines-{name}",
+        lambda ctx, s=s: jp.line_information_blocks(SEG, POSE, CAM, sigma=s),
+        Raises("sigma"),
+    )
+
+
 @pytest.mark.parametrize("cls, variant, fn, expect", TABLE)
 def test_bad_input(cls, variant, fn, expect, tmp_path, capsys):
     previous = signal.signal(signal.SIGALRM, _alarm)

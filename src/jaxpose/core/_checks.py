@@ -94,9 +94,15 @@ def is_rotation(R) -> Array:
 
 
 def check_positive(x, name: str) -> None:
-    """``ValueError`` when ``x`` is known (not traced) and holds a value that is not positive and
-    finite; ``None`` and traced values pass (a traced bad value becomes a status downstream)."""
-    if x is None or isinstance(x, jax.core.Tracer):
+    """``ValueError`` when ``x`` is not numeric (a bool, a string) or is known (not traced) and
+    holds a value that is not positive and finite; ``None`` and traced numeric values pass (a
+    traced bad value becomes a status downstream)."""
+    if x is None:
+        return
+    dtype = x.dtype if isinstance(x, jax.core.Tracer) else np.asarray(x).dtype
+    if dtype.kind not in "iuf":  # a bool was taken as 1 or 0, a numeric string as its number
+        raise ValueError(f"{name} must be a number or an array of numbers; got {x!r}")
+    if isinstance(x, jax.core.Tracer):
         return
     values = np.asarray(x, dtype=float)
     if not np.all(np.isfinite(values) & (values > 0)):

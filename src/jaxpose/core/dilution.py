@@ -33,7 +33,6 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from jaxpose.core._checks import check_mask, check_pose, check_positive, check_rows, is_rotation
@@ -171,13 +170,10 @@ def _check_sigma(sigma, n: int, dtype):
     are known (not traced), for a value that is not positive and finite."""
     if sigma is None:
         return None
+    check_positive(sigma, "sigma (pixel noise)")
     sigma = jnp.asarray(sigma, dtype=dtype)
     if sigma.ndim > 1 or (sigma.ndim == 1 and sigma.shape[0] != n):
         raise ValueError(f"sigma must be a scalar or have shape ({n},); got {sigma.shape}")
-    if not isinstance(sigma, jax.core.Tracer):
-        bad = ~(np.asarray(sigma) > 0) | ~np.isfinite(np.asarray(sigma))
-        if bad.any():
-            raise ValueError(f"sigma (pixel noise) must be positive and finite; got {sigma}")
     return jnp.broadcast_to(sigma, (n,))
 
 
