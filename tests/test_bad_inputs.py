@@ -1726,6 +1726,22 @@ for name, s in [("negative", -1.0), ("zero", 0.0), ("nan", np.nan)]:
     )
 
 
+# A --budget-rule without --feature-budget was ignored (every feature was used, no rule chose).
+for rule in ("random", "response", "dop"):
+    row(
+        "stereo-budget-rule-alone",
+        rule,
+        lambda ctx, r=rule: _stereo_argv(ctx, "--budget-rule", r),
+        Cli("--budget-rule", "--feature-budget"),
+    )
+row(
+    "stereo-budget-rule-alone",
+    "budget-by-option",
+    lambda ctx: _stereo_argv(ctx, "--budget-rule", "random", "--option", "feature_budget=8"),
+    CliOk(_frames_honoured(3)),
+)
+
+
 @pytest.mark.parametrize("cls, variant, fn, expect", TABLE)
 def test_bad_input(cls, variant, fn, expect, tmp_path, capsys):
     previous = signal.signal(signal.SIGALRM, _alarm)

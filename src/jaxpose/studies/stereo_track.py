@@ -153,9 +153,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--budget-rule",
         choices=("dop", "random", "response"),
-        default="dop",
-        help="which N features: lowest DOP at the predicted pose, random, or strongest detector "
-        "response (default: dop)",
+        default=None,
+        help="which N features of --feature-budget: lowest DOP at the predicted pose, random, or "
+        "strongest detector response (default: dop)",
     )
     add_option_argument(
         parser, "TrackerOptions (jaxpose.pipelines.stereo)", "stereo.line_trim_px=1.5"
@@ -399,8 +399,14 @@ def run(args: argparse.Namespace) -> int:
     if w < 64 or h < 48:
         raise ValueError(f"--image-size must be at least 64x48; got {w}x{h}")
     use_lines = not args.points_only
-    if with_options(TrackerOptions(use_lines=use_lines), args.option).use_lines != use_lines:
+    given = with_options(
+        TrackerOptions(use_lines=use_lines, feature_budget=args.feature_budget), args.option
+    )
+    if given.use_lines != use_lines:
         raise ValueError("set use_lines with --points-only, not with --option")  # before rendering
+    if args.budget_rule is not None and given.feature_budget is None:
+        # without a budget every matched feature is used and no rule chooses
+        raise ValueError(f"--budget-rule {args.budget_rule} needs --feature-budget N")
     dt = 1.0 / args.frame_rate_hz
     if args.images is not None:
         given = [
@@ -445,7 +451,7 @@ def run(args: argparse.Namespace) -> int:
         use_lines=use_lines,
         depth_range_m=(0.3, max(8.0, 3 * range_m)),
         feature_budget=args.feature_budget,
-        budget_rule=args.budget_rule,
+        budget_rule=args.budget_rule or "dop",
     )
     opts = with_options(opts, args.option)
     with tqdm(total=n, disable=args.no_progress, desc="stereo-track", unit="frame") as bar:
