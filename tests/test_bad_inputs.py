@@ -12,7 +12,8 @@ Expectations (see ``docs/errors.md``):
   :class:`CliOk`: it exits 0 and its output passes a check.
 
 Every class of the audit (the 18 silent-wrong or NaN answers, the 10 unclear errors, the 3 hangs
-and the 30 that held) has several rows with other values of the same class.
+and the 30 that held) has several rows with other values of the same class; so has each class
+of the second audit, of the surfaces added later (line blocks, the stereo tracker, its CLI).
 """
 
 from __future__ import annotations
@@ -1739,6 +1740,31 @@ row(
     "budget-by-option",
     lambda ctx: _stereo_argv(ctx, "--budget-rule", "random", "--option", "feature_budget=8"),
     CliOk(_frames_honoured(3)),
+)
+
+
+def _tracker_roi(roi):
+    from jaxpose.pipelines.stereo import StereoTracker
+
+    rig, frames = _stereo_pairs()
+    return StereoTracker(rig, frames[0].pose).process(frames[0].left, frames[0].right, roi=roi)
+
+
+# A malformed roi of StereoTracker.process: NaN or inverted corners were used as they were, three
+# numbers or a string raised an error that did not name roi.
+for name, roi in [
+    ("three", [1, 2, 3]),
+    ("nan", [0, 0, np.nan, 100]),
+    ("inverted", [300, 200, 10, 10]),
+    ("string", "abcd"),
+    ("outside", [-900, -900, -800, -800]),
+]:
+    row("tracker-roi", name, lambda ctx, r=roi: _tracker_roi(r), Raises("roi"))
+row(
+    "tracker-roi",
+    "init-string",
+    lambda ctx: jp.initialise_pose(_rendered(), MONO_CAM, roi="ab"),
+    Raises("roi"),
 )
 
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from jaxpose.core.camera import PinholeCamera
 
-__all__ = ["undistort_box", "undistort_image"]
+__all__ = ["check_roi", "undistort_box", "undistort_image"]
 
 _MAPS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
 
@@ -36,15 +36,14 @@ def undistort_image(image: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarra
     return cv2.remap(image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), ideal
 
 
-def undistort_box(box, camera: PinholeCamera, shape: tuple[int, int]) -> np.ndarray:
-    """The box ``[u0, v0, u1, v1]`` (pixels of the *distorted* image of ``shape (H, W)``) as the
-    ideal camera of :func:`undistort_image` sees it: the bounding box of its outline (16 points a
-    side) mapped through ``cv2.undistortPoints`` with ``P = K``, clipped to the image. Without
-    distortion, the box clipped to the image.
-
-    Raises ``ValueError`` naming ``roi`` when the box is not four finite numbers with ``u0 < u1``
-    and ``v0 < v1``, or when it lies outside the image."""
-    b = np.asarray(box, dtype=float)
+def check_roi(box, shape: tuple[int, ...]) -> np.ndarray:
+    """The box ``[u0, v0, u1, v1]`` (pixels of an image of ``shape (H, W, ...)``) as four floats;
+    ``ValueError`` naming ``roi`` when it is not four finite numbers with ``u0 < u1`` and
+    ``v0 < v1``, or when it lies outside the image."""
+    try:
+        b = np.asarray(box, dtype=float)
+    except (TypeError, ValueError):
+        b = np.full(0, np.nan)
     if b.shape != (4,) or not np.all(np.isfinite(b)):
         raise ValueError(f"roi must be four finite numbers [u0, v0, u1, v1]; got {box!r}")
     u0, v0, u1, v1 = b
@@ -53,6 +52,18 @@ def undistort_box(box, camera: PinholeCamera, shape: tuple[int, int]) -> np.ndar
     H, W = int(shape[0]), int(shape[1])
     if u1 <= 0 or v1 <= 0 or u0 >= W - 1 or v0 >= H - 1:
         raise ValueError(f"roi {b.tolist()} lies outside the {W}x{H} image")
+    return b
+
+
+def undistort_box(box, camera: PinholeCamera, shape: tuple[int, int]) -> np.ndarray:
+    """The box ``[u0, v0, u1, v1]`` (pixels of the *distorted* image of ``shape (H, W)``) as the
+    ideal camera of :func:`undistort_image` sees it: the bounding box of its outline (16 points a
+    side) mapped through ``cv2.undistortPoints`` with ``P = K``, clipped to the image. Without
+    distortion, the box clipped to the image.
+
+    Raises ``ValueError`` naming ``roi`` as :func:`check_roi` does."""
+    u0, v0, u1, v1 = check_roi(box, shape)
+    H, W = int(shape[0]), int(shape[1])
     if camera.has_distortion():
         s = np.linspace(0.0, 1.0, 16)
         us, vs = u0 + s * (u1 - u0), v0 + s * (v1 - v0)

@@ -79,6 +79,7 @@ from jaxpose.pipelines.stereo.options import (
 from jaxpose.pipelines.stereo.window import WindowAdjuster
 from jaxpose.vision.stereo_features import FeatureOptions, extract
 from jaxpose.vision.stereo_match import disparity_range
+from jaxpose.vision.undistort import check_roi
 
 __all__ = ["StereoTracker", "as_gray_uint8", "target_area", "target_roi"]
 
@@ -457,7 +458,10 @@ class StereoTracker:
     @in_float64
     def process(self, left: np.ndarray, right: np.ndarray, *, roi=None) -> FrameResult:
         """Track one rectified stereo pair (grayscale; ``uint8``, or converted by
-        :func:`as_gray_uint8`); returns its :class:`~jaxpose.pipelines.stereo.FrameResult`."""
+        :func:`as_gray_uint8`); returns its :class:`~jaxpose.pipelines.stereo.FrameResult`.
+        ``roi``: the target's box ``[u0, v0, u1, v1]`` in the left image (default: found by
+        :func:`target_roi`); ``ValueError`` naming ``roi`` for a malformed one
+        (:func:`~jaxpose.vision.undistort.check_roi`)."""
         o = self.options
         for name, image in (("left", left), ("right", right)):
             if image is None:  # what cv2.imread returns for a file it cannot read
@@ -471,7 +475,7 @@ class StereoTracker:
         left, right = as_gray_uint8(left, "left"), as_gray_uint8(right, "right")
         clock = StageClock(STAGES)
         with clock.stage("features"):
-            roi = target_roi(left) if roi is None else roi
+            roi = target_roi(left) if roi is None else check_roi(roi, left.shape)
             area = target_area(left)
             feats = extract(
                 left,
