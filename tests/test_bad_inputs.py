@@ -1768,6 +1768,57 @@ row(
 )
 
 
+def _options(kind: str, **fields):
+    from jaxpose.pipelines.monocular import InitOptions
+    from jaxpose.pipelines.stereo import TrackerOptions
+    from jaxpose.vision.stereo_features import FeatureOptions
+    from jaxpose.vision.stereo_match import StereoMatchOptions
+
+    if kind == "init":  # InitOptions is checked where the pipeline starts
+        return jp.initialise_pose(
+            np.zeros((64, 64), np.uint8), MONO_CAM, options=InitOptions(**fields)
+        )
+    cls = {"tracker": TrackerOptions, "features": FeatureOptions, "stereo": StereoMatchOptions}
+    return cls[kind](**fields)
+
+
+# The plain fields of the stereo tracker's options (and of its feature and epipolar-search
+# groups) and the integer and flag fields of InitOptions had no check: a bool was taken as 1, a
+# negative count or NaN threshold ran, a string raised a TypeError that did not name the field.
+for name, kind, fields, named in [
+    ("tracker-bool-sigma", "tracker", dict(sigma_px=True), "sigma_px"),
+    ("tracker-nan-sigma", "tracker", dict(line_sigma_px=np.nan), "line_sigma_px"),
+    ("tracker-float-count", "tracker", dict(max_points=2.5), "max_points"),
+    ("tracker-string-count", "tracker", dict(passes="3"), "passes"),
+    ("tracker-negative-count", "tracker", dict(mature_obs=-1), "mature_obs"),
+    ("tracker-string-flag", "tracker", dict(use_lines="yes"), "use_lines"),
+    ("tracker-nan-limit", "tracker", dict(max_rms_px=np.nan), "max_rms_px"),
+    ("tracker-depths-reversed", "tracker", dict(depth_range_m=(8.0, 0.6)), "depth_range_m"),
+    ("tracker-robust", "tracker", dict(robust="l2"), "robust"),
+    (
+        "tracker-motion-inf",
+        "tracker",
+        dict(window_motion_sigma=(1.0, np.inf)),
+        "window_motion_sigma",
+    ),
+    ("tracker-motion-scalar", "tracker", dict(window_motion_sigma=5.0), "window_motion_sigma"),
+    ("tracker-string-fraction", "tracker", dict(line_scale_memory="a"), "line_scale_memory"),
+    ("tracker-group", "tracker", dict(features=3), "features"),
+    ("features-zero-budget", "features", dict(n_points=0), "n_points"),
+    ("features-ratio", "features", dict(point_ratio=1.5), "point_ratio"),
+    ("features-string", "features", dict(mu="a"), "mu"),
+    ("stereo-float-window", "stereo", dict(window=15.0), "window"),
+    ("stereo-even-window", "stereo", dict(coarse_window=8), "coarse_window"),
+    ("stereo-ncc", "stereo", dict(ncc_threshold=2.0), "ncc_threshold"),
+    ("stereo-range", "stereo", dict(coarse_min_range=0), "coarse_min_range"),
+    ("init-top-k", "init", dict(top_k=0), "top_k"),
+    ("init-bool-count", "init", dict(max_hypotheses=True), "max_hypotheses"),
+    ("init-rounds", "init", dict(rematch_rounds=-1), "rematch_rounds"),
+    ("init-flag", "init", dict(trace="yes"), "trace"),
+]:
+    row("option-field-kinds", name, lambda ctx, k=kind, f=fields: _options(k, **f), Raises(named))
+
+
 @pytest.mark.parametrize("cls, variant, fn, expect", TABLE)
 def test_bad_input(cls, variant, fn, expect, tmp_path, capsys):
     previous = signal.signal(signal.SIGALRM, _alarm)

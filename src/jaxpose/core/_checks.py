@@ -115,3 +115,59 @@ def is_finite_number(x) -> bool:
     field in their own message."""
     number = isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
     return bool(number and np.isfinite(x))
+
+
+def _is_integer(x) -> bool:
+    return isinstance(x, int | np.integer) and not isinstance(x, bool)
+
+
+def check_fields(
+    obj,
+    *,
+    flags=(),
+    integers=None,
+    positive=(),
+    limits=(),
+    non_negative=(),
+    fractions=(),
+    optional=(),
+) -> None:
+    """``ValueError`` naming ``Type.field`` for a field of the options object ``obj`` that is not
+    of its kind, so that a bad value is refused where it is set instead of acting silently (a
+    bool taken as 1, a string compared with a number) deep in a pipeline:
+
+    * ``flags``: a bool (``True``/``False``, NumPy's too);
+    * ``integers``: ``{field: least value}``, an integer (not a bool) at least that;
+    * ``positive``: a finite number above 0;
+    * ``limits``: a number above 0, ``inf`` allowed (a threshold that can be turned off);
+    * ``non_negative``: a finite number at least 0;
+    * ``fractions``: a finite number in ``[0, 1]``.
+
+    A field also named in ``optional`` may be ``None``.
+    """
+    owner = type(obj).__name__
+
+    def bad(name, what, value):
+        if name in optional:
+            what += " or None"
+        raise ValueError(f"{owner}.{name} must be {what}; got {value!r}")
+
+    def number(x) -> bool:
+        return isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
+
+    kinds = (
+        (flags, lambda x: isinstance(x, bool | np.bool_), "True or False"),
+        (positive, lambda x: is_finite_number(x) and x > 0, "a finite number > 0"),
+        (limits, lambda x: number(x) and x > 0, "a number > 0 (inf: no limit)"),
+        (non_negative, lambda x: is_finite_number(x) and x >= 0, "a finite number >= 0"),
+        (fractions, lambda x: is_finite_number(x) and 0 <= x <= 1, "a number in [0, 1]"),
+    )
+    for names, ok, what in kinds:
+        for name in names:
+            value = getattr(obj, name)
+            if not (value is None and name in optional) and not ok(value):
+                bad(name, what, value)
+    for name, least in (integers or {}).items():
+        value = getattr(obj, name)
+        if not (value is None and name in optional) and not (_is_integer(value) and value >= least):
+            bad(name, f"an integer >= {least}", value)

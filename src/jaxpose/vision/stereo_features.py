@@ -28,6 +28,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from jaxpose.core._checks import check_fields
+
 __all__ = [
     "FeatureOptions",
     "FrameFeatures",
@@ -101,15 +103,25 @@ class FeatureOptions:
     lsd_scale: float = 0.8
 
     def __post_init__(self):
+        check_fields(
+            self,
+            integers={
+                "n_points": 1,
+                "orb_fast_threshold": 1,
+                "max_hamming_point": 0,
+                "max_hamming_line": 0,
+                "max_lines": 0,
+                "subpixel_half_window": 1,
+                "orb_levels": 1,
+            },
+            positive=("ransac_px", "lsd_scale"),
+            non_negative=("mu", "twin_px"),
+            fractions=("point_ratio", "line_ratio"),
+        )
         if self.subpixel not in (True, False, "peak"):
             raise ValueError(f'subpixel must be True, False or "peak"; got {self.subpixel!r}')
-        w = self.subpixel_half_window
-        if not (isinstance(w, int | np.integer) and w >= 1):
-            raise ValueError(f"subpixel_half_window must be an integer >= 1 (pixels); got {w!r}")
-        if not (isinstance(self.orb_levels, int | np.integer) and 1 <= self.orb_levels <= 16):
+        if not self.orb_levels <= 16:
             raise ValueError(f"orb_levels must be an integer in [1, 16]; got {self.orb_levels!r}")
-        if not self.twin_px >= 0:
-            raise ValueError(f"twin_px must be >= 0 (pixels); got {self.twin_px}")
         if not 0.1 <= self.lsd_scale <= 1.0:
             raise ValueError(f"lsd_scale must be in [0.1, 1]; got {self.lsd_scale}")
 

@@ -32,6 +32,8 @@ import cv2
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
+from jaxpose.core._checks import check_fields, is_finite_number
+
 __all__ = [
     "LineMatches",
     "PointMatches",
@@ -99,13 +101,32 @@ class StereoMatchOptions:
     line_trim_px: float | None = None
 
     def __post_init__(self):
+        check_fields(
+            self,
+            integers={
+                "window": 3,
+                "window_rows": 3,
+                "line_max_samples": 1,
+                "line_min_matches": 1,
+                "coarse_min_range": 1,
+                "coarse_window": 3,
+                "coarse_window_rows": 3,
+                "coarse_radius_px": 0,
+            },
+            positive=("line_step_px", "eps_delta_px", "eps_theta_deg", "line_trim_px"),
+            non_negative=("min_texture", "min_epipolar_angle_deg"),
+            optional=("window_rows", "coarse_min_range", "line_trim_px"),
+        )
         for name in ("window", "window_rows", "coarse_window", "coarse_window_rows"):
             w = getattr(self, name)
-            if w is not None and (w < 3 or w % 2 == 0):
-                raise ValueError(f"{name} must be an odd integer >= 3; got {w}")
-        t = self.line_trim_px
-        if t is not None and not (np.isfinite(t) and t > 0):
-            raise ValueError(f"line_trim_px must be None or a distance > 0 (pixels); got {t}")
+            if w is not None and w % 2 == 0:
+                raise ValueError(f"StereoMatchOptions.{name} must be odd; got {w}")
+        for name in ("ncc_threshold", "coarse_ncc_threshold"):
+            c = getattr(self, name)
+            if not (is_finite_number(c) and -1 <= c <= 1):
+                raise ValueError(
+                    f"StereoMatchOptions.{name} must be a number in [-1, 1]; got {c!r}"
+                )
 
 
 @dataclass

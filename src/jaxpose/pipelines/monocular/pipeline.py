@@ -8,7 +8,7 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpose.core._checks import is_finite_number
+from jaxpose.core._checks import check_fields, is_finite_number
 from jaxpose.core._compile import in_float64
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.pipelines.monocular.classify import check_thresholds, classify
@@ -85,6 +85,18 @@ def initialise_pose(
     n = options.template_slots
     if isinstance(n, bool) or not isinstance(n, int | np.integer) or not 0 <= n <= 128:
         raise ValueError(f"template_slots must be an integer in [0, 128] (0: off); got {n!r}")
+    check_fields(
+        options,
+        flags=("shortlist_fit", "grid_without_silhouette", "fit_by_length", "trace"),
+        integers={
+            "top_k": 1,
+            "max_hypotheses": 1,
+            "rematch_rounds": 0,
+            "ransac_iterations": 1,
+            "ransac_seed": 0,
+        },
+        optional=("ransac_iterations",),
+    )
     check_thresholds(options.confidence)
     timings = {}
     trace = {} if options.trace else None

@@ -6,8 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from jaxpose.core._checks import is_finite_number
+from jaxpose.core._checks import check_fields, is_finite_number
 from jaxpose.core.geometry import Pose
+from jaxpose.core.residuals import ROBUST_KINDS
 from jaxpose.vision.stereo_features import FeatureOptions
 from jaxpose.vision.stereo_match import StereoMatchOptions
 
@@ -24,6 +25,83 @@ BUDGET_NOISE = ("pixel", "landmark", "measured", "both")
 
 #: Weights of the ``"dop"`` budget rule's criterion (:mod:`jaxpose.pipelines.stereo.budget`).
 BUDGET_WEIGHTS = ("chaser", "relative")
+
+
+#: Kinds of the plain fields of :class:`TrackerOptions` (:func:`jaxpose.core._checks.check_fields`).
+_FIELD_KINDS = dict(
+    flags=(
+        "use_lines",
+        "adaptive_radius",
+        "frame_rays",
+        "stereo_residuals",
+        "line_planes",
+        "line_stereo_residuals",
+        "measured_line_sigma",
+        "predicted_disparity",
+        "threads",
+        "window_free_lines",
+        "keep_history",
+        "budget_window",
+        "anchor_points",
+        "measured_point_sigma",
+        "landmark_point_sigma",
+    ),
+    integers={
+        "max_points": 1,
+        "max_lines": 1,
+        "min_features": 1,
+        "keyframe_every": 1,
+        "keyframe_min": 0,
+        "passes": 1,
+        "max_obs": 1,
+        "cull_after": 1,
+        "keep_obs": 0,
+        "keypoint_floor": 1,
+        "mature_obs": 0,
+        "window_iterations": 1,
+        "window_every": 1,
+        "window_points": 1,
+        "window_anchors": 0,
+        "window_anchor_every": 1,
+        "window_anchor_points": 1,
+        "anchor_half_px": 1,
+    },
+    positive=(
+        "depth_margin_m",
+        "sigma_px",
+        "line_sigma_px",
+        "search_radius_px",
+        "line_angle_deg",
+        "inlier_px",
+        "keypoint_spacing_px",
+        "lsd_area_px",
+        "neighbour_px",
+        "window_depth_m",
+        "budget_subsample",
+        "anchor_turn_deg",
+    ),
+    limits=(
+        "max_rms_px",
+        "max_jump_deg",
+        "max_jump_m",
+        "reject_px",
+        "max_view_deg",
+        "refine_disparity_px",
+    ),
+    non_negative=(
+        "duplicate_px",
+        "disparity_margin_px",
+        "budget_repeat_discount",
+    ),
+    fractions=("cull_ratio", "line_scale_memory", "anchor_cornerness"),
+    optional=(
+        "depth_margin_m",
+        "keypoint_spacing_px",
+        "lsd_area_px",
+        "window_depth_m",
+        "anchor_turn_deg",
+    ),
+)
 
 
 @dataclass(frozen=True)
@@ -307,6 +385,27 @@ class TrackerOptions:
     landmark_point_sigma: bool = False
 
     def __post_init__(self):
+        check_fields(self, **_FIELD_KINDS)
+        for name, kind in (("features", FeatureOptions), ("stereo", StereoMatchOptions)):
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(
+                    f"TrackerOptions.{name} must be a {kind.__name__}; got {getattr(self, name)!r}"
+                )
+        if self.robust not in ROBUST_KINDS:
+            raise ValueError(
+                f"TrackerOptions.robust must be one of {ROBUST_KINDS}; got {self.robust!r}"
+            )
+        lo_hi = self.depth_range_m
+        if not (
+            isinstance(lo_hi, tuple | list)
+            and len(lo_hi) == 2
+            and all(is_finite_number(v) and v > 0 for v in lo_hi)
+            and lo_hi[0] < lo_hi[1]
+        ):
+            raise ValueError(
+                "TrackerOptions.depth_range_m must be two finite depths 0 < near < far (metres); "
+                f"got {lo_hi!r}"
+            )
         fb = self.feature_budget
         if fb is not None and (
             isinstance(fb, bool) or not isinstance(fb, int | np.integer) or fb < 4
@@ -322,27 +421,13 @@ class TrackerOptions:
             raise ValueError(
                 f"budget_weight must be one of {BUDGET_WEIGHTS}; got {self.budget_weight!r}"
             )
-        d = self.budget_repeat_discount
-        if not (is_finite_number(d) and d >= 0):
-            raise ValueError(f"budget_repeat_discount must be a finite number >= 0; got {d!r}")
-        if not 0.0 < self.budget_subsample <= 1.0:
+        if not self.budget_subsample <= 1.0:
             raise ValueError(f"budget_subsample must be in (0, 1]; got {self.budget_subsample}")
-        if self.lsd_area_px is not None and not self.lsd_area_px > 0:
-            raise ValueError(f"lsd_area_px must be positive or None; got {self.lsd_area_px}")
-        if self.keypoint_spacing_px is not None and not self.keypoint_spacing_px > 0:
-            raise ValueError(
-                f"keypoint_spacing_px must be positive or None; got {self.keypoint_spacing_px}"
-            )
         if self.measured_point_sigma and self.landmark_point_sigma:
             raise ValueError(
                 "measured_point_sigma and landmark_point_sigma are two weightings of the same "
                 "point residuals: set one of them"
             )
-        kf = self.keypoint_floor
-        if isinstance(kf, bool) or not isinstance(kf, int | np.integer) or kf < 1:
-            raise ValueError(f"keypoint_floor must be an integer >= 1; got {kf!r}")
-        if not self.search_radius_px > 0:
-            raise ValueError(f"search_radius_px must be positive; got {self.search_radius_px}")
         if self.window_frames != 0 and not (
             isinstance(self.window_frames, int | np.integer) and self.window_frames >= 2
         ):
@@ -354,37 +439,21 @@ class TrackerOptions:
                 "keep_history needs the windowed adjustment (window_frames > 0): its ray records "
                 "are the history"
             )
-        if not (isinstance(self.window_anchors, int | np.integer) and self.window_anchors >= 0):
-            raise ValueError(f"window_anchors must be an integer >= 0; got {self.window_anchors!r}")
-        for name in (
-            "anchor_half_px",
-            "window_every",
-            "window_points",
-            "window_anchor_every",
-            "window_anchor_points",
-        ):
-            value = getattr(self, name)
-            if not (isinstance(value, int | np.integer) and value >= 1):
-                raise ValueError(f"{name} must be an integer >= 1; got {value!r}")
         ms = self.window_motion_sigma
-        if ms is not None and not (len(ms) == 2 and all(v > 0 for v in ms)):
+        if ms is not None and not (
+            isinstance(ms, tuple | list)
+            and len(ms) == 2
+            and all(is_finite_number(v) and v > 0 for v in ms)
+        ):
             raise ValueError(
-                f"window_motion_sigma must be None or two positive numbers (deg, mm); got {ms!r}"
+                f"window_motion_sigma must be None or two finite numbers > 0 (deg, mm); got {ms!r}"
             )
-        if self.window_depth_m is not None and not self.window_depth_m > 0:
-            raise ValueError(f"window_depth_m must be positive or None; got {self.window_depth_m}")
         if self.window_frames and self.window_every > self.window_frames:
             raise ValueError(
                 f"window_every must be at most window_frames ({self.window_frames}); "
                 f"got {self.window_every}"
             )
-        if not 0.0 <= self.anchor_cornerness <= 1.0:
-            raise ValueError(f"anchor_cornerness must be in [0, 1]; got {self.anchor_cornerness}")
-        if self.anchor_turn_deg is not None and not self.anchor_turn_deg > 0:
-            raise ValueError(
-                f"anchor_turn_deg must be positive or None; got {self.anchor_turn_deg}"
-            )
-        if not 0.0 <= self.line_scale_memory < 1.0:
+        if not self.line_scale_memory < 1.0:
             raise ValueError(f"line_scale_memory must be in [0, 1); got {self.line_scale_memory}")
 
 
