@@ -1819,6 +1819,33 @@ for name, kind, fields, named in [
     row("option-field-kinds", name, lambda ctx, k=kind, f=fields: _options(k, **f), Raises(named))
 
 
+# A mask of indices or weights was cast to bool: indices 0..n-1 dropped the first feature and
+# kept the rest, a weight of 0.5 counted as 1; a mask of strings raised a TypeError of JAX's.
+for name, mask in [
+    ("indices", np.arange(10)),
+    ("weights", np.full(10, 0.5)),
+    ("strings", np.array(list("abcdefghij"))),
+]:
+    row(
+        "mask-not-booleans",
+        f"dop-{name}",
+        lambda ctx, m=mask: jp.dop(P, POSE, CAM, mask=m),
+        Raises("mask"),
+    )
+    row(
+        "mask-not-booleans",
+        f"greedy-{name}",
+        lambda ctx, m=mask: jp.select.greedy(jp.information_blocks(P, POSE, CAM), 5, mask=m),
+        Raises("mask"),
+    )
+row(
+    "mask-not-booleans",
+    "solve-pnp-indices",
+    lambda ctx: jp.solve_pnp(P, U, CAM, mask=np.arange(10)),
+    Raises("mask"),
+)
+
+
 @pytest.mark.parametrize("cls, variant, fn, expect", TABLE)
 def test_bad_input(cls, variant, fn, expect, tmp_path, capsys):
     previous = signal.signal(signal.SIGALRM, _alarm)

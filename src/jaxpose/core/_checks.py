@@ -72,14 +72,35 @@ def check_pose(pose, name: str = "pose") -> None:
         )
 
 
+def as_bool_mask(mask, name: str = "mask") -> Array:
+    """``mask`` as a JAX bool array. Booleans pass; numbers only when every value is 0 or 1 (a
+    0/1 mask), since other numbers are most likely indices or weights, which a cast to bool would
+    turn silently into another selection; anything else (strings, objects) is refused. A traced
+    numeric mask cannot be looked at and is cast."""
+    if isinstance(mask, jax.core.Tracer):
+        return mask if mask.dtype == bool else mask.astype(bool)
+    a = np.asarray(mask)
+    if a.dtype == bool:
+        return jnp.asarray(a)
+    if a.dtype.kind not in "iuf":
+        raise ValueError(f"{name} must be booleans (True: use the feature); got dtype {a.dtype}")
+    if not np.all((a == 0) | (a == 1)):
+        raise ValueError(
+            f"{name} must be booleans or 0/1 (True: use the feature), not indices or weights; "
+            f"got values {np.unique(a)[:6].tolist()}"
+        )
+    return jnp.asarray(a.astype(bool))
+
+
 def check_mask(mask, n: int, name: str = "mask", *, prefix: str = "") -> Array:
-    """A bool array of shape ``(n,)``; all ``True`` when ``mask`` is ``None``."""
+    """A bool array of shape ``(n,)`` (:func:`as_bool_mask`); all ``True`` when ``mask`` is
+    ``None``."""
     if mask is None:
         return jnp.ones((n,), bool)
-    mask = jnp.asarray(mask)
-    if mask.shape != (n,):
-        raise ValueError(f"{prefix}{name} must have shape ({n},); got {mask.shape}")
-    return mask.astype(bool)
+    shape = jnp.shape(mask)
+    if shape != (n,):
+        raise ValueError(f"{prefix}{name} must have shape ({n},); got {shape}")
+    return as_bool_mask(mask, prefix + name)
 
 
 def is_rotation(R) -> Array:

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from jaxpose.core._checks import float_dtype
+from jaxpose.core._checks import as_bool_mask, float_dtype
 from jaxpose.core._compile import known_cpu_options
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.geometry import Pose
@@ -424,6 +424,8 @@ def solve_pnp(
     flat = () if batch == () else (size,)
     points_body = _flat(points_body, batch, flat, (n, 3))
     pixels = _flat(pixels, batch, flat, (n, 2))
+    if mask is not None:
+        mask = as_bool_mask(mask)  # refuses indices or weights, while the values can be seen
     mask = np.ones(flat + (n,), bool) if mask is None else _flat(mask, batch, flat, (n,))
     traced = any(isinstance(a, jax.core.Tracer) for a in (points_body, pixels, mask, intrinsics))
     keys = None

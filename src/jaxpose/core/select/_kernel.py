@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from jaxpose.core._checks import as_bool_mask
 from jaxpose.core.dilution import MIN_POINTS, dop_from_information
 
 __all__ = [
@@ -77,10 +78,9 @@ def check_blocks(blocks, what: str, *, batched: bool = False) -> Array:
 def check_mask(mask, shape: tuple[int, ...], what: str) -> Array | None:
     if mask is None:
         return None
-    mask = jnp.asarray(mask)
-    if mask.shape != shape:
-        raise ValueError(f"{what}: mask must have shape {shape}; got {mask.shape}")
-    return mask.astype(bool)
+    if jnp.shape(mask) != shape:
+        raise ValueError(f"{what}: mask must have shape {shape}; got {jnp.shape(mask)}")
+    return as_bool_mask(mask, f"{what}: mask")
 
 
 def pack(A: Float[Array, "... 6 6"]) -> Float[Array, "... 21"]:
