@@ -132,6 +132,24 @@ def test_an_image_that_could_not_be_read_is_named(frames):
         tracker.process(frames[0].left, None)
 
 
+def test_images_of_any_depth_track_as_their_8_bit_version(frames):
+    """Float images on the [0, 1] scale, float on the 0-255 scale and 16-bit images give the
+    poses of the 8-bit frames (the library's one image convention, as initialise_pose reads an
+    image): [0, 1] floats were read on the 0-255 scale and lost every feature."""
+    ref = StereoTracker(RIG, frames[0].pose)
+    want = [ref.process(fr.left, fr.right) for fr in frames[:2]]
+    for convert in (
+        lambda im: im / 255.0,
+        lambda im: im.astype(np.float32),
+        lambda im: im.astype(np.uint16) * 257,
+    ):
+        tracker = StereoTracker(RIG, frames[0].pose)
+        for fr, w in zip(frames[:2], want, strict=True):
+            got = tracker.process(convert(fr.left), convert(fr.right))
+            assert got.status == w.status == Status.OK
+            np.testing.assert_array_equal(got.t, w.t)
+
+
 def test_tracker_rejects_unrectified_rigs():
     from jaxpose import PinholeCamera, StereoCamera
 

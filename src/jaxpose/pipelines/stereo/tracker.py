@@ -77,6 +77,7 @@ from jaxpose.pipelines.stereo.options import (
     lost_pose,
 )
 from jaxpose.pipelines.stereo.window import WindowAdjuster
+from jaxpose.vision.features import to_gray
 from jaxpose.vision.stereo_features import FeatureOptions, extract
 from jaxpose.vision.stereo_match import disparity_range
 from jaxpose.vision.undistort import check_roi
@@ -102,19 +103,17 @@ def target_area(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> flo
 
 
 def as_gray_uint8(image, name: str = "image") -> np.ndarray:
-    """A 2-D ``uint8`` view of a grayscale image: ``uint8`` as is; ``uint16`` divided by 257;
-    floating point taken on the 0-255 scale, non-finite pixels set to 0 (black), clipped."""
+    """A 2-D ``uint8`` grayscale image by the library's one image convention
+    (:func:`jaxpose.vision.features.to_gray`, as :func:`~jaxpose.initialise_pose` reads an
+    image): ``uint8`` as is; ``uint16`` divided by 257; floats on the ``[0, 1]`` scale when their
+    maximum is at most 1, otherwise on the 0-255 scale, non-finite pixels black. Raises
+    ``ValueError`` naming ``name`` for an image that is not 2-D or not numeric."""
     a = np.asarray(image)
     if a.ndim != 2:
         raise ValueError(f"{name} must be a 2-D grayscale image; got shape {a.shape}")
-    if a.dtype == np.uint8:
-        return a
-    if a.dtype == np.uint16:
-        return (a.astype(np.float64) / 257.0 + 0.5).astype(np.uint8)
-    if np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer):
-        f = np.nan_to_num(a.astype(np.float64), nan=0.0, posinf=255.0, neginf=0.0)
-        return np.clip(f + 0.5, 0, 255).astype(np.uint8)
-    raise ValueError(f"{name} must be a numeric image; got dtype {a.dtype}")
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must be a numeric image; got dtype {a.dtype}")
+    return to_gray(a)
 
 
 def _finite(pose: Pose) -> bool:
