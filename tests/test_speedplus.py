@@ -306,3 +306,54 @@ def test_eval_speedplus_on_a_dataset_root(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("jaxpose eval-speedplus: error: ")
     assert "camera.json: distCoeffs is not finite" in err[0]
+
+
+def test_records_resume_where_an_interrupted_run_stopped(tmp_path, capsys, monkeypatch):
+    """With --out (records), each image's record is kept as it is scored: a rerun with the same
+    settings runs no image again and gives the same per-image records; a record cut short by an
+    interruption is run again, alone; other options, or another label, run their images anew.
+    The command writes summary.json (its --json object) and errors.png."""
+    from jaxpose.cli import main
+    from jaxpose.pipelines.monocular import InitOptions
+    from jaxpose.studies.speedplus import evaluate_speedplus
+
+    monkeypatch.setenv("JAXPOSE_CACHE_DIR", str(tmp_path / "xla"))
+    (tmp_path / "root").mkdir()
+    root = _root(tmp_path / "root")
+    out = tmp_path / "out"
+    argv = ["eval-speedplus", str(root), "--out", str(out), "--json", "--no-progress"]
+    assert main(argv) == 0
+    first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert json.loads((out / "summary.json").read_text()) == first
+    assert cv2.imread(str(out / "errors.png")) is not None
+    records = out / "records.jsonl"
+    assert len(records.read_text().splitlines()) == 1 + first["images"] == 7
+
+    def run(**kw):
+        ran = []
+        res = evaluate_speedplus(
+            root,
+            records=records,
+            progress=False,
+            on_result=lambda lab, r, row: ran.append(lab),
+            **kw,
+        )
+        return res, [lab.image.name for lab in ran]
+
+    again, ran = run()
+    assert ran == [] and again["per_image"] == first["per_image"]
+    lines = records.read_text().splitlines()
+    records.write_text("\n".join(lines[:-1] + [lines[-1][:25]]) + "\n")  # cut short
+    again, ran = run()
+
+    def timeless(rows):
+        return [{k: v for k, v in r.items() if k != "runtime_s"} for r in rows]
+
+    assert len(ran) == 1 and timeless(again["per_image"]) == timeless(first["per_image"])
+    _, ran = run(options=InitOptions(top_k=3))  # other settings: every image anew
+    assert len(ran) == 6
+    labels = json.loads((root / "lightbox" / "test.json").read_text())
+    labels[0]["r_Vo2To_vbs_true"][2] += 1.0  # a corrected label
+    (root / "lightbox" / "test.json").write_text(json.dumps(labels))
+    _, ran = run(options=InitOptions(top_k=3))
+    assert ran == [labels[0]["filename"]]

@@ -1,6 +1,12 @@
-"""``jaxpose eval-speedplus ROOT [--domain NAME ...] [--json] [--limit N] [--option NAME=VALUE
-...]``: run the monocular initialisation on every labelled image of a SPEED+ folder and score it
-(:func:`jaxpose.studies.speedplus.evaluate_speedplus`).
+"""``jaxpose eval-speedplus ROOT [--domain NAME ...] [--json] [--limit N] [--out DIR] [--option
+NAME=VALUE ...]``: run the monocular initialisation on every labelled image of a SPEED+ folder and
+score it (:func:`jaxpose.studies.speedplus.evaluate_speedplus`).
+
+With ``--out DIR``: ``DIR/records.jsonl`` keeps each image's record as soon as it is scored, so
+that a run over the whole data set resumes where it stopped when run again with the same
+settings; ``DIR/summary.json`` (the ``--json`` object) and ``DIR/errors.png`` (every image's
+position and attitude errors against the success region, success and confidence per domain) are
+written at the end.
 
 ``ROOT`` is the SPEED+ data set's root (``camera.json`` and per domain ``images/`` with a JSON
 label file: ``synthetic/train.json``, ``synthetic/validation.json``, ``lightbox/test.json``,
@@ -10,6 +16,7 @@ label file: ``synthetic/train.json``, ``synthetic/validation.json``, ``lightbox/
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from jaxpose.commands._common import add_option_argument, add_progress_argument, with_options
 
@@ -46,6 +53,13 @@ def add_arguments(parser) -> None:
         default="hough",
         help="line detector (default: hough)",
     )
+    parser.add_argument(
+        "--out",
+        default=None,
+        metavar="DIR",
+        help="write records.jsonl (each image as it is scored; a rerun with the same settings "
+        "resumes from it), summary.json and errors.png here",
+    )
     add_option_argument(
         parser, "InitOptions (jaxpose.pipelines.monocular)", "detection.detector=lsd"
     )
@@ -62,9 +76,11 @@ def evaluate(
     detector="hough",
     progress=True,
     option_items=(),
+    records=None,
 ) -> dict:
     """The evaluation as a dict (the fields of ``--json``); ``option_items``: ``NAME=VALUE``
-    strings of ``--option`` (:func:`jaxpose.commands._common.with_options`)."""
+    strings of ``--option`` (:func:`jaxpose.commands._common.with_options`); ``records``: the
+    records file to resume from and append to."""
     from jaxpose.pipelines.monocular import InitOptions
     from jaxpose.studies.speedplus import evaluate_speedplus
     from jaxpose.vision.features import DetectionOptions
@@ -72,7 +88,13 @@ def evaluate(
     opts = InitOptions(method=method, detection=DetectionOptions(detector=detector))
     opts = with_options(opts, option_items)
     return evaluate_speedplus(
-        directory, domains=domains, limit=limit, model=model, options=opts, progress=progress
+        directory,
+        domains=domains,
+        limit=limit,
+        model=model,
+        options=opts,
+        progress=progress,
+        records=records,
     )
 
 
@@ -84,6 +106,7 @@ def run(args) -> int:
     from jaxpose.commands import enable_compilation_cache
 
     enable_compilation_cache()
+    out_dir = None if args.out is None else Path(args.out)
     out = evaluate(
         args.directory,
         domains=args.domain,
@@ -93,7 +116,13 @@ def run(args) -> int:
         detector=args.detector,
         progress=not args.no_progress,
         option_items=args.option,
+        records=None if out_dir is None else out_dir / "records.jsonl",
     )
+    if out_dir is not None:
+        from jaxpose.studies._speedplus_figures import plot_errors
+
+        (out_dir / "summary.json").write_text(json.dumps(out, indent=1))
+        plot_errors(out_dir / "errors.png", out)
     row = "{:28s} {:9s} {:13s} {:>7s} {:>8s} {:>6s} {:>6s} {:>6s} {:>6s} {}"
     print(
         row.format(
@@ -123,6 +152,8 @@ def run(args) -> int:
             f"coarse range within 20% {s['coarse_range_within_20pct']:.0%}, "
             f"median {_fmt(s['median_runtime_s'], '.2f')} s"
         )
+    if out_dir is not None:
+        print(f"records, summary.json and errors.png in {out_dir}")
     if args.json:
         print(json.dumps(out))
     return 0

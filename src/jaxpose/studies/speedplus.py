@@ -9,6 +9,8 @@ labels (``e_t < 2.173e-3``, ``e_q < 0.169 deg``); score ``e_q + e_t``, averaged 
 
 from __future__ import annotations
 
+import hashlib
+import json
 import sys
 import time
 from pathlib import Path
@@ -119,11 +121,19 @@ def evaluate_speedplus(
     options=None,
     progress=True,
     on_result=None,
+    records=None,
 ) -> dict:
     """Run :func:`~jaxpose.pipelines.monocular.initialise_pose` on every labelled image of a
     SPEED+ folder (:func:`jaxpose.io.load_speed_labels`: the data set's root or a folder with
     ``labels.csv``; ``camera.json`` at its root) and score it. ``domains``: the domains to run
-    (default: all present). ``on_result(label, result, row)`` is called after each image.
+    (default: all present). ``on_result(label, result, row)`` is called after each image run.
+
+    ``records``: a JSON-lines file that keeps each image's record as soon as it is scored (a
+    first line holds the settings' fingerprint: the model, the options and the camera), so that
+    an interrupted run over the whole data set (SPEED+'s lightbox domain alone has 6740 images,
+    more than an hour here) resumes where it stopped: an image already recorded with the same
+    settings and label is not run again and keeps its record. Records made with other settings
+    are replaced (the file starts anew).
 
     Returns the summary of :func:`summarise` with ``per_domain`` (the same summary per domain)
     and ``per_image`` (records with ``domain``, ``image``, ``confidence``, ``success``, the
@@ -147,7 +157,9 @@ def evaluate_speedplus(
         raise ValueError(f"{directory} lists no labelled image")
     mdl = load_model(model) if isinstance(model, str) else model
     opts = InitOptions() if options is None else options
-    readable = next((lab for lab in labels if lab.image.is_file()), None)
+    done, log = _open_records(records, _fingerprint(mdl, opts, camera), progress)
+    todo = [lab for lab in labels if _key(lab) not in done]
+    readable = next((lab for lab in todo if lab.image.is_file()), None)
     if readable is not None:
         from jaxpose.commands._common import stage
 
@@ -157,24 +169,33 @@ def evaluate_speedplus(
             except ValueError:
                 pass
     rows = []
-    for lab in tqdm(
-        labels, desc="eval-speedplus", disable=not progress, unit="img", file=sys.stderr
-    ):
-        row = {"image": lab.image.name, "domain": lab.domain}
-        try:
-            image = load_image(lab.image)
-        except ValueError as err:
-            rows.append(row | {"confidence": "error", "message": str(err), "success": False})
-            continue
-        t0 = time.perf_counter()
-        res = initialise_pose(image, camera, mdl, opts)
-        runtime = time.perf_counter() - t0
-        truth = Pose(jnp.asarray(np.asarray(lab.pose.R)), jnp.asarray(np.asarray(lab.pose.t)))
-        row |= evaluate_image(res, truth)
-        row["runtime_s"] = runtime
-        rows.append(row)
-        if on_result is not None:
-            on_result(lab, res, row)
+    try:
+        for lab in tqdm(
+            labels, desc="eval-speedplus", disable=not progress, unit="img", file=sys.stderr
+        ):
+            if _key(lab) in done:
+                rows.append(done[_key(lab)])
+                continue
+            row = {"image": lab.image.name, "domain": lab.domain}
+            try:
+                image = load_image(lab.image)
+            except ValueError as err:
+                rows.append(row | {"confidence": "error", "message": str(err), "success": False})
+                _record(log, lab, rows[-1])
+                continue
+            t0 = time.perf_counter()
+            res = initialise_pose(image, camera, mdl, opts)
+            runtime = time.perf_counter() - t0
+            R, t = np.asarray(lab.pose.R), np.asarray(lab.pose.t)
+            row |= evaluate_image(res, Pose(jnp.asarray(R), jnp.asarray(t)))
+            row["runtime_s"] = runtime
+            rows.append(row)
+            _record(log, lab, row)
+            if on_result is not None:
+                on_result(lab, res, row)
+    finally:
+        if log is not None:
+            log.close()
     out = summarise(rows)
     out["per_domain"] = {
         d: summarise([r for r in rows if r["domain"] == d])
@@ -182,3 +203,63 @@ def evaluate_speedplus(
     }
     out["per_image"] = rows
     return out
+
+
+def _fingerprint(model, options, camera) -> str:
+    """What a record depends on besides its image and label: the model's geometry, the options
+    and the camera (a hash of their reprs)."""
+    parts = [
+        np.asarray(model.vertices).tobytes(),
+        np.asarray(model.edges).tobytes(),
+        repr(options).encode(),
+        repr(camera).encode(),
+    ]
+    return hashlib.sha256(b"\0".join(parts)).hexdigest()[:16]
+
+
+def _key(label) -> str:
+    """An image's key in the records: its domain, its name and its label (a record scored
+    against another label is not reused)."""
+    pose = np.concatenate([np.ravel(label.pose.R), np.ravel(label.pose.t)])
+    return f"{label.domain}/{label.image.name}/" + ",".join(f"{v:.9g}" for v in pose)
+
+
+def _open_records(path, fingerprint: str, progress: bool):
+    """``(records already made, by :func:`_key`; the file open for appending)`` of a records
+    file (``None``: no file, nothing kept)."""
+    if path is None:
+        return {}, None
+    path = Path(path)
+    done = {}
+    if path.is_file():
+        lines = path.read_text().splitlines()
+        try:
+            head = json.loads(lines[0]) if lines else {}
+        except json.JSONDecodeError:
+            head = {}
+        if head.get("fingerprint") == fingerprint:
+            for line in lines[1:]:
+                try:
+                    kept = json.loads(line)
+                except json.JSONDecodeError:  # a line cut short by an interruption
+                    continue
+                done[kept["key"]] = kept["row"]
+        elif progress:
+            print(
+                f"eval-speedplus: {path} was made with other settings: starting anew",
+                file=sys.stderr,
+            )
+    if done and progress:
+        print(f"eval-speedplus: {len(done)} images already scored in {path}", file=sys.stderr)
+    # written anew with what is kept, so that a line cut short by an interruption goes
+    path.parent.mkdir(parents=True, exist_ok=True)
+    kept = [json.dumps({"fingerprint": fingerprint})]
+    kept += [json.dumps({"key": k, "row": r}) for k, r in done.items()]
+    path.write_text("\n".join(kept) + "\n")
+    return done, path.open("a")
+
+
+def _record(log, label, row: dict) -> None:
+    if log is not None:
+        log.write(json.dumps({"key": _key(label), "row": row}) + "\n")
+        log.flush()
