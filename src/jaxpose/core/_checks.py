@@ -79,6 +79,8 @@ def as_bool_mask(mask, name: str = "mask") -> Array:
     numeric mask cannot be looked at and is cast."""
     if isinstance(mask, jax.core.Tracer):
         return mask if mask.dtype == bool else mask.astype(bool)
+    if isinstance(mask, jax.Array) and mask.dtype == jnp.bool_:  # no copy to the host and back
+        return mask
     a = np.asarray(mask)
     if a.dtype == bool:
         return jnp.asarray(a)
@@ -130,12 +132,16 @@ def check_positive(x, name: str) -> None:
         raise ValueError(f"{name} must be positive and finite; got {values.tolist()}")
 
 
+def _is_real(x) -> bool:
+    """Whether ``x`` is one Python or NumPy integer or float (not a bool, a string or an array)."""
+    return isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
+
+
 def is_finite_number(x) -> bool:
     """Whether ``x`` is one finite real number given as a Python or NumPy integer or float (not a
     bool, a string or an array): the test behind the option and scene checks that name their
     field in their own message."""
-    number = isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
-    return bool(number and np.isfinite(x))
+    return bool(_is_real(x) and np.isfinite(x))
 
 
 def _is_integer(x) -> bool:
@@ -173,13 +179,10 @@ def check_fields(
             what += " or None"
         raise ValueError(f"{owner}.{name} must be {what}; got {value!r}")
 
-    def number(x) -> bool:
-        return isinstance(x, int | float | np.integer | np.floating) and not isinstance(x, bool)
-
     kinds = (
         (flags, lambda x: isinstance(x, bool | np.bool_), "True or False"),
         (positive, lambda x: is_finite_number(x) and x > 0, "a finite number > 0"),
-        (limits, lambda x: number(x) and x > 0, "a number > 0 (inf: no limit)"),
+        (limits, lambda x: _is_real(x) and x > 0, "a number > 0 (inf: no limit)"),
         (non_negative, lambda x: is_finite_number(x) and x >= 0, "a finite number >= 0"),
         (fractions, lambda x: is_finite_number(x) and 0 <= x <= 1, "a number in [0, 1]"),
     )

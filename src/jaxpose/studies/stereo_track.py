@@ -399,12 +399,12 @@ def run(args: argparse.Namespace) -> int:
     if w < 64 or h < 48:
         raise ValueError(f"--image-size must be at least 64x48; got {w}x{h}")
     use_lines = not args.points_only
-    given = with_options(
+    asked = with_options(
         TrackerOptions(use_lines=use_lines, feature_budget=args.feature_budget), args.option
     )
-    if given.use_lines != use_lines:
+    if asked.use_lines != use_lines:
         raise ValueError("set use_lines with --points-only, not with --option")  # before rendering
-    if args.budget_rule is not None and given.feature_budget is None:
+    if args.budget_rule is not None and asked.feature_budget is None:
         # without a budget every matched feature is used and no rule chooses
         raise ValueError(f"--budget-rule {args.budget_rule} needs --feature-budget N")
     dt = 1.0 / args.frame_rate_hz
