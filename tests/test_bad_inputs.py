@@ -1846,6 +1846,20 @@ row(
 )
 
 
+def _speedplus_out(ctx, out):
+    root = ctx.tmp / "sp"
+    root.mkdir(exist_ok=True)
+    (root / "camera.json").write_text(json.dumps({"cameraMatrix": K, "Nu": 640, "Nv": 480}))
+    (root / "labels.csv").write_text("image,domain,qw,qx,qy,qz,tx,ty,tz\na.png,x,1,0,0,0,0,0,5\n")
+    (ctx.tmp / "a-file").write_text("")
+    return ["eval-speedplus", root, "--out", ctx.tmp / out, "--no-progress"]
+
+
+# eval-speedplus --out where no folder can be made: a traceback-free error naming --out
+for name, out in [("a-file", "a-file"), ("under-a-file", "a-file/records")]:
+    row("speedplus-out", name, lambda ctx, o=out: _speedplus_out(ctx, o), Cli("--out"))
+
+
 @pytest.mark.parametrize("cls, variant, fn, expect", TABLE)
 def test_bad_input(cls, variant, fn, expect, tmp_path, capsys):
     previous = signal.signal(signal.SIGALRM, _alarm)

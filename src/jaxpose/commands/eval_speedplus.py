@@ -107,6 +107,11 @@ def run(args) -> int:
 
     enable_compilation_cache()
     out_dir = None if args.out is None else Path(args.out)
+    if out_dir is not None:  # before any image is run
+        try:
+            out_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ValueError(f"--out {out_dir}: cannot make this folder ({err.strerror})") from None
     out = evaluate(
         args.directory,
         domains=args.domain,

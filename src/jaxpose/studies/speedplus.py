@@ -237,13 +237,14 @@ def _open_records(path, fingerprint: str, progress: bool):
             head = json.loads(lines[0]) if lines else {}
         except json.JSONDecodeError:
             head = {}
-        if head.get("fingerprint") == fingerprint:
+        if isinstance(head, dict) and head.get("fingerprint") == fingerprint:
             for line in lines[1:]:
                 try:
                     kept = json.loads(line)
                 except json.JSONDecodeError:  # a line cut short by an interruption
                     continue
-                done[kept["key"]] = kept["row"]
+                if isinstance(kept, dict) and {"key", "row"} <= kept.keys():
+                    done[kept["key"]] = kept["row"]
         elif progress:
             print(
                 f"eval-speedplus: {path} was made with other settings: starting anew",
