@@ -1778,7 +1778,14 @@ def _options(kind: str, **fields):
         return jp.initialise_pose(
             np.zeros((64, 64), np.uint8), MONO_CAM, options=InitOptions(**fields)
         )
-    cls = {"tracker": TrackerOptions, "features": FeatureOptions, "stereo": StereoMatchOptions}
+    from jaxpose.vision.features import DetectionOptions
+
+    cls = {
+        "tracker": TrackerOptions,
+        "features": FeatureOptions,
+        "stereo": StereoMatchOptions,
+        "detection": DetectionOptions,
+    }
     return cls[kind](**fields)
 
 
@@ -1815,6 +1822,10 @@ for name, kind, fields, named in [
     ("init-bool-count", "init", dict(max_hypotheses=True), "max_hypotheses"),
     ("init-rounds", "init", dict(rematch_rounds=-1), "rematch_rounds"),
     ("init-flag", "init", dict(trace="yes"), "trace"),
+    ("detection-bool-size", "detection", dict(kappa1=True), "kappa1"),
+    ("detection-zero-count", "detection", dict(max_segments=0), "max_segments"),
+    ("detection-share", "detection", dict(wge_cdf=1.5), "wge_cdf"),
+    ("detection-flag", "detection", dict(cluster_roi="no"), "cluster_roi"),
 ]:
     row("option-field-kinds", name, lambda ctx, k=kind, f=fields: _options(k, **f), Raises(named))
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
+from jaxpose.core._checks import check_fields
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.vision.coarse import coarse_position
 from jaxpose.vision.hough import sobel_hough, wge_hough
@@ -169,6 +170,43 @@ class DetectionOptions:
     min_support: float = 0.3
     support_rank: bool = False
     texture_family: int = 6
+
+    def __post_init__(self):
+        check_fields(
+            self,
+            flags=(
+                "cluster_roi",
+                "silhouette_roi",
+                "silhouette_shape",
+                "silhouette_grow",
+                "silhouette_gradient",
+                "cluster_lsd",
+                "cluster_whole",
+                "cut_range",
+                "support_rank",
+            ),
+            integers={"max_segments": 1, "max_groups": 1},
+            positive=(
+                "kappa1",
+                "kappa2",
+                "kappa3",
+                "kappa4",
+                "d_max_frac",
+                "theta_max_deg",
+                "corner_frac",
+                "min_roi_px",
+                "cluster_roi_ratio",
+                "cluster_scale",
+                "cluster_max_ratio",
+                "cluster_lsd_min_px",
+            ),
+            non_negative=(
+                "gaussian_sigma_px",
+                "corner_min_angle_deg",
+                "silhouette_min_gradient",
+            ),
+            fractions=("wge_cdf", "cluster_background_share", "min_support"),
+        )
 
 
 @dataclass
@@ -487,8 +525,6 @@ def detect(
 
     if options.detector not in ("hough", "lsd"):
         raise ValueError(f"detector must be 'hough' or 'lsd'; got {options.detector!r}")
-    if not (np.isfinite(options.min_support) and 0.0 <= options.min_support <= 1.0):
-        raise ValueError(f"min_support must be in [0, 1] (0: off); got {options.min_support}")
     if options.texture_family != 0 and not (
         int(options.texture_family) == options.texture_family and options.texture_family >= 3
     ):
