@@ -456,11 +456,9 @@ class StereoTracker:
 
     @in_float64
     def process(self, left: np.ndarray, right: np.ndarray, *, roi=None) -> FrameResult:
-        """Track one rectified stereo pair (grayscale; ``uint8``, or converted by
-        :func:`as_gray_uint8`); returns its :class:`~jaxpose.pipelines.stereo.FrameResult`.
-        ``roi``: the target's box ``[u0, v0, u1, v1]`` in the left image (default: found by
-        :func:`target_roi`); ``ValueError`` naming ``roi`` for a malformed one
-        (:func:`~jaxpose.vision.undistort.check_roi`)."""
+        """Track one rectified grey stereo pair (any depth, :func:`as_gray_uint8`); returns its
+        :class:`~jaxpose.pipelines.stereo.FrameResult`. ``roi``: the target's box ``[u0, v0, u1,
+        v1]`` in the left image (default: :func:`target_roi`), checked by ``check_roi``."""
         o = self.options
         for name, image in (("left", left), ("right", right)):
             if image is None:  # what cv2.imread returns for a file it cannot read
