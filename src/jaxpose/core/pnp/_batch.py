@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import concurrent.futures
-import os
-import threading
-
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from jaxpose.core._threads import cpu_cores as _cpu_cores
 
 CHUNK = 256
 """Batches larger than this run as a loop over chunks of this many problems (``lax.map``): the
@@ -67,13 +65,6 @@ THREAD_MIN_PROBLEMS = 2048
 it saves)."""
 
 
-def _cpu_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
-
-
 def _thread_parts(size: int, devices: int, workers: int | None) -> int:
     """How many host threads share a batch. XLA runs one execution of these solvers on about one
     CPU core, so a large batch on a single CPU device is cut into equal parts solved by
@@ -85,26 +76,6 @@ def _thread_parts(size: int, devices: int, workers: int | None) -> int:
     if devices > 1 or jax.default_backend() != "cpu":
         return 1
     return max(1, min(_cpu_cores(), size // THREAD_MIN_PROBLEMS))
-
-
-_POOL: concurrent.futures.ThreadPoolExecutor | None = None
-_POOL_SIZE = 0
-_POOL_LOCK = threading.Lock()
-
-
-def _in_threads(fn, pieces: list) -> list:
-    """``[fn(p) for p in pieces]`` on a shared thread pool, each result ready. (JAX compiles a
-    function once when several threads call it first at the same time.)"""
-    global _POOL, _POOL_SIZE
-    with _POOL_LOCK:
-        if _POOL_SIZE < len(pieces):
-            _POOL_SIZE = len(pieces)
-            _POOL = concurrent.futures.ThreadPoolExecutor(
-                max_workers=len(pieces), thread_name_prefix="jaxpose-solve"
-            )
-        pool = _POOL
-    futures = [pool.submit(lambda p: jax.block_until_ready(fn(p)), p) for p in pieces]
-    return [f.result() for f in futures]
 
 
 def _flat(x, batch, flat, tail):

@@ -32,11 +32,11 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from jaxpose.core._checks import as_bool_mask, float_dtype
 from jaxpose.core._compile import known_cpu_options
+from jaxpose.core._threads import in_threads
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.pnp._batch import (
     _flat,
-    _in_threads,
     _map,
     _map_chunks,
     _pad,
@@ -447,7 +447,7 @@ def solve_pnp(
                 tuple(None if a is None else a[i * step : (i + 1) * step] for a in args)
                 for i in range(parts)
             ]
-            res = _in_threads(
+            res = in_threads(
                 lambda piece: _solve_eager(piece, intrinsics, cfg, two, devices, step), pieces
             )
             res = jax.tree.map(lambda *a: jnp.concatenate(a)[:size], *res)

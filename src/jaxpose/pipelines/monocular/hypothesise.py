@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpose.core._threads import in_core_threads
 from jaxpose.core.geometry import Pose
 from jaxpose.pipelines.monocular.fit import _batched_fit
 from jaxpose.pipelines.monocular.options import InitOptions
@@ -208,8 +209,8 @@ def _solve_and_score(
     quick score (the template search's, :mod:`~jaxpose.pipelines.monocular.templates`); they
     come last in the outputs."""
     n = len(P)
-    Rs, ts, ok, key = [], [], [], []
-    for a in range(0, n, _CHUNK):
+
+    def solve(a):
         b = min(a + _CHUNK, n)
         Pp, Qp, Mp = _pad_batch([P[a:b], Q[a:b], M[a:b]], _CHUNK)
         res = _batched_epnp()(jnp.asarray(Pp), jnp.asarray(Qp), jnp.asarray(Mp), cam)
@@ -217,19 +218,19 @@ def _solve_and_score(
             k = res.reprojection_error
         else:
             k = _batched_quick()(res.pose.R, res.pose.t, sc, jnp.asarray(roi))
-        Rs.append(np.asarray(res.pose.R)[: b - a])
-        ts.append(np.asarray(res.pose.t)[: b - a])
-        ok.append(np.asarray(res.status)[: b - a] == 0)
-        key.append(np.asarray(k)[: b - a])
+        R, t, status = (np.asarray(x)[: b - a] for x in (res.pose.R, res.pose.t, res.status))
+        return R, t, status == 0, np.asarray(k)[: b - a]
+
+    def quick(a):
+        Re, te = (np.asarray(x[a : a + _CHUNK]) for x in extra)
+        Rp, tp = _pad_batch([Re, te], _CHUNK)
+        k = _batched_quick()(jnp.asarray(Rp), jnp.asarray(tp), sc, jnp.asarray(roi))
+        return Re, te, np.ones(len(Re), bool), np.asarray(k)[: len(Re)]
+
+    chunks = in_core_threads(solve, list(range(0, n, _CHUNK)))
     if extra is not None and rank_by == "chamfer":
-        for a in range(0, len(extra[0]), _CHUNK):
-            Re, te = (np.asarray(x[a : a + _CHUNK]) for x in extra)
-            Rp, tp = _pad_batch([Re, te], _CHUNK)
-            k = _batched_quick()(jnp.asarray(Rp), jnp.asarray(tp), sc, jnp.asarray(roi))
-            Rs.append(Re)
-            ts.append(te)
-            ok.append(np.ones(len(Re), bool))
-            key.append(np.asarray(k)[: len(Re)])
+        chunks += in_core_threads(quick, list(range(0, len(extra[0]), _CHUNK)))
+    Rs, ts, ok, key = (list(x) for x in zip(*chunks, strict=True)) if chunks else ([],) * 4
     n_res = 0
     if reserved is not None and rank_by == "chamfer":
         n_res = min(len(reserved[0]), _SHORTLIST)
@@ -321,15 +322,16 @@ def _placed_attitudes(det, opts: InitOptions, sc: _EdgeScene, on_roi: bool):
     else:
         centre = np.asarray(sc.face_poly).reshape(-1, 3).mean(0)
     t = np.asarray(det.coarse_t_cam, dtype=float)[None] - R @ centre
-    out = []
-    for a in range(0, len(R), _CHUNK):
+
+    def place(a):
         Rp, tp = _pad_batch([R[a : a + _CHUNK], t[a : a + _CHUNK]], _CHUNK)
         if on_roi:
             tp = _batched_place_roi()(jnp.asarray(Rp), jnp.asarray(tp), sc, jnp.asarray(det.roi))
         else:
             tp = _batched_place()(jnp.asarray(Rp), jnp.asarray(tp), sc)
-        out.append(np.asarray(tp)[: len(R[a : a + _CHUNK])])
-    return R, np.concatenate(out)
+        return np.asarray(tp)[: len(R[a : a + _CHUNK])]
+
+    return R, np.concatenate(in_core_threads(place, list(range(0, len(R), _CHUNK))))
 
 
 def _template_grid(det, opts: InitOptions, sc: _EdgeScene):
