@@ -8,7 +8,7 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpose.core._checks import check_fields, is_finite_number
+from jaxpose.core._checks import check_fields
 from jaxpose.core._compile import in_float64
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.pipelines.monocular.classify import check_thresholds, classify
@@ -64,39 +64,35 @@ def initialise_pose(
         raise ValueError(f"method must be 'svd' or 'ransac'; got {options.method!r}")
     if options.rank_by not in ("chamfer", "e2d"):
         raise ValueError(f"rank_by must be 'chamfer' or 'e2d'; got {options.rank_by!r}")
-    for name in (
-        "region_weight",
-        "antenna_weight",
-        "silhouette_weight",
-        "orientation_weight",
-        "panel_weight",
-        "spread_weight",
-        "spread_quick_weight",
-    ):
-        w = getattr(options, name)
-        if not (is_finite_number(w) and w >= 0):
-            raise ValueError(f"{name} must be finite and >= 0 (0 turns its term off); got {w}")
-    w = options.fit_model_weight
-    if not (is_finite_number(w) and w > 0):
-        raise ValueError(f"fit_model_weight must be finite and > 0; got {w!r}")
-    g = options.attitude_grid
-    if isinstance(g, bool) or not isinstance(g, int | np.integer) or g < 0:
-        raise ValueError(f"attitude_grid must be an integer >= 0 (0 turns it off); got {g!r}")
-    n = options.template_slots
-    if isinstance(n, bool) or not isinstance(n, int | np.integer) or not 0 <= n <= 128:
-        raise ValueError(f"template_slots must be an integer in [0, 128] (0: off); got {n!r}")
-    check_fields(
+    check_fields(  # a weight of 0, the grid's or the template slots' 0, turns that part off
         options,
         flags=("shortlist_fit", "grid_without_silhouette", "fit_by_length", "trace"),
         integers={
             "top_k": 1,
             "max_hypotheses": 1,
             "rematch_rounds": 0,
+            "attitude_grid": 0,
+            "template_slots": 0,
             "ransac_iterations": 1,
             "ransac_seed": 0,
         },
+        positive=("fit_model_weight",),
+        non_negative=(
+            "region_weight",
+            "antenna_weight",
+            "silhouette_weight",
+            "orientation_weight",
+            "panel_weight",
+            "spread_weight",
+            "spread_quick_weight",
+        ),
         optional=("ransac_iterations",),
     )
+    if options.template_slots > 128:
+        raise ValueError(
+            f"InitOptions.template_slots must be at most 128 (the shortlist's places); "
+            f"got {options.template_slots}"
+        )
     check_thresholds(options.confidence)
     timings = {}
     trace = {} if options.trace else None

@@ -47,6 +47,8 @@ _FIELD_KINDS = dict(
         "landmark_point_sigma",
     ),
     integers={
+        "feature_budget": 4,
+        "window_frames": 0,
         "max_points": 1,
         "max_lines": 1,
         "min_features": 1,
@@ -95,6 +97,7 @@ _FIELD_KINDS = dict(
     ),
     fractions=("cull_ratio", "line_scale_memory", "anchor_cornerness"),
     optional=(
+        "feature_budget",
         "depth_margin_m",
         "keypoint_spacing_px",
         "lsd_area_px",
@@ -406,11 +409,6 @@ class TrackerOptions:
                 "TrackerOptions.depth_range_m must be two finite depths 0 < near < far (metres); "
                 f"got {lo_hi!r}"
             )
-        fb = self.feature_budget
-        if fb is not None and (
-            isinstance(fb, bool) or not isinstance(fb, int | np.integer) or fb < 4
-        ):
-            raise ValueError(f"feature_budget must be an integer >= 4 or None; got {fb!r}")
         if self.budget_rule not in BUDGET_RULES:
             raise ValueError(f"budget_rule must be one of {BUDGET_RULES}; got {self.budget_rule!r}")
         if self.budget_noise not in BUDGET_NOISE:
@@ -428,12 +426,8 @@ class TrackerOptions:
                 "measured_point_sigma and landmark_point_sigma are two weightings of the same "
                 "point residuals: set one of them"
             )
-        if self.window_frames != 0 and not (
-            isinstance(self.window_frames, int | np.integer) and self.window_frames >= 2
-        ):
-            raise ValueError(
-                f"window_frames must be 0 or an integer >= 2; got {self.window_frames!r}"
-            )
+        if self.window_frames == 1:  # a window of one frame adjusts nothing
+            raise ValueError("TrackerOptions.window_frames must be 0 (off) or at least 2; got 1")
         if self.keep_history and not self.window_frames:
             raise ValueError(
                 "keep_history needs the windowed adjustment (window_frames > 0): its ray records "
