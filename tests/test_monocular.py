@@ -108,17 +108,31 @@ def test_image_depths_give_the_same_pose(scene, camera):
 
 
 def test_pose_does_not_depend_on_the_callers_precision(scene, camera):
-    """With ``jax_enable_x64`` off outside, the pipeline still runs in float64: the same pose to
-    the last bit as with it on (the scene's), in float64 arrays."""
+    """With ``jax_enable_x64`` off, for the process as a user leaves it (the suite turns it on)
+    and in a local context, the pipeline still runs in float64, its host threads included: the
+    same pose to the last bit as with it on (the scene's), in float64 arrays; a camera made while
+    it is off (float32) gives the pose of its values within float32 rounding."""
     import jax
 
     r, res = scene
-    with jax.enable_x64(False):
-        other = initialise_pose(r.image, camera)
+    jax.config.update("jax_enable_x64", False)  # the process's flag: host threads read it
+    try:
+        with jax.enable_x64(False):
+            other = initialise_pose(r.image, camera)
+        cam32 = PinholeCamera(
+            747.0, 747.0, 239.5, 149.5, [-0.22, 0.51, 0.0, 0.0, -0.13], width=480, height=300
+        )
+        assert cam32.fx.dtype == jnp.float32
+        near = initialise_pose(r.image, cam32)
+    finally:
+        jax.config.update("jax_enable_x64", True)
     assert other.pose.R.dtype == jnp.float64 and other.pose.t.dtype == jnp.float64
     assert other.confidence == res.confidence
     np.testing.assert_array_equal(np.asarray(other.pose.R), np.asarray(res.pose.R))
     np.testing.assert_array_equal(np.asarray(other.pose.t), np.asarray(res.pose.t))
+    assert near.confidence == res.confidence
+    np.testing.assert_allclose(np.asarray(near.pose.R), np.asarray(res.pose.R), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(near.pose.t), np.asarray(res.pose.t), atol=1e-5)
 
 
 @pytest.mark.parametrize("kind", ["black", "saturated", "noise", "cut"])

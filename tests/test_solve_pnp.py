@@ -205,6 +205,17 @@ def test_large_batches_run_in_chunks_and_refine_planar_problems_twice():
     np.testing.assert_array_equal(np.asarray(res.planar), np.arange(len(P)) >= len(P) // 2)
 
 
+def test_host_threads_take_the_callers_precision():
+    """The host threads compute in the caller's ``jax_enable_x64`` (a context of the calling
+    thread, such as the pipelines' float64, does not reach a worker by itself)."""
+    from jaxpose.core._threads import in_threads
+
+    for x64, dtype in ((False, jnp.float32), (True, jnp.float64)):
+        with jax.enable_x64(x64):
+            out = in_threads(lambda i: jnp.zeros(1) + i, [0, 1, 2])
+        assert [x.dtype for x in out] == [dtype] * 3
+
+
 def test_host_threads_give_the_same_poses_and_statuses():
     """A batch split over host threads (padded to equal parts) gives the one-thread answer, with
     each bad problem's status in its place."""

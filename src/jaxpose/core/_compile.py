@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 
 import jax
+import jax.numpy as jnp
 
 EAGER_COMPILER_OPTIONS_CPU = {
     "xla_backend_optimization_level": 0,
@@ -73,6 +74,23 @@ def in_float64(fn):
     @functools.wraps(fn)
     def call(*args, **kwargs):
         with jax.enable_x64(True):
+            # JAX arrays made while float64 was off (a camera, a model, a pose built before the
+            # call) are float32: widened first (their values as the caller holds them), so that
+            # the pipeline computes in one precision (mixed, strict dtype promotion refuses them)
+            args, kwargs = jax.tree.map(_widened, (args, kwargs))
             return fn(*args, **kwargs)
 
     return call
+
+
+def _widened(leaf):
+    """A concrete lower-precision floating JAX array as float64; anything else as it is (NumPy
+    arrays, images and options are the pipelines' own to convert)."""
+    if (
+        isinstance(leaf, jax.Array)
+        and not isinstance(leaf, jax.core.Tracer)
+        and jnp.issubdtype(leaf.dtype, jnp.floating)
+        and leaf.dtype != jnp.float64
+    ):
+        return leaf.astype(jnp.float64)
+    return leaf

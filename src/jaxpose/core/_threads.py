@@ -27,8 +27,9 @@ _POOL_LOCK = threading.Lock()
 
 
 def in_threads(fn, pieces: list) -> list:
-    """``[fn(p) for p in pieces]`` on a shared thread pool, each result ready. (JAX compiles a
-    function once when several threads call it first at the same time.)"""
+    """``[fn(p) for p in pieces]`` on a shared thread pool, each result ready, each piece run
+    with the caller's ``jax_enable_x64``. (JAX compiles a function once when several threads
+    call it first at the same time.)"""
     global _POOL, _POOL_SIZE
     with _POOL_LOCK:
         if _POOL_SIZE < len(pieces):
@@ -37,7 +38,16 @@ def in_threads(fn, pieces: list) -> list:
                 max_workers=len(pieces), thread_name_prefix="jaxpose-solve"
             )
         pool = _POOL
-    futures = [pool.submit(lambda p: jax.block_until_ready(fn(p)), p) for p in pieces]
+    # JAX's precision switch is per thread: a worker takes the caller's (an entry point that runs
+    # in float64 whatever the global flag, jaxpose.core._compile.in_float64, would otherwise
+    # have its chunks computed in float32 when the flag is off)
+    x64 = bool(jax.config.jax_enable_x64)
+
+    def run(p):
+        with jax.enable_x64(x64):
+            return jax.block_until_ready(fn(p))
+
+    futures = [pool.submit(run, p) for p in pieces]
     return [f.result() for f in futures]
 
 
