@@ -472,3 +472,14 @@ def test_the_frame_rate_leaves_the_start_and_the_compilation_out():
     assert s["fps"] == pytest.approx(3 / 0.4) and s["start_s"] == pytest.approx(7.0)
     s = summarize(tracked(3), [None] * 3, [5.0, 0.5, 0.5])["summary"]
     assert s["fps"] == pytest.approx(2.0) and s["start_s"] == pytest.approx(5.0)
+
+
+@pytest.mark.typecheck_off  # as a user runs it: the annotation says tuple, the checks accept more
+def test_option_pairs_take_lists_and_numpy_arrays():
+    """``depth_range_m`` and ``window_motion_sigma`` given as a list or a NumPy array are kept as
+    the documented tuples (a NumPy array had been refused, a list left the options unhashable)."""
+    for pair in (np.array([0.5, 6.0]), [0.5, 6.0]):
+        o = TrackerOptions(depth_range_m=pair, window_motion_sigma=np.array([0.3, 5.0]))
+        assert o.depth_range_m == (0.5, 6.0) and isinstance(o.depth_range_m, tuple)
+        assert o.window_motion_sigma == (0.3, 5.0)
+        assert hash(o) == hash(TrackerOptions(depth_range_m=(0.5, 6.0)))

@@ -107,6 +107,16 @@ _FIELD_KINDS = dict(
 )
 
 
+def _as_pair(value):
+    """A list or 1-D NumPy array of two numbers as a tuple (a frozen option stays hashable and
+    prints as the documented tuple); anything else as it is, for the checks to judge."""
+    if isinstance(value, np.ndarray) and value.shape == (2,) and value.dtype.kind in "iuf":
+        return tuple(float(v) for v in value)
+    if isinstance(value, list) and len(value) == 2:
+        return tuple(value)
+    return value
+
+
 @dataclass(frozen=True)
 class TrackerOptions:
     """Options of :class:`~jaxpose.pipelines.stereo.StereoTracker`.
@@ -388,6 +398,8 @@ class TrackerOptions:
     landmark_point_sigma: bool = False
 
     def __post_init__(self):
+        for name in ("depth_range_m", "window_motion_sigma"):  # a NumPy pair as a tuple
+            object.__setattr__(self, name, _as_pair(getattr(self, name)))
         check_fields(self, **_FIELD_KINDS)
         for name, kind in (("features", FeatureOptions), ("stereo", StereoMatchOptions)):
             if not isinstance(getattr(self, name), kind):
