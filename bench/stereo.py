@@ -20,7 +20,10 @@ mean time per stage; with ``--frame-rows`` each frame's row too), ``rms_vs_range
 prints a Markdown table and, last, one JSON line: scenes run, how many meet the targets of
 issue 16 (per-axis RMS position <= 5 mm per metre of range, attitude <= 1 deg, no lost frame)
 per split, the median wall frame rate (``median_fps``) and CPU seconds a frame
-(``median_cpu_s_per_frame``, ``time.process_time`` of the process), the wall and CPU
+(``median_cpu_s_per_frame``, ``time.process_time`` of the process), a machine yardstick run on
+the same frames (``median_opencv_yardstick_ms``: OpenCV's ORB and block matching of a pair, see
+:func:`yardstick_ms`) and the frame's wall time over it (``median_frame_over_yardstick``: a
+figure that moves with the code, not with the machine, to first order), the wall and CPU
 milliseconds a frame by stage (``median_stage_ms``, ``median_stage_cpu_ms``; points+lines,
 medians over the scenes) and the machine's load average before and after the run.
 
@@ -162,6 +165,25 @@ def meets_targets(summary: dict, range_m: float) -> bool:
     return max(pos) <= 5.0 * range_m and max(att) <= 1.0 and summary["lost_frames"] == 0
 
 
+_YARDSTICK: list = []
+
+
+def yardstick_ms(left: np.ndarray, right: np.ndarray) -> float:
+    """Milliseconds of a fixed OpenCV workload on one stereo pair, the machine's yardstick: ORB
+    (2000 keypoints, eight levels) on the left image and block matching of the pair
+    (``cv2.StereoBM``, 128 disparities, 15-pixel blocks). The tracker's frame time over this,
+    in the same run, compares machines: both are mostly OpenCV and NumPy on the same cores."""
+    import cv2
+
+    if not _YARDSTICK:
+        _YARDSTICK.extend([cv2.ORB_create(nfeatures=2000), cv2.StereoBM_create(128, 15)])
+    orb, bm = _YARDSTICK
+    t0 = time.perf_counter()
+    orb.detectAndCompute(left, None)
+    bm.compute(left, right)
+    return 1000.0 * (time.perf_counter() - t0)
+
+
 def run_scene(
     name: str,
     frames: int | None,
@@ -182,6 +204,7 @@ def run_scene(
     trackers, logs = {}, {m: ([], [], []) for m in modes}
     cpu = {m: [] for m in modes}
     render_s = 0.0
+    yardstick = []  # ms a frame of the OpenCV yardstick on the same frames
     t_render = time.perf_counter()
     for fr in render_sequence(scene, rig):
         render_s += time.perf_counter() - t_render
@@ -199,6 +222,7 @@ def run_scene(
             cpu[mode].append(time.process_time() - c0)
             results.append(res)
             truths.append(fr.pose)
+        yardstick.append(yardstick_ms(fr.left, fr.right))
         t_render = time.perf_counter()
     split, params = SCENES[name]
     out = {
@@ -213,6 +237,8 @@ def run_scene(
             "seed": seed,
         },
         "render_s_per_frame": render_s / scene.n_frames(),
+        # frames 0-1 left out, as from the frame rate
+        "opencv_yardstick_ms": float(np.mean(yardstick[2:])) if len(yardstick) > 2 else None,
     }
     for mode, (results, truths, seconds) in logs.items():
         # frame 0 makes the first keyframe; frame 1 compiles the solver: both left out of timings
@@ -503,6 +529,25 @@ def _stage_medians(results, key: str) -> dict:
     }
 
 
+def _yardstick_summary(results) -> dict:
+    """Medians over the scenes of the OpenCV yardstick (:func:`yardstick_ms`) and of the
+    points+lines frame's wall time over it (``1000 / fps / yardstick``); empty for results saved
+    before the yardstick."""
+    pairs = [
+        (r["opencv_yardstick_ms"], r["points+lines"]["fps"])
+        for r in results
+        if r.get("opencv_yardstick_ms") and r["points+lines"].get("fps")
+    ]
+    if not pairs:
+        return {}
+    return {
+        "median_opencv_yardstick_ms": round(float(np.median([y for y, _ in pairs])), 2),
+        "median_frame_over_yardstick": round(
+            float(np.median([1000.0 / f / y for y, f in pairs])), 2
+        ),
+    }
+
+
 def report(results, modes, out: Path, frames, load0, *, timing: bool = False) -> None:
     """Markdown table, figure and the last JSON line of a run (or of saved results)."""
     print("\n".join(table(results, modes)))
@@ -531,6 +576,7 @@ def report(results, modes, out: Path, frames, load0, *, timing: bool = False) ->
             if r.get("lines_help") and (r["scene"].get("blur") or r["scene"].get("glints"))
         ],
         "median_fps": float(np.median(fps)) if fps else None,
+        **_yardstick_summary(results),
         **_smoothed_summary(results),
         "median_cpu_s_per_frame": float(
             np.median([r["points+lines"]["mean_frame_cpu_s"] for r in results])

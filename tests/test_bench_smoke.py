@@ -59,5 +59,6 @@ def test_stereo_bench_runs_and_ends_with_its_figures(tmp_path):
     assert out["scenes"] == 2 and out["frames_per_scene"] == 3
     assert set(out["meets_targets"]) == {"dev", "check", "own"}  # the --scene counted apart
     assert out["median_fps"] > 0
+    assert out["median_opencv_yardstick_ms"] > 0 and out["median_frame_over_yardstick"] > 0
     assert {"features", "stereo", "pose", "map"} <= set(out["median_stage_ms"])
     assert (tmp_path / "st" / "results.json").is_file()
