@@ -143,15 +143,18 @@ def test_an_image_that_could_not_be_read_is_named(frames):
 
 
 def test_images_of_any_depth_track_as_their_8_bit_version(frames):
-    """Float images on the [0, 1] scale, float on the 0-255 scale and 16-bit images give the
-    poses of the 8-bit frames (the library's one image convention, as initialise_pose reads an
-    image): [0, 1] floats were read on the 0-255 scale and lost every feature."""
+    """Float images on the [0, 1] scale, float on the 0-255 scale, 16-bit images and BGR(A)
+    colour images give the poses of the 8-bit grey frames (the library's one image convention,
+    as initialise_pose reads an image): [0, 1] floats were read on the 0-255 scale and lost every
+    feature, colour frames were refused."""
     ref = StereoTracker(RIG, frames[0].pose)
     want = [ref.process(fr.left, fr.right) for fr in frames[:2]]
     for convert in (
         lambda im: im / 255.0,
         lambda im: im.astype(np.float32),
         lambda im: im.astype(np.uint16) * 257,
+        lambda im: np.stack([im] * 3, -1),
+        lambda im: np.stack([im] * 3 + [np.full_like(im, 255)], -1),
     ):
         tracker = StereoTracker(RIG, frames[0].pose)
         for fr, w in zip(frames[:2], want, strict=True):

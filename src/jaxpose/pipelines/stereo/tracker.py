@@ -105,12 +105,13 @@ def target_area(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> flo
 def as_gray_uint8(image, name: str = "image") -> np.ndarray:
     """A 2-D ``uint8`` grayscale image by the library's one image convention
     (:func:`jaxpose.vision.features.to_gray`, as :func:`~jaxpose.initialise_pose` reads an
-    image): ``uint8`` as is; ``uint16`` divided by 257; floats on the ``[0, 1]`` scale when their
-    maximum is at most 1, otherwise on the 0-255 scale, non-finite pixels black. Raises
-    ``ValueError`` naming ``name`` for an image that is not 2-D or not numeric."""
+    image): ``(H, W)`` or BGR(A) ``(H, W, 3|4)``; ``uint8`` as is; ``uint16`` divided by 257;
+    floats on the ``[0, 1]`` scale when their maximum is at most 1, otherwise on the 0-255 scale,
+    non-finite pixels black. Raises ``ValueError`` naming ``name`` for another shape or a
+    non-numeric image."""
     a = np.asarray(image)
-    if a.ndim != 2:
-        raise ValueError(f"{name} must be a 2-D grayscale image; got shape {a.shape}")
+    if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] not in (3, 4)):
+        raise ValueError(f"{name} must be an (H, W) or (H, W, 3|4) image; got shape {a.shape}")
     if a.dtype.kind not in "biuf":
         raise ValueError(f"{name} must be a numeric image; got dtype {a.dtype}")
     return to_gray(a)
@@ -456,8 +457,8 @@ class StereoTracker:
 
     @in_float64
     def process(self, left: np.ndarray, right: np.ndarray, *, roi=None) -> FrameResult:
-        """Track one rectified grey stereo pair (any depth, :func:`as_gray_uint8`); returns its
-        :class:`~jaxpose.pipelines.stereo.FrameResult`. ``roi``: the target's box ``[u0, v0, u1,
+        """The :class:`~jaxpose.pipelines.stereo.FrameResult` of one rectified stereo pair (grey
+        or BGR of any depth, :func:`as_gray_uint8`). ``roi``: the target's box ``[u0, v0, u1,
         v1]`` in the left image (default: :func:`target_roi`), checked by ``check_roi``."""
         o = self.options
         for name, image in (("left", left), ("right", right)):
