@@ -162,3 +162,23 @@ def test_rotation_angle(rng):
     R = g.so3_exp(np.array([0.0, 0.3, 0.0]))
     np.testing.assert_allclose(g.rotation_angle(R, np.eye(3)), 0.3, atol=1e-12)
     np.testing.assert_allclose(g.rotation_angle(np.eye(3), np.eye(3)), 0.0, atol=1e-12)
+
+
+@pytest.mark.typecheck_off  # as a user runs it: the annotation says arrays
+def test_a_pose_of_lists_is_a_pose_of_arrays():
+    """``Pose`` given nested lists holds float arrays, and every function takes it as the same
+    pose given as arrays (lists had been kept and failed later, in whatever used them, with
+    a TypeError that did not name the pose)."""
+    import jaxpose as jp
+
+    Pose = g.Pose
+    R = np.asarray(g.euler_to_dcm(jnp.array([0.3, -0.2, 0.5])))
+    listed = Pose(R.tolist(), [0.1, -0.2, 10])
+    assert isinstance(listed.R, np.ndarray) and listed.R.dtype == np.float64
+    assert isinstance(listed.t, np.ndarray) and listed.t.dtype == np.float64
+    cam = jp.PinholeCamera(1000.0, 1000.0, 511.5, 383.5, width=1024, height=768)
+    P = np.random.default_rng(1).uniform(-0.5, 0.5, (12, 3))
+    want = jp.dop(P, Pose(R, np.array([0.1, -0.2, 10.0])), cam)
+    got = jp.dop(P, listed, cam)
+    np.testing.assert_array_equal(np.asarray(got.pdop), np.asarray(want.pdop))
+    np.testing.assert_array_equal(np.asarray(got.adop), np.asarray(want.adop))

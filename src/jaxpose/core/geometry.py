@@ -398,6 +398,12 @@ def super_fibonacci_rotations(n: int) -> np.ndarray:
 # ----------------------------------------------------------------------------- poses
 
 
+def _listed(value):
+    """A Pose's ``R`` or ``t`` given as (nested) lists or tuples as a float NumPy array; arrays
+    and tracers as they are."""
+    return np.asarray(value, dtype=float) if isinstance(value, list | tuple) else value
+
+
 class Pose(eqx.Module):
     """A rigid pose ``x_cam = R @ x_body + t`` (leading batch axes allowed).
 
@@ -406,8 +412,8 @@ class Pose(eqx.Module):
         t: ``(..., 3)`` body origin in the camera frame, metres.
     """
 
-    R: Float[Array, "... 3 3"] | Float[np.ndarray, "... 3 3"]
-    t: Float[Array, "... 3"] | Float[np.ndarray, "... 3"]
+    R: Float[Array, "... 3 3"] | Float[np.ndarray, "... 3 3"] = eqx.field(converter=_listed)
+    t: Float[Array, "... 3"] | Float[np.ndarray, "... 3"] = eqx.field(converter=_listed)
 
     def __check_init__(self):
         if jnp.shape(self.R)[-2:] != (3, 3) or jnp.shape(self.t)[-1:] != (3,):
