@@ -1129,6 +1129,13 @@ row(
     ),
     Raises("cameraMatrix", "camera.json"),
 )
+# a dict of the file's fields given for its path: a TypeError of pathlib's
+row(
+    "camera-json-field",
+    "not-a-path",
+    lambda ctx: jp.load_camera({"fx": 1000.0, "fy": 1000.0, "cx": 511.5, "cy": 383.5}),
+    Raises("path", "dict"),
+)
 
 for name, r in [
     ("short", "img.png,rendered,1,0,0"),

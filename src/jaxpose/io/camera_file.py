@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +22,14 @@ def load_camera(path: str | Path) -> PinholeCamera:
     Raises ``ValueError`` naming the file and the missing or malformed field: a matrix that is
     not 3x3 numbers, a non-positive or non-finite focal length, a non-finite principal point,
     distortion coefficients that are not 4 or 5 finite numbers, an image size that is not a
-    non-negative integer.
+    non-negative integer, or a ``path`` that is not a path.
     """
+    if not isinstance(path, str | os.PathLike):
+        raise ValueError(
+            f"load_camera takes the path of a camera file; got a {type(path).__name__} (a camera "
+            "from numbers: jaxpose.PinholeCamera(fx, fy, cx, cy, dist, width=, height=) or "
+            "PinholeCamera.from_K)"
+        )
     path = Path(path)
     try:
         data = json.loads(path.read_text())
