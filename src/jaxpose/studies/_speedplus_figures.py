@@ -7,12 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxpose.core.metrics import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION_M
 from jaxpose.studies._plotting import plain_log_labels, pyplot
-
-#: Success (Sharma, Ventura, D'Amico 2018): position error below this (m) ...
-SUCCESS_POSITION_M = 0.30
-#: ... and attitude error below this (degrees).
-SUCCESS_ATTITUDE_DEG = 10.0
 
 _COLOURS = {"high": "#1a9850", "low": "#f46d43"}
 _MARKERS = "osD^v<>p"
@@ -35,9 +31,11 @@ def plot_errors(path: Path, out: dict) -> None:
     xlim = (1e-2, max(20.0, float(t.max()) * 1.5) if len(t) else 20.0)
     ylim = (1e-2, 400.0)
     ax.fill_between(
-        [xlim[0], SUCCESS_POSITION_M], ylim[0], SUCCESS_ATTITUDE_DEG, color="#d9f0d3", zorder=0
+        [xlim[0], SUCCESS_TRANSLATION_M], ylim[0], SUCCESS_ROTATION_DEG, color="#d9f0d3", zorder=0
     )
-    ax.text(SUCCESS_POSITION_M * 0.9, SUCCESS_ATTITUDE_DEG * 0.8, "success", ha="right", va="top")
+    ax.text(
+        SUCCESS_TRANSLATION_M * 0.9, SUCCESS_ROTATION_DEG * 0.8, "success", ha="right", va="top"
+    )
     for d, marker in zip(domains, _MARKERS * len(domains), strict=False):
         for conf, colour in _COLOURS.items():
             pick = [i for i, r in enumerate(posed) if r["domain"] == d and r["confidence"] == conf]
