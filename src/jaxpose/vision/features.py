@@ -239,17 +239,17 @@ class Detection:
 _GIVEN_SILHOUETTE_IOU = 0.5
 
 
-def to_gray(image: np.ndarray) -> np.ndarray:
+def to_gray(image: np.ndarray, name: str = "image") -> np.ndarray:
     """Grayscale uint8 ``(H, W)`` of an ``(H, W)`` or ``(H, W, 3|4)`` (BGR, BGRA) image of any
     depth, so that a 16-bit or float image gives the same pixels as its 8-bit version: uint8 as
     is; uint16 divided by 257 (65535 -> 255); other integers clipped to ``[0, 255]``; bool as
     0/255; floats scaled by 255 when their maximum is at most 1 (the ``[0, 1]`` convention),
     otherwise clipped to ``[0, 255]``, NaN as 0. Values are rounded to the nearest level and
-    each channel is converted before the colour conversion. Raises ``ValueError`` for any other
-    shape or a non-numeric array."""
+    each channel is converted before the colour conversion. Raises ``ValueError`` naming
+    ``name`` for any other shape or a non-numeric array."""
     img = np.asarray(image)
     if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] not in (3, 4)):
-        raise ValueError(f"image must be (H, W), (H, W, 3) or (H, W, 4); got shape {img.shape}")
+        raise ValueError(f"{name} must be (H, W), (H, W, 3) or (H, W, 4); got shape {img.shape}")
     if img.dtype == bool:
         img = img.astype(np.uint8) * 255
     elif img.dtype == np.uint16:
@@ -261,7 +261,7 @@ def to_gray(image: np.ndarray) -> np.ndarray:
         scale = 255.0 if f.size and f.max() <= 1.0 else 1.0
         img = np.clip(np.rint(f * scale), 0, 255).astype(np.uint8)
     elif img.dtype != np.uint8:
-        raise ValueError(f"image must hold numbers; got dtype {img.dtype}")
+        raise ValueError(f"{name} must hold numbers; got dtype {img.dtype}")
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
     return img

@@ -109,12 +109,7 @@ def as_gray_uint8(image, name: str = "image") -> np.ndarray:
     floats on the ``[0, 1]`` scale when their maximum is at most 1, otherwise on the 0-255 scale,
     non-finite pixels black. Raises ``ValueError`` naming ``name`` for another shape or a
     non-numeric image."""
-    a = np.asarray(image)
-    if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] not in (3, 4)):
-        raise ValueError(f"{name} must be an (H, W) or (H, W, 3|4) image; got shape {a.shape}")
-    if a.dtype.kind not in "biuf":
-        raise ValueError(f"{name} must be a numeric image; got dtype {a.dtype}")
-    return to_gray(a)
+    return to_gray(image, name)
 
 
 def _finite(pose: Pose) -> bool:
