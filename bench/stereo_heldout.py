@@ -96,12 +96,23 @@ def main(argv=None) -> int:
         action="store_true",
         help="also the points+lines runs adjusted all at once after the last frame (offline)",
     )
+    ap.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a TrackerOptions field for every scene, as in bench/stereo.py",
+    )
     ap.add_argument("--out", type=Path, default=Path("runs/bench-stereo-heldout"))
     args = ap.parse_args(argv)
     if args.scenes < 1:
         ap.error(f"--scenes must be >= 1; got {args.scenes}")
     if args.frames < 3:
         ap.error(f"--frames must be >= 3 (two are left out of the timings); got {args.frames}")
+    try:
+        options = stereo.tracker_options(args.option) if args.option else None
+    except ValueError as err:
+        ap.error(str(err))
     drawn = draw_scenes(args.scenes, args.draw_seed)
     if args.only:
         drawn = {k: v for k, v in drawn.items() if k.startswith(tuple(args.only))}
@@ -117,7 +128,7 @@ def main(argv=None) -> int:
         args.frames,
         modes,
         args.seed,
-        None,
+        options,
         args.out,
         rows=args.frame_rows,
         smooth=args.smooth,
@@ -133,6 +144,7 @@ def main(argv=None) -> int:
         "draw_seed": args.draw_seed,
         "noise_seed": args.seed,
         "frames": args.frames,
+        "options": args.option,
         "scenes": len(results),
         "meets_targets": met(results),
         "scenes_up_to_3m": len(near),

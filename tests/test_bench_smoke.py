@@ -62,3 +62,23 @@ def test_stereo_bench_runs_and_ends_with_its_figures(tmp_path):
     assert out["median_opencv_yardstick_ms"] > 0 and out["median_frame_over_yardstick"] > 0
     assert {"features", "stereo", "pose", "map"} <= set(out["median_stage_ms"])
     assert (tmp_path / "st" / "results.json").is_file()
+
+
+@pytest.mark.slow
+def test_stereo_matching_bench_counts_what_it_finds(tmp_path):
+    out = _last_json_line(
+        [
+            str(REPO / "bench" / "stereo_matching.py"),
+            "--scene",
+            'far={"range_m": 4.0, "rate_deg_s": 10.0}',
+            "--frames",
+            "3",
+        ],
+        tmp_path,
+    )
+    orb = out["orb_between_frames"]
+    assert 0 < orb["found_again"] <= orb["on_target"] <= orb["keypoints"]
+    assert 0.0 <= orb["same_level_share"] <= 1.0
+    assert 0 < orb["distinct_corners_1px"] <= orb["refined_keypoints"]
+    assert 0 < out["median_right"] <= out["median_matched"]
+    assert out["median_right"] <= out["median_findable"]
