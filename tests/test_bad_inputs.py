@@ -1805,6 +1805,7 @@ for name, kind, fields, named in [
     ("tracker-float-count", "tracker", dict(max_points=2.5), "max_points"),
     ("tracker-string-count", "tracker", dict(passes="3"), "passes"),
     ("tracker-negative-count", "tracker", dict(mature_obs=-1), "mature_obs"),
+    ("tracker-no-descriptor", "tracker", dict(descriptor_memory=0), "descriptor_memory"),
     ("tracker-string-flag", "tracker", dict(use_lines="yes"), "use_lines"),
     ("tracker-nan-limit", "tracker", dict(max_rms_px=np.nan), "max_rms_px"),
     ("tracker-depths-reversed", "tracker", dict(depth_range_m=(8.0, 0.6)), "depth_range_m"),

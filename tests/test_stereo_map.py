@@ -115,6 +115,38 @@ def test_pairs_knn_equals_the_dense_allowed_matrix():
         knn_ratio_match_pairs(ref, cur, [0, 1], [0], ratio=0.8, max_distance=64)
 
 
+def test_descriptor_memory_keeps_the_latest_observations_and_matches_the_nearest():
+    rng = np.random.default_rng(5)
+    pose = Pose(np.eye(3), np.array([0.0, 0.0, 2.0]))
+    d = rng.integers(0, 256, (5, 32), dtype=np.uint8)  # one descriptor an observation
+    m = LandmarkMap(descriptor_memory=3)
+    m.add("points", np.zeros((2, 3)), d[:2], pose, 0)
+    np.testing.assert_array_equal(m.points.memory[0], d[[0, 0, 0]])  # the first fills all
+    for k in (2, 3, 4):  # three more observations of landmark 0: the oldest slot goes first
+        m.refine("points", [0], None, d[k : k + 1], pose, k)
+    np.testing.assert_array_equal(np.sort(m.points.memory[0], 0), np.sort(d[[2, 3, 4]], 0))
+    np.testing.assert_array_equal(m.points.desc[0], d[4])
+    np.testing.assert_array_equal(m.points.memory[1], d[[1, 1, 1]])
+    m.points._keep(np.array([False, True]))  # culling keeps the memory with its landmark
+    np.testing.assert_array_equal(m.points.memory[0], d[[1, 1, 1]])
+    # matching: the distance to a landmark is the smallest over its memory (brute force)
+    pop = np.array([bin(i).count("1") for i in range(256)])
+    mem = rng.integers(0, 256, (6, 3, 32), dtype=np.uint8)
+    cur = mem[np.arange(6), rng.integers(0, 3, 6)].copy()  # each is one of the slots
+    cur[:, :2] ^= rng.integers(0, 256, (6, 2), dtype=np.uint8)
+    i_ref, i_cur = np.repeat(np.arange(6), 6), np.tile(np.arange(6), 6)
+    got = knn_ratio_match_pairs(mem, cur, i_ref, i_cur, ratio=0.8, max_distance=64)
+    dist = pop[mem[:, None] ^ cur[None, :, None]].sum(-1).min(-1)  # (6 ref, 6 cur)
+    best = np.argmin(dist, 1)
+    second = np.sort(dist, 1)[:, 1]
+    keep = (dist[np.arange(6), best] <= 64) & (dist[np.arange(6), best] < 0.8 * second)
+    np.testing.assert_array_equal(got[0], np.nonzero(keep)[0])
+    np.testing.assert_array_equal(got[1], best[keep])
+    assert keep.sum() >= 4  # the slots matched are found, not an empty agreement
+    with pytest.raises(ValueError, match="descriptor_memory"):
+        LandmarkMap(descriptor_memory=0)
+
+
 def test_closed_form_rectified_triangulation_equals_the_rig():
     from jaxpose import PinholeCamera, StereoCamera
     from jaxpose.pipelines.stereo.keyframes import triangulate_rectified

@@ -376,8 +376,20 @@ def _sparse_knn(desc_ref, desc_cur, allowed, ratio, max_distance) -> np.ndarray:
 
 def _hamming(desc_ref, desc_cur, i_ref, i_cur) -> np.ndarray:
     """Hamming distances ``(K,)`` between the descriptor pairs ``(i_ref[k], i_cur[k])``: XOR and
-    popcount on 64-bit words (``np.bitwise_count``, NumPy >= 2) or a byte table."""
+    popcount on 64-bit words (``np.bitwise_count``, NumPy >= 2) or a byte table. ``desc_ref``
+    ``(M, 32)``, or ``(M, S, 32)``: ``S`` descriptors a reference feature (a landmark's recent
+    observations), the distance then the smallest of its ``S``."""
     a, b = np.ascontiguousarray(desc_ref), np.ascontiguousarray(desc_cur)
+    if a.ndim == 3:
+        S = a.shape[1]
+        pairs = np.arange(len(i_ref) * S)
+        d = _hamming(
+            a[np.asarray(i_ref, int)].reshape(-1, a.shape[2]),
+            np.repeat(b[np.asarray(i_cur, int)], S, axis=0),
+            pairs,
+            pairs,
+        )
+        return d.reshape(-1, S).min(1)
     if (
         _BITWISE_COUNT is not None
         and a.dtype == b.dtype == np.uint8
@@ -430,7 +442,8 @@ def knn_ratio_match_pairs(
     twins: tuple[np.ndarray, np.ndarray, float] | None = None,
 ):
     """:func:`knn_ratio_match` over explicit candidate pairs ``(i_ref[j], i_cur[j])`` (e.g. from
-    a k-d tree radius search) instead of a dense ``allowed`` matrix; one-to-one.
+    a k-d tree radius search) instead of a dense ``allowed`` matrix; one-to-one. ``desc_ref``
+    ``(M, 32)`` or ``(M, S, 32)`` (``S`` descriptors a reference feature, the nearest counts).
 
     ``twins = (points_ref, points_cur, radius)``: pixels of the reference and current features
     and a radius within which two features are the same corner found twice. A candidate that

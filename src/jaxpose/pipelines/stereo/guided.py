@@ -16,7 +16,8 @@ __all__ = ["match_by_projection", "match_points_within"]
 
 
 def match_points_within(pred, desc, feats, radius, options: FeatureOptions):
-    """ORB ratio-test matching of landmark descriptors ``desc`` (predicted at pixels ``pred``,
+    """ORB ratio-test matching of landmark descriptors ``desc`` (``(k, 32)``, or ``(k, S, 32)``:
+    each landmark's ``S`` recent ones, the nearest counts; predicted at pixels ``pred``,
     ``(k, 2)``) to the keypoints of ``feats`` within ``radius`` pixels (two k-d trees: only those
     pairs are scored). Returns the landmark and keypoint index pairs."""
     if len(pred) == 0 or len(feats.points) == 0:
@@ -65,7 +66,7 @@ def match_by_projection(
     pred = project(camera, pose_pred, landmarks.points.X[cand])
     inside = _inside(pred, camera)
     cand, pred = cand[inside], pred[inside]
-    i_m, i_cur = match_points_within(pred, landmarks.points.desc[cand], feats, radius, options)
+    i_m, i_cur = match_points_within(pred, landmarks.points.memory[cand], feats, radius, options)
     i_m = cand[i_m]
     l_m = l_cur = lcand = np.zeros(0, int)
     if use_lines and len(landmarks.lines) and len(feats.line_desc):

@@ -36,6 +36,9 @@ class LandmarkSet:
     Attributes:
         X: body-frame positions (point or segment endpoints), metres.
         desc: ``(M, 32)`` uint8 binary descriptors (ORB or LBD), the latest observation's.
+        memory: ``(M, S, 32)`` the descriptors of the latest ``S`` observations (the map's
+            ``descriptor_memory``; slots not yet filled hold the first), which the search by
+            projection matches by the nearest.
         view: ``(M, 3)`` unit mean viewing direction (from the landmark towards the camera, body
             frame).
         n_obs: keyframe observations (stereo pairs) of the landmark.
@@ -48,6 +51,7 @@ class LandmarkSet:
 
     X: np.ndarray
     desc: np.ndarray = field(default_factory=lambda: np.zeros((0, 32), np.uint8))
+    memory: np.ndarray = field(default_factory=lambda: np.zeros((0, 1, 32), np.uint8))
     view: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     n_obs: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     visible: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -68,6 +72,7 @@ class LandmarkSet:
         for name in (
             "X",
             "desc",
+            "memory",
             "view",
             "n_obs",
             "visible",
@@ -103,6 +108,8 @@ class LandmarkMap:
             ``keep_obs`` times or more (such a landmark is kept for the next turn of the target:
             ORB finds a given corner again only in a fraction of the frames that see it).
         max_points, max_lines: map sizes; beyond them the least recently seen are removed.
+        descriptor_memory: ORB descriptors a point landmark keeps (its latest observations',
+            :attr:`LandmarkSet.memory`); the line landmarks keep their latest LBD descriptor.
     """
 
     def __init__(
@@ -115,14 +122,20 @@ class LandmarkMap:
         keep_obs: int = 3,
         max_points: int = 20000,
         max_lines: int = 2000,
+        descriptor_memory: int = 1,
     ):
         if not 0 < max_view_deg <= 180:
             raise ValueError(f"max_view_deg must be in (0, 180]; got {max_view_deg}")
         if max_obs < 1 or cull_after < 1 or not 0 <= cull_ratio <= 1:
             raise ValueError("max_obs and cull_after must be >= 1 and cull_ratio in [0, 1]")
+        if int(descriptor_memory) != descriptor_memory or descriptor_memory < 1:
+            raise ValueError(
+                f"descriptor_memory must be an integer >= 1; got {descriptor_memory!r}"
+            )
         self.cos_view = float(np.cos(np.radians(max_view_deg)))
         self.max_obs, self.cull_after, self.cull_ratio = int(max_obs), int(cull_after), cull_ratio
         self.keep_obs = int(keep_obs)
+        self.descriptor_memory = {"points": int(descriptor_memory), "lines": 1}
         self.max_size = {"points": int(max_points), "lines": int(max_lines)}
         self._next_id = {"points": 0, "lines": 0}
         self.sets = {
@@ -165,7 +178,12 @@ class LandmarkMap:
         view = _unit((-R.T @ t)[None] - c)
         start = len(s)
         s.X = np.concatenate([s.X, X_body])
-        s.desc = np.concatenate([s.desc, np.asarray(desc, np.uint8).reshape(n, -1)])
+        desc = np.asarray(desc, np.uint8).reshape(n, -1)
+        s.desc = np.concatenate([s.desc, desc])
+        K = self.descriptor_memory[kind]
+        s.memory = np.concatenate(
+            [s.memory.reshape(-1, K, desc.shape[1]), np.repeat(desc[:, None], K, 1)]
+        )
         s.view = np.concatenate([s.view, view])
         s.n_obs = np.concatenate([s.n_obs, np.ones(n, np.int64)])
         s.visible = np.concatenate([s.visible, np.zeros(n, np.int64)])
@@ -250,6 +268,7 @@ class LandmarkMap:
         v = _unit((-R.T @ t)[None] - c)
         s.view[idx] = _unit(s.view[idx] + w[:, None] * (v - s.view[idx]))
         s.desc[idx] = np.asarray(desc, np.uint8).reshape(len(idx), -1)
+        s.memory[idx, s.n_obs[idx] % s.memory.shape[1]] = s.desc[idx]
         np.add.at(s.n_obs, idx, 1)
         s.last_seen[idx] = frame
 

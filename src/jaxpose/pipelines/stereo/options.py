@@ -58,6 +58,7 @@ _FIELD_KINDS = dict(
         "max_obs": 1,
         "cull_after": 1,
         "keep_obs": 0,
+        "descriptor_memory": 1,
         "keypoint_floor": 1,
         "mature_obs": 0,
         "window_iterations": 1,
@@ -150,6 +151,15 @@ class TrackerOptions:
             are left out of the next.
         max_view_deg, max_obs, cull_after, cull_ratio, keep_obs: visibility cone, running-mean
             cap and culling of the :class:`~jaxpose.pipelines.stereo.LandmarkMap`.
+        descriptor_memory: ORB descriptors each point landmark keeps, those of its latest
+            keyframe observations; the search by projection takes the nearest of them. ORB
+            finds one corner on another pyramid level and at another orientation from one
+            frame to the next, and one descriptor then misses it (at 4.3 m two thirds of the
+            corners found again within 1.5 px change level, their descriptors a median 79 bits
+            apart against 37 on the same level; ``bench/stereo_matching.py``). Four find 8% more
+            landmarks at 5 m, but the poses moved within the tracker's scatter from run to run
+            (6% lower on the development scenes, 8% higher on a drawn set; 1, the default,
+            keeps the latest only: ``docs/stereo-evaluation.md``, *Descriptor memory*).
         refine_disparity_px: a landmark's new triangulation is averaged in only when its
             disparity is within this of the landmark's predicted disparity (stereo mismatches
             are left out).
@@ -350,6 +360,7 @@ class TrackerOptions:
     max_obs: int = 10
     cull_after: int = 8
     cull_ratio: float = 0.25
+    descriptor_memory: int = 1
     keep_obs: int = 3
     refine_disparity_px: float = 1.0
     duplicate_px: float = 2.0

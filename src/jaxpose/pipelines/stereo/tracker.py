@@ -179,6 +179,7 @@ class StereoTracker:
             cull_after=options.cull_after,
             cull_ratio=options.cull_ratio,
             keep_obs=options.keep_obs,
+            descriptor_memory=options.descriptor_memory,
         )
         self._pose_prev = pose  # last good pose (body to left camera)
         self._delta = Pose.identity()  # last inter-frame motion (constant-velocity prediction)
