@@ -170,6 +170,10 @@ class StereoScene:
             each camera each, about 15-80 ms of CPU at 1024 x 768 from 5 to 1.5 m, up to about
             150 ms with glints).
         glints: per-pixel specular strength (0: none); ``shininess`` its exponent.
+        glint_facet_deg: the blanket's quilt cells are facets tilted by up to this from their
+            face, so that its glints scatter over the faces as on crinkled insulation (0: flat
+            faces, whose lobe is seen only where a whole face mirrors the Sun: in the default
+            geometry never, over a whole turn).
         noise_sigma: sensor noise (fraction of full scale); ``defocus_px`` the optics blur.
         pixel_samples: each pixel's radiance is the mean of ``pixel_samples x pixel_samples``
             point samples spread over its area (a sensor integrates the light over the pixel;
@@ -197,6 +201,7 @@ class StereoScene:
     blur_samples: int = 64
     glints: float = 0.0
     shininess: float = 1500.0
+    glint_facet_deg: float = 45.0
     noise_sigma: float = 0.01
     defocus_px: float = 1.0
     ambient: float = 0.15
@@ -209,7 +214,7 @@ class StereoScene:
             value = getattr(self, name)
             if not (is_finite_number(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number; got {value!r}")
-        for name in ("glints", "noise_sigma", "defocus_px", "ambient"):
+        for name in ("glints", "noise_sigma", "defocus_px", "ambient", "glint_facet_deg"):
             value = getattr(self, name)
             if not (is_finite_number(value) and value >= 0):
                 raise ValueError(f"{name} must be a number >= 0; got {value!r}")
@@ -326,18 +331,55 @@ def _pixel_rays(camera: PinholeCamera) -> np.ndarray:
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def _glints(face_ids, rays, model, R, sun, strength, shininess):
-    """Per-pixel Blinn-Phong lobe ``strength (n . h)^shininess`` on the faces (camera frame)."""
+def _glints(face_ids, rays, model, R, t, sun, strength, shininess, facet_deg=0.0, cell_m=0.05):
+    """Per-pixel Blinn-Phong lobe ``strength (n . h)^shininess`` on the faces (camera frame).
+
+    ``facet_deg``: the body's faces (the blanket, faces 0-5) are quilted: each ``cell_m`` cell
+    of the quilt (the texture's cells) is a flat facet tilted from its face by up to
+    ``facet_deg`` in a random direction (``_hash01`` of the cell, the same in every frame), so
+    the glints are the facets that mirror the Sun into the camera, scattered over the faces and
+    moving with the view, as on crinkled multi-layer insulation. ``0``: flat faces (a lobe seen
+    only where a whole face mirrors the Sun, within a few degrees)."""
     out = np.zeros(face_ids.shape, np.float32)
     sel = face_ids >= 0
     if not sel.any() or strength <= 0:
         return out
     n_cam = model.face_normals @ R.T
-    n = n_cam[face_ids[sel]]
-    h = sun[None, :] - rays[sel]
+    ids = face_ids[sel]
+    d = rays[sel]
+    n = n_cam[ids]
+    if facet_deg > 0:
+        n = _faceted(n, ids, d, model, R, t, facet_deg, cell_m)
+    h = sun[None, :] - d
     h /= np.linalg.norm(h, axis=1, keepdims=True)
     out[sel] = strength * np.clip(np.einsum("ij,ij->i", n, h), 0, None) ** shininess
     return out
+
+
+def _faceted(n, ids, rays, model, R, t, facet_deg, cell_m):
+    """Normals ``(K, 3)`` (camera frame) of the quilt's facets hit by unit ``rays`` on faces
+    ``ids`` (:func:`_glints`); the other faces keep their normals ``n``."""
+    quilt = ids < 6
+    if not quilt.any():
+        return n
+    n = n.copy()
+    nq, dq, fq = n[quilt], rays[quilt], ids[quilt]
+    point = np.array([model.vertices[model.faces[f][0]] for f in range(6)])  # a vertex a face
+    offset = np.einsum("ij,ij->i", nq, point[fq] @ R.T + t)  # face planes n . x = offset
+    x_cam = dq * (offset / np.einsum("ij,ij->i", nq, dq))[:, None]
+    cell = np.floor((x_cam - t) @ R / cell_m).astype(np.int64)
+    # two tangents of each face, then a tilt of up to facet_deg in a random direction
+    helper = np.where(np.abs(nq[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(nq, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(nq, u)
+    tilt = np.radians(facet_deg) * np.sqrt(_hash01(cell, 11))  # uniform over the tilt disc
+    turn = 2.0 * np.pi * _hash01(cell, 23)
+    m = np.cos(tilt)[:, None] * nq + np.sin(tilt)[:, None] * (
+        np.cos(turn)[:, None] * u + np.sin(turn)[:, None] * v
+    )
+    n[quilt] = m
+    return n
 
 
 def _sampling_camera(camera: PinholeCamera, n: int) -> PinholeCamera:
@@ -512,7 +554,17 @@ def _render_stereo_frame(scene, rig, index, model, textures, rng, _rays) -> Ster
                     if cam_index not in rays_cache:
                         rays_cache[cam_index] = _pixel_rays(camera)
                     rays = rays_cache[cam_index][v0:v1, u0:u1]
-                g = _glints(face_ids, rays, model, Rc, sun_c, scene.glints, scene.shininess)
+                g = _glints(
+                    face_ids,
+                    rays,
+                    model,
+                    Rc,
+                    tc,
+                    sun_c,
+                    scene.glints,
+                    scene.shininess,
+                    scene.glint_facet_deg,
+                )
                 radiance = np.where(np.isnan(radiance), radiance, radiance + g)
             radiance = _pixel_means(np.nan_to_num(radiance, nan=0.0), n_s)
             acc = radiance if acc is None else acc + radiance
