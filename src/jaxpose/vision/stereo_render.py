@@ -368,6 +368,10 @@ def _faceted(n, ids, rays, model, R, t, facet_deg, cell_m):
     offset = np.einsum("ij,ij->i", nq, point[fq] @ R.T + t)  # face planes n . x = offset
     x_cam = dq * (offset / np.einsum("ij,ij->i", nq, dq))[:, None]
     cell = np.floor((x_cam - t) @ R / cell_m).astype(np.int64)
+    # the coordinate across the face names the face instead: a face may lie on a cell boundary
+    # (x = 0.25 m = 5 cells), where rounding would split its cells
+    across = np.argmax(np.abs(model.face_normals[fq]), axis=1)
+    cell[np.arange(len(cell)), across] = fq
     # two tangents of each face, then a tilt of up to facet_deg in a random direction
     helper = np.where(np.abs(nq[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     u = np.cross(nq, helper)
