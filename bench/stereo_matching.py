@@ -33,6 +33,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -103,20 +105,9 @@ def orb_between_frames(frames, rig, options) -> dict:
 
 
 def _components(n: int, pairs: np.ndarray) -> int:
-    """Connected components of ``n`` nodes joined by ``pairs`` (union-find)."""
-    parent = np.arange(n)
-
-    def root(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for a, b in pairs:
-        ra, rb = root(a), root(b)
-        if ra != rb:
-            parent[ra] = rb
-    return len({root(i) for i in range(n)})
+    """Connected components of ``n`` nodes joined by ``pairs`` ``(K, 2)``."""
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return int(connected_components(graph, directed=False)[0])
 
 
 def tracker_matches(frames, rig, options) -> list[dict]:
