@@ -156,10 +156,10 @@ class TrackerOptions:
             finds one corner on another pyramid level and at another orientation from one
             frame to the next, and one descriptor then misses it (at 4.3 m two thirds of the
             corners found again within 1.5 px change level, their descriptors a median 79 bits
-            apart against 37 on the same level; ``bench/stereo_matching.py``). Four find 8% more
-            landmarks at 5 m, but the poses moved within the tracker's scatter from run to run
-            (6% lower on the development scenes, 8% higher on a drawn set; 1, the default,
-            keeps the latest only: ``docs/stereo-evaluation.md``, *Descriptor memory*).
+            apart against 37 on the same level; ``bench/stereo_matching.py``). Four match 8% more
+            landmarks rightly at 5 m, but the poses moved within the tracker's scatter from run
+            to run (6% lower on the development scenes, 7% higher on a drawn set; 1, the
+            default, keeps the latest only: ``docs/stereo-evaluation.md``, *Descriptor memory*).
         refine_disparity_px: a landmark's new triangulation is averaged in only when its
             disparity is within this of the landmark's predicted disparity (stereo mismatches
             are left out).
