@@ -90,6 +90,8 @@ def orb_between_frames(frames, rig, options) -> dict:
     refined = detect_points(f0.left, options=fo, roi=target_roi(f0.left))[0]
     pairs = cKDTree(refined).query_pairs(1.0, output_type="ndarray")
     n_corners = _components(len(refined), pairs)
+    if len(i0) == 0:
+        raise SystemExit("no corner of frame 0 is found again in frame 1: is the target in view?")
     return {
         "keypoints": len(p0),
         "on_target": len(on),
