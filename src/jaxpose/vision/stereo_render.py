@@ -36,6 +36,7 @@ from jaxpose.core.geometry import Pose
 from jaxpose.vision.models import WireframeModel
 from jaxpose.vision.render import (
     BACKGROUND,
+    _face_depth_along_rays,
     apply_sensor,
     project_points,
     render_layers,
@@ -122,7 +123,13 @@ def _hash01(ijk: np.ndarray, seed: int) -> np.ndarray:
     return ((h ^ (h >> 16)) & 0xFFFF) / 65536.0
 
 
-def tumbler_textures(model: WireframeModel, *, cell_m: float = 0.05, seed: int = 1) -> dict:
+#: Side of the blanket quilt's cells (m): its texture's patches and its glints' facets.
+_QUILT_CELL_M = 0.05
+
+
+def tumbler_textures(
+    model: WireframeModel, *, cell_m: float = _QUILT_CELL_M, seed: int = 1
+) -> dict:
     """Body-attached textures: a blanket quilt (patches of random albedo with fine crinkle) on
     every body face, solar cells on the wing's two large faces, plain thin wing edges."""
 
@@ -331,7 +338,9 @@ def _pixel_rays(camera: PinholeCamera) -> np.ndarray:
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def _glints(face_ids, rays, model, R, t, sun, strength, shininess, facet_deg=0.0, cell_m=0.05):
+def _glints(
+    face_ids, rays, model, R, t, sun, strength, shininess, facet_deg=0.0, cell_m=_QUILT_CELL_M
+):
     """Per-pixel Blinn-Phong lobe ``strength (n . h)^shininess`` on the faces (camera frame).
 
     ``facet_deg``: the body's faces (the blanket, faces 0-5) are quilted: each ``cell_m`` cell
@@ -364,9 +373,12 @@ def _faceted(n, ids, rays, model, R, t, facet_deg, cell_m):
         return n
     n = n.copy()
     nq, dq, fq = n[quilt], rays[quilt], ids[quilt]
-    point = np.array([model.vertices[model.faces[f][0]] for f in range(6)])  # a vertex a face
-    offset = np.einsum("ij,ij->i", nq, point[fq] @ R.T + t)  # face planes n . x = offset
-    x_cam = dq * (offset / np.einsum("ij,ij->i", nq, dq))[:, None]
+    x_cam = np.empty_like(dq)  # where each ray meets its face's plane
+    for f in np.unique(fq):
+        on = fq == f
+        n_f = nq[on][0]  # the face's normal (camera frame)
+        d_f = float(n_f @ (R @ model.vertices[model.faces[f][0]] + t))
+        x_cam[on] = dq[on] * _face_depth_along_rays(n_f, d_f, dq[on])[:, None]
     cell = np.floor((x_cam - t) @ R / cell_m).astype(np.int64)
     # the coordinate across the face names the face instead: a face may lie on a cell boundary
     # (x = 0.25 m = 5 cells), where rounding would split its cells
