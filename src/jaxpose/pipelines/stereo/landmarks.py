@@ -135,11 +135,12 @@ class LandmarkMap:
         self.cos_view = float(np.cos(np.radians(max_view_deg)))
         self.max_obs, self.cull_after, self.cull_ratio = int(max_obs), int(cull_after), cull_ratio
         self.keep_obs = int(keep_obs)
-        self.descriptor_memory = {"points": int(descriptor_memory), "lines": 1}
         self.max_size = {"points": int(max_points), "lines": int(max_lines)}
         self._next_id = {"points": 0, "lines": 0}
         self.sets = {
-            "points": LandmarkSet(np.zeros((0, 3))),
+            "points": LandmarkSet(
+                np.zeros((0, 3)), memory=np.zeros((0, int(descriptor_memory), 32), np.uint8)
+            ),
             "lines": LandmarkSet(np.zeros((0, 2, 3))),
         }
 
@@ -180,10 +181,7 @@ class LandmarkMap:
         s.X = np.concatenate([s.X, X_body])
         desc = np.asarray(desc, np.uint8).reshape(n, -1)
         s.desc = np.concatenate([s.desc, desc])
-        K = self.descriptor_memory[kind]
-        s.memory = np.concatenate(
-            [s.memory.reshape(-1, K, desc.shape[1]), np.repeat(desc[:, None], K, 1)]
-        )
+        s.memory = np.concatenate([s.memory, np.repeat(desc[:, None], s.memory.shape[1], 1)])
         s.view = np.concatenate([s.view, view])
         s.n_obs = np.concatenate([s.n_obs, np.ones(n, np.int64)])
         s.visible = np.concatenate([s.visible, np.zeros(n, np.int64)])
