@@ -45,7 +45,7 @@ from stereo_diagnose import raycast  # noqa: E402
 from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions, target_roi  # noqa: E402
 from jaxpose.pipelines.stereo._arrays import project  # noqa: E402
 from jaxpose.pipelines.stereo.tracker import target_area  # noqa: E402
-from jaxpose.vision.stereo_features import detect_points  # noqa: E402
+from jaxpose.vision.stereo_features import _hamming, detect_points  # noqa: E402
 from jaxpose.vision.stereo_render import (  # noqa: E402
     default_rig,
     render_sequence,
@@ -53,11 +53,6 @@ from jaxpose.vision.stereo_render import (  # noqa: E402
 )
 
 FOUND_PX = 1.5  # a keypoint this close to a corner's true pixel is that corner found again
-_POP = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).sum(1)
-
-
-def _hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return _POP[np.bitwise_xor(a, b)].sum(-1)
 
 
 def orb_between_frames(frames, rig, options) -> dict:
@@ -84,14 +79,14 @@ def orb_between_frames(frames, rig, options) -> dict:
     on = np.nonzero(np.isfinite(X[:, 0]))[0]
     dist, j = cKDTree(p1).query(project(rig.left, f1.pose, X[on]))
     i0, i1 = on[dist < FOUND_PX], j[dist < FOUND_PX]
-    h = _hamming(d0[i0], d1[i1])
+    if len(i0) == 0:
+        raise SystemExit("no corner of frame 0 is found again in frame 1: is the target in view?")
+    h = _hamming(d0, d1, i0, i1)
     same = o0[i0] == o1[i1]
     turn = np.abs((a0[i0] - a1[i1] + 180.0) % 360.0 - 180.0)
     refined = detect_points(f0.left, options=fo, roi=target_roi(f0.left))[0]
     pairs = cKDTree(refined).query_pairs(1.0, output_type="ndarray")
     n_corners = _components(len(refined), pairs)
-    if len(i0) == 0:
-        raise SystemExit("no corner of frame 0 is found again in frame 1: is the target in view?")
     return {
         "keypoints": len(p0),
         "on_target": len(on),
