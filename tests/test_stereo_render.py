@@ -348,5 +348,6 @@ def test_glints_are_seen_with_facets_and_not_on_flat_faces():
     # flat faces: no face mirrors the Sun into the camera in this geometry
     assert seen[0.0] == [0, 0, 0]
     assert max(seen[45.0]) > 100
-    with pytest.raises(ValueError, match="glint_facet_deg"):
-        StereoScene(glint_facet_deg=-1.0)
+    for bad in (-1.0, 91.0, float("nan")):
+        with pytest.raises(ValueError, match="glint_facet_deg"):
+            StereoScene(glint_facet_deg=bad)

@@ -225,6 +225,11 @@ class StereoScene:
             value = getattr(self, name)
             if not (is_finite_number(value) and value >= 0):
                 raise ValueError(f"{name} must be a number >= 0; got {value!r}")
+        if self.glint_facet_deg > 90:
+            raise ValueError(
+                "glint_facet_deg must be at most 90 (a facet tilted further faces into the "
+                f"blanket); got {self.glint_facet_deg!r}"
+            )
         for name in (
             "rate_deg_s",
             "tilt_deg",
