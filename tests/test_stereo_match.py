@@ -129,7 +129,8 @@ def test_per_point_disparity_ranges(pair):
 
 def test_match_stereo_in_two_threads_equals_one(pair):
     """A point's match does not depend on the points searched with it (ranges of mixed widths,
-    some coarse to fine): the two-thread split of match_stereo returns the one-thread matches."""
+    some coarse to fine): the two-thread split of match_stereo returns the one-thread matches,
+    and its segments (their samples searched among the points) those found alone."""
     from concurrent.futures import ThreadPoolExecutor
 
     left, right, d = pair
@@ -155,6 +156,10 @@ def test_match_stereo_in_two_threads_equals_one(pair):
     for a, b in zip(one, two, strict=True):
         for name in a.__dataclass_fields__:
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    # the segments' samples searched among the points: the segments found alone
+    alone = match_lines_stereo(left, right, feats.segments, (5, 60), options=opts)
+    for name in alone.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(alone, name), getattr(one[1], name))
     # and each point alone finds what it found among the others
     for i in np.nonzero(one[0].ok)[0][:5]:
         alone = match_points_stereo(
@@ -221,7 +226,7 @@ def test_line_trim_drops_samples_matched_on_a_neighbouring_edge(monkeypatch):
     seg = np.array([[[200.0, 100.0], [230.0, 300.0]]])
     img = np.zeros((H, W), np.uint8)
 
-    def fake_points(left, right, samples, disparities, *, options):
+    def fake_points(left, right, samples, disparities, *, options, executor=None):
         right_px = samples - [20.0, 0.0]
         right_px[[2, 7, 11], 0] += [6.0, -9.0, 7.0]
         return sm.PointMatches(right_px, np.ones(len(samples)), np.ones(len(samples), bool))

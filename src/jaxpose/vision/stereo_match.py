@@ -26,6 +26,7 @@ feature at ``(u, v)`` the right match is searched on row ``v`` over the integer 
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, replace
 
 import cv2
@@ -265,6 +266,7 @@ def match_points_stereo(
     disparities,
     *,
     options: StereoMatchOptions = StereoMatchOptions(),
+    executor=None,
 ) -> PointMatches:
     """Epipolar ZNCC search (eq. 4) with parabolic sub-pixel refinement, vectorised over points.
 
@@ -274,6 +276,9 @@ def match_points_stereo(
         disparities: integer ``(d_min, d_max)`` searched (``u_right = u_left - d``), the same for
             every point, or ``(N, 2)``: one range a point (e.g. around the disparity predicted
             from a landmark map). Points with ranges of similar width are searched together.
+        executor: a one-worker :class:`concurrent.futures.ThreadPoolExecutor` (or ``None``): the
+            calling thread and the worker take the chunks of points in turn from one queue
+            (:func:`_in_two_threads`; the same matches either way).
     """
     L, Rimg = _as_float(left), _as_float(right)
     if L.shape != Rimg.shape:
@@ -286,21 +291,54 @@ def match_points_stereo(
     D = d_max - d_min + 1
     wide = D >= options.coarse_min_range if options.coarse_min_range else np.zeros(N, bool)
     if wide.any():
-        d_min, d_max = _coarse_ranges(L, Rimg, p, d_min, d_max, wide, options)
+        d_min, d_max = _coarse_ranges(L, Rimg, p, d_min, d_max, wide, options, executor)
         D = d_max - d_min + 1
     out = PointMatches(np.zeros((N, 2)), np.full(N, -1.0), np.zeros(N, bool))
     w, hr = options.window, (options.window_rows or options.window) // 2
     c0 = np.floor(p[:, 0]).astype(np.int64) - d_max - w // 2  # first column of each strip
     padded = _padded(Rimg, np.r_[c0, c0 + D.max()], p[:, 1], w, hr)
-    # widths rounded up to a power of two: a few groups, each searched at its largest width
+    # widths rounded up to a power of two: a few groups, each searched at its largest width,
+    # the widest (the longest chunks) first so that the two threads end together
     group = np.ceil(np.log2(D)).astype(np.int64)
-    for g in np.unique(group):
-        group_sel = np.nonzero(group == g)[0]
-        for start in range(0, len(group_sel), _CHUNK):
-            sel = group_sel[start : start + _CHUNK]
-            uv_r, best, ok = _search_rows(L, padded, p[sel], d_max[sel], D[sel], options)
-            out.pixels_right[sel], out.score[sel], out.ok[sel] = uv_r, best, ok
+    chunks = [
+        group_sel[start : start + _CHUNK]
+        for g in np.unique(group)[::-1]
+        for group_sel in [np.nonzero(group == g)[0]]
+        for start in range(0, len(group_sel), _CHUNK)
+    ]
+
+    def search(sel):
+        uv_r, best, ok = _search_rows(L, padded, p[sel], d_max[sel], D[sel], options)
+        out.pixels_right[sel], out.score[sel], out.ok[sel] = uv_r, best, ok
+
+    _in_two_threads(search, chunks, executor)
     return out
+
+
+def _in_two_threads(work, items, executor) -> None:
+    """``work(item)`` for every item, in the calling thread and, with an ``executor``, in its
+    worker too, each taking the next item from one shared iterator until none is left (the two
+    threads end within one item of each other whatever the items cost). ``work`` must write
+    disjoint outputs."""
+    it = iter(items)
+    lock = threading.Lock()
+
+    def drain():
+        while True:
+            with lock:
+                item = next(it, None)
+            if item is None:
+                return
+            work(item)
+
+    if executor is None or len(items) < 2:
+        drain()
+        return
+    pending = executor.submit(drain)
+    try:
+        drain()
+    finally:
+        pending.result()
 
 
 # points searched together: the (points x disparities) temporaries of a few hundred points stay
@@ -309,7 +347,7 @@ def match_points_stereo(
 _CHUNK = 256
 
 
-def _coarse_ranges(L, Rimg, p, d_min, d_max, wide, options: StereoMatchOptions):
+def _coarse_ranges(L, Rimg, p, d_min, d_max, wide, options: StereoMatchOptions, executor=None):
     """The disparity ranges of the fine search (``coarse_min_range``): for the ``wide``
     features with a match on the half-resolution images, ``coarse_radius_px`` around twice the
     coarse disparity (within the feature's own range); the others keep their ranges."""
@@ -326,7 +364,7 @@ def _coarse_ranges(L, Rimg, p, d_min, d_max, wide, options: StereoMatchOptions):
         min_texture=0.0,
         coarse_min_range=None,
     )
-    c = match_points_stereo(L2, R2, p2, np.stack([lo, hi], 1), options=coarse)
+    c = match_points_stereo(L2, R2, p2, np.stack([lo, hi], 1), options=coarse, executor=executor)
     d = 2.0 * (p2[:, 0] - c.pixels_right[:, 0])
     r = options.coarse_radius_px
     new_lo = np.maximum(np.floor(d).astype(np.int64) - r, d_min[idx])
@@ -439,6 +477,8 @@ def _line_samples(segments: np.ndarray, d: np.ndarray, n: np.ndarray):
     """Sample pixels along each segment (directions ``d``, ``n`` samples each): ``(S, 2)``
     points and the segment index of each."""
     owner = np.repeat(np.arange(len(segments)), n)
+    if len(segments) == 0:
+        return np.zeros((0, 2)), owner
     # fractions in [0.1, 0.9] (endpoints are uncertain, Sec. 3)
     start = np.concatenate([[0], np.cumsum(n)[:-1]])
     k = np.arange(n.sum()) - np.repeat(start, n)
@@ -471,56 +511,81 @@ def match_lines_stereo(
     disparities,
     *,
     options: StereoMatchOptions = StereoMatchOptions(),
+    executor=None,
 ) -> LineMatches:
     """Right segments of left segments ``(M, 2, 2)`` by sampled ZNCC matches and eq. 5;
     ``disparities`` as in :func:`match_points_stereo`, one range for all or ``(M, 2)``, one range
-    a segment for all its samples.
+    a segment for all its samples; ``executor`` as there.
 
     Returns the right segments cut at the rows of the left endpoints, so that
     ``segments_left[i, k]`` and ``segments_right[i, k]`` are the same 3-D point.
     """
-    seg = np.asarray(segments_left, dtype=np.float64).reshape(-1, 2, 2)
-    M = len(seg)
-    d_seg = np.stack(_per_feature(disparities, M), 1)
-    out = np.full((M, 2, 2), np.nan)
-    fit_error = np.full(M, np.inf)
-    n_matched = np.zeros(M, int)
-    ok = np.zeros(M, bool)
-    if M == 0:
-        return LineMatches(out, fit_error, n_matched, ok)
-    d, length, steep, n = _segment_sampling(seg, options)
-    idx = np.nonzero(steep)[0]
-    if len(idx) == 0:
-        return LineMatches(out, fit_error, n_matched, ok)
-    samples, owner_local = _line_samples(seg[idx], d[idx], n[idx])
-    owner = idx[owner_local]
-    pm = match_points_stereo(left, right, samples, d_seg[owner], options=options)
-    n_samples = np.bincount(owner, minlength=M)
-    n_matched = np.bincount(owner[pm.ok], minlength=M)
-    cand = (n_matched >= options.line_min_matches) & (2 * n_matched >= n_samples) & steep
-    cos_eps = np.cos(np.radians(options.eps_theta_deg))
-    sin_min = np.sin(np.radians(options.min_epipolar_angle_deg))
-    use = pm.ok & cand[owner]
-    c, direction, normal, delta, count = _tls_lines(owner, pm.pixels_right, use, M)
-    if options.line_trim_px is not None:
-        for scale in (3.0, 1.0):  # refit to the samples near the previous fit
-            q = pm.pixels_right - c[owner]
-            use = use & (np.abs((q * normal[owner]).sum(1)) <= scale * options.line_trim_px)
-            c, direction, normal, delta, count = _tls_lines(owner, pm.pixels_right, use, M)
-        cand = cand & (count >= options.line_min_matches) & (2 * count >= n_samples)
-    fit_error = np.where(cand, delta, np.inf)
-    cos_angle = np.abs((direction * d).sum(1)) / np.maximum(length, 1e-12)
-    ok = (
-        cand
-        & (delta < options.eps_delta_px)
-        & (cos_angle >= cos_eps)
-        & (np.abs(direction[:, 1]) >= sin_min)
+    plan = _LineSamples.of(segments_left, disparities, options)
+    pm = match_points_stereo(
+        left, right, plan.samples, plan.ranges, options=options, executor=executor
     )
-    rows = seg[ok, :, 1]  # (k, 2): the right segment cut at the left endpoints' rows
-    dirs = direction[ok]
-    u_cut = c[ok, :1] + (rows - c[ok, 1:]) * (dirs[:, :1] / dirs[:, 1:])
-    out[ok] = np.stack([u_cut, rows], 2)
-    return LineMatches(out, fit_error, n_matched, ok)
+    return plan.fit(pm, options)
+
+
+@dataclass
+class _LineSamples:
+    """The pixels sampled along the steep segments of a frame (``samples`` ``(S, 2)``, the
+    segment of each ``owner`` ``(S,)`` and its disparity range ``ranges`` ``(S, 2)``), searched
+    as points; :meth:`fit` turns their matches into right segments."""
+
+    seg: np.ndarray
+    d: np.ndarray
+    length: np.ndarray
+    steep: np.ndarray
+    n: np.ndarray
+    samples: np.ndarray
+    owner: np.ndarray
+    ranges: np.ndarray
+
+    @classmethod
+    def of(cls, segments_left, disparities, options: StereoMatchOptions) -> _LineSamples:
+        seg = np.asarray(segments_left, dtype=np.float64).reshape(-1, 2, 2)
+        M = len(seg)
+        d_seg = np.stack(_per_feature(disparities, M), 1)
+        d, length, steep, n = _segment_sampling(seg, options)
+        idx = np.nonzero(steep)[0]
+        samples, owner_local = _line_samples(seg[idx], d[idx], n[idx])
+        owner = idx[owner_local]
+        return cls(seg, d, length, steep, n, samples, owner, d_seg[owner].reshape(-1, 2))
+
+    def fit(self, pm: PointMatches, options: StereoMatchOptions) -> LineMatches:
+        """Eq. 5 on the matches ``pm`` of :attr:`samples`."""
+        seg, d, length, steep, owner = self.seg, self.d, self.length, self.steep, self.owner
+        M = len(seg)
+        out = np.full((M, 2, 2), np.nan)
+        if not steep.any():
+            return LineMatches(out, np.full(M, np.inf), np.zeros(M, int), np.zeros(M, bool))
+        n_samples = np.bincount(owner, minlength=M)
+        n_matched = np.bincount(owner[pm.ok], minlength=M)
+        cand = (n_matched >= options.line_min_matches) & (2 * n_matched >= n_samples) & steep
+        cos_eps = np.cos(np.radians(options.eps_theta_deg))
+        sin_min = np.sin(np.radians(options.min_epipolar_angle_deg))
+        use = pm.ok & cand[owner]
+        c, direction, normal, delta, count = _tls_lines(owner, pm.pixels_right, use, M)
+        if options.line_trim_px is not None:
+            for scale in (3.0, 1.0):  # refit to the samples near the previous fit
+                q = pm.pixels_right - c[owner]
+                use = use & (np.abs((q * normal[owner]).sum(1)) <= scale * options.line_trim_px)
+                c, direction, normal, delta, count = _tls_lines(owner, pm.pixels_right, use, M)
+            cand = cand & (count >= options.line_min_matches) & (2 * count >= n_samples)
+        fit_error = np.where(cand, delta, np.inf)
+        cos_angle = np.abs((direction * d).sum(1)) / np.maximum(length, 1e-12)
+        ok = (
+            cand
+            & (delta < options.eps_delta_px)
+            & (cos_angle >= cos_eps)
+            & (np.abs(direction[:, 1]) >= sin_min)
+        )
+        rows = seg[ok, :, 1]  # (k, 2): the right segment cut at the left endpoints' rows
+        dirs = direction[ok]
+        u_cut = c[ok, :1] + (rows - c[ok, 1:]) * (dirs[:, :1] / dirs[:, 1:])
+        out[ok] = np.stack([u_cut, rows], 2)
+        return LineMatches(out, fit_error, n_matched, ok)
 
 
 def match_stereo(
@@ -537,35 +602,25 @@ def match_stereo(
     """The points (:func:`match_points_stereo`) and segments (:func:`match_lines_stereo`) of one
     frame, disparities as there.
 
-    ``executor`` (e.g. a one-worker :class:`concurrent.futures.ThreadPoolExecutor`): the segments
-    and a share of the points are searched in the worker while the other points are searched in
-    the calling thread (NumPy and OpenCV release the GIL, so two cores overlap them); the share
-    evens out the two threads' searched samples (a segment counts its samples). A point's match
-    does not depend on the points searched with it: the matches are the same either way.
+    The points and the segments' samples are searched as one set of points, so ``executor``
+    (e.g. a one-worker :class:`concurrent.futures.ThreadPoolExecutor`) shares all of them
+    between the calling thread and its worker (:func:`_in_two_threads`: NumPy and OpenCV
+    release the GIL for most of the work, so two cores overlap). A point's match does not
+    depend on the points searched with it: the matches are the same either way.
     """
     L, Rimg = _as_float(left), _as_float(right)  # converted once for every call below
     p = np.asarray(pixels_left, dtype=np.float64).reshape(-1, 2)
-    seg = np.asarray(segments_left, dtype=np.float64).reshape(-1, 2, 2)
-    if executor is None or len(seg) == 0:
-        pm = match_points_stereo(L, Rimg, p, point_disparities, options=options)
-        return pm, match_lines_stereo(L, Rimg, seg, line_disparities, options=options)
     N = len(p)
-    dp = np.asarray(point_disparities)
-    if dp.shape == (2,):
-        dp = np.broadcast_to(dp, (N, 2))
-    _, _, steep, n = _segment_sampling(seg, options)  # the samples match_lines_stereo searches
-    k = int(np.clip((N - int(n[steep].sum())) // 2, 0, N))  # points of the worker
-
-    def worker():
-        lm = match_lines_stereo(L, Rimg, seg, line_disparities, options=options)
-        return lm, match_points_stereo(L, Rimg, p[N - k :], dp[N - k :], options=options)
-
-    pending = executor.submit(worker)
-    head = match_points_stereo(L, Rimg, p[: N - k], dp[: N - k], options=options)
-    lm, tail = pending.result()
-    pm = PointMatches(
-        np.concatenate([head.pixels_right, tail.pixels_right]).reshape(-1, 2),
-        np.concatenate([head.score, tail.score]),
-        np.concatenate([head.ok, tail.ok]),
+    d_min, d_max = _per_feature(point_disparities, N)
+    plan = _LineSamples.of(segments_left, line_disparities, options)
+    both = match_points_stereo(
+        L,
+        Rimg,
+        np.concatenate([p, plan.samples]),
+        np.concatenate([np.stack([d_min, d_max], 1), plan.ranges.astype(np.int64)]),
+        options=options,
+        executor=executor,
     )
-    return pm, lm
+    pm = PointMatches(both.pixels_right[:N], both.score[:N], both.ok[:N])
+    samples = PointMatches(both.pixels_right[N:], both.score[N:], both.ok[N:])
+    return pm, plan.fit(samples, options)
