@@ -175,30 +175,54 @@ def _euler_deg(R: np.ndarray) -> np.ndarray:
 
 
 def track_sequence(
-    frames, rig, *, use_lines: bool = True, initial_pose=None, options=None, progress=None
+    frames,
+    rig,
+    *,
+    use_lines: bool = True,
+    initial_pose=None,
+    options=None,
+    progress=None,
+    prefetch: bool = True,
 ):
     """Track an iterable of frames (objects with ``left``, ``right``, optional ``pose``).
 
     ``initial_pose``: the tracker's first pose (``None``: the first frame's ``pose``, the truth
     of a rendered sequence, or the identity when it has none), or a function of the first frame
-    that returns it (e.g. :func:`monocular_start`). Returns ``(results, truths,
-    seconds)``: the :class:`~jaxpose.pipelines.stereo.FrameResult` of each frame, the true poses
-    (``None`` where unknown) and the tracking time of each frame.
+    that returns it (e.g. :func:`monocular_start`). ``prefetch``: the next frame's features
+    extracted while this one is tracked (:func:`~jaxpose.pipelines.stereo.track_stream`; the
+    same poses). Returns ``(results, truths, seconds)``: the
+    :class:`~jaxpose.pipelines.stereo.FrameResult` of each frame, the true poses (``None`` where
+    unknown) and the tracking time of each frame (wall seconds from one result to the next,
+    less the time ``frames`` took to produce the next frame: rendering or reading excluded).
     """
-    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
+    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions, track_stream
 
     options = TrackerOptions(use_lines=use_lines) if options is None else options
-    tracker, results, truths, seconds = None, [], [], []
-    for fr in frames:
-        truth = getattr(fr, "pose", None)
-        if tracker is None:
-            start = initial_pose(fr) if callable(initial_pose) else initial_pose
-            tracker = StereoTracker(rig, truth if start is None else start, options=options)
-        t0 = time.perf_counter()
-        res = tracker.process(fr.left, fr.right)
-        seconds.append(time.perf_counter() - t0)
+    it = iter(frames)
+    first = next(it, None)
+    if first is None:
+        return [], [], []
+    start = initial_pose(first) if callable(initial_pose) else initial_pose
+    truth0 = getattr(first, "pose", None)
+    tracker = StereoTracker(rig, truth0 if start is None else start, options=options)
+    results, truths, seconds = [], [], []
+    reading = [0.0]  # seconds spent producing frames
+
+    def pairs():
+        fr = first
+        while fr is not None:
+            truths.append(getattr(fr, "pose", None))
+            yield fr.left, fr.right
+            t0 = time.perf_counter()
+            fr = next(it, None)
+            reading[0] += time.perf_counter() - t0
+
+    t, r = time.perf_counter(), 0.0
+    for res in track_stream(tracker, pairs(), prefetch=prefetch):
+        now = time.perf_counter()
+        seconds.append(now - t - (reading[0] - r))
+        t, r = now, reading[0]
         results.append(res)
-        truths.append(truth)
         if progress is not None:
             progress.update(1)
     return results, truths, seconds

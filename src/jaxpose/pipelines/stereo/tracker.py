@@ -63,6 +63,14 @@ from jaxpose.pipelines.stereo._arrays import (
 from jaxpose.pipelines.stereo._clock import StageClock
 from jaxpose.pipelines.stereo.anchor import PatchAnchors
 from jaxpose.pipelines.stereo.budget import fit_pose_budgeted
+from jaxpose.pipelines.stereo.frames import (
+    as_gray_uint8,
+    checked_pair,
+    detect_features,
+    feature_options,
+    target_area,
+    target_roi,
+)
 from jaxpose.pipelines.stereo.guided import match_by_projection
 from jaxpose.pipelines.stereo.keyframes import (
     observe_point_rays,
@@ -77,39 +85,10 @@ from jaxpose.pipelines.stereo.options import (
     lost_pose,
 )
 from jaxpose.pipelines.stereo.window import WindowAdjuster
-from jaxpose.vision.features import to_gray
-from jaxpose.vision.stereo_features import FeatureOptions, extract
+from jaxpose.vision.stereo_features import FeatureOptions, FrameFeatures
 from jaxpose.vision.stereo_match import disparity_range
-from jaxpose.vision.undistort import check_roi
 
 __all__ = ["StereoTracker", "as_gray_uint8", "target_area", "target_roi"]
-
-
-def target_roi(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> np.ndarray | None:
-    """Bounding box ``(u0, v0, u1, v1)`` of the pixels brighter than ``threshold`` (a target on a
-    dark sky), from a ``step``-subsampled image; ``None`` when nothing is bright."""
-    small = np.asarray(image)[::step, ::step]
-    vv, uu = np.nonzero(small > threshold)
-    if len(uu) < 4:
-        return None
-    return np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float) * step
-
-
-def target_area(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> float:
-    """Apparent area of the target, pixels: the pixels brighter than ``threshold`` (a target on a
-    dark sky), counted on a ``step``-subsampled image."""
-    small = np.asarray(image)[::step, ::step]
-    return float(np.count_nonzero(small > threshold)) * step * step
-
-
-def as_gray_uint8(image, name: str = "image") -> np.ndarray:
-    """A 2-D ``uint8`` grayscale image by the library's one image convention
-    (:func:`jaxpose.vision.features.to_gray`, as :func:`~jaxpose.initialise_pose` reads an
-    image): ``(H, W)`` or BGR(A) ``(H, W, 3|4)``; ``uint8`` as is; ``uint16`` divided by 257;
-    floats on the ``[0, 1]`` scale when their maximum is at most 1, otherwise on the 0-255 scale,
-    non-finite pixels black. Raises ``ValueError`` naming ``name`` for another shape or a
-    non-numeric image."""
-    return to_gray(image, name)
 
 
 def _finite(pose: Pose) -> bool:
@@ -222,26 +201,16 @@ class StereoTracker:
 
     # ------------------------------------------------------------------ scene-dependent settings
     def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
-        """The feature options of a frame whose target covers ``target_area_px`` pixels: the ORB
-        budget at one keypoint per ``keypoint_spacing_px^2`` pixels of target (a constant
-        keypoint density on the target, whatever its range and attitude), at least
-        ``keypoint_floor`` (ORB's corners are repeatable from frame to frame only with a budget
-        that keeps most of a small target's corners), and LSD's scale
-        reduced by ``sqrt(lsd_area_px / target_area_px)`` on a target larger than
-        ``lsd_area_px`` (at least 0.4)."""
-        o = self.options
-        if target_area_px is None:
-            return o.features
-        f = o.features
-        if o.keypoint_spacing_px is not None:
-            n = int(round(target_area_px / o.keypoint_spacing_px**2, -2))
-            f = replace(f, n_points=min(f.n_points, max(o.keypoint_floor, n)))
-        if o.lsd_area_px is not None and target_area_px > o.lsd_area_px:
-            # LSD on about lsd_area_px pixels of target at the scale of the options: a near
-            # target's edges are long, and LSD's time goes with the pixels it scans
-            scale = f.lsd_scale * np.sqrt(o.lsd_area_px / target_area_px)
-            f = replace(f, lsd_scale=round(float(max(scale, 0.4)), 2))
-        return f
+        """The feature options of a frame whose target covers ``target_area_px`` pixels
+        (:func:`~jaxpose.pipelines.stereo.frames.feature_options`)."""
+        return feature_options(self.options, target_area_px)
+
+    def detect(self, left: np.ndarray, *, roi=None) -> FrameFeatures:
+        """The features :meth:`process` extracts from a left image (``uint8`` grey of the rig's
+        size; :func:`~jaxpose.pipelines.stereo.frames.detect_features`). They depend on the
+        image and the options only, not on the tracker's state, so :func:`~jaxpose.pipelines.
+        stereo.track_stream` extracts the next pair's in another thread."""
+        return detect_features(left, self.options, roi=roi)
 
     def _update_radius(self, landmarks_xyz: np.ndarray, pose_pred: Pose, pose: Pose) -> None:
         """The next frame's search radius from this frame's prediction error (``adaptive_radius``):
@@ -452,32 +421,22 @@ class StereoTracker:
         )
 
     @in_float64
-    def process(self, left: np.ndarray, right: np.ndarray, *, roi=None) -> FrameResult:
+    def process(
+        self, left: np.ndarray, right: np.ndarray, *, roi=None, features=None
+    ) -> FrameResult:
         """The :class:`~jaxpose.pipelines.stereo.FrameResult` of one rectified stereo pair (grey
         or BGR of any depth, :func:`as_gray_uint8`). ``roi``: the target's box ``[u0, v0, u1,
-        v1]`` in the left image (default: :func:`target_roi`), checked by ``check_roi``."""
+        v1]`` in the left image (default: :func:`target_roi`), checked by ``check_roi``.
+        ``features``: this pair's :meth:`detect`, extracted ahead (``roi`` is then unused)."""
         o = self.options
-        for name, image in (("left", left), ("right", right)):
-            if image is None:  # what cv2.imread returns for a file it cannot read
-                raise ValueError(f"the {name} image is None (a file that could not be read?)")
-        left, right = np.asarray(left), np.asarray(right)
-        H, W = self.rig.left.height, self.rig.left.width
-        if left.shape[:2] != (H, W) or right.shape[:2] != (H, W):
-            raise ValueError(
-                f"images must be {W}x{H} (the rig's size); got {left.shape} and {right.shape}"
+        left, right = checked_pair(left, right, self.rig)
+        if features is not None and not isinstance(features, FrameFeatures):
+            raise TypeError(
+                f"features must be the FrameFeatures of StereoTracker.detect; got {type(features)}"
             )
-        left, right = as_gray_uint8(left, "left"), as_gray_uint8(right, "right")
         clock = StageClock(STAGES)
         with clock.stage("features"):
-            roi = target_roi(left) if roi is None else check_roi(roi, left.shape)
-            area = target_area(left)
-            feats = extract(
-                left,
-                options=self.feature_options(area),
-                roi=roi,
-                lines=o.use_lines,
-                threads=o.threads,
-            )
+            feats = self.detect(left, roi=roi) if features is None else features
         k = self.index
         self.index += 1
         if not self._started:

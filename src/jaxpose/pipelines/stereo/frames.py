@@ -1,0 +1,110 @@
+"""A stereo frame's images and features, before the tracker's state comes in.
+
+The checks of a pair (:func:`checked_pair`), the target's box and apparent area on a dark sky
+(:func:`target_roi`, :func:`target_area`), the feature budget they set
+(:func:`feature_options`) and the features stage itself (:func:`detect_features`: ORB points,
+LSD segments with LBD descriptors). None of it depends on the poses or the map, only on the
+images and the :class:`~jaxpose.pipelines.stereo.TrackerOptions`, so the next pair's features
+may be extracted while this pair is tracked (:func:`~jaxpose.pipelines.stereo.track_stream`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from jaxpose.core.camera import StereoCamera
+from jaxpose.pipelines.stereo.options import TrackerOptions
+from jaxpose.vision.features import to_gray
+from jaxpose.vision.stereo_features import FeatureOptions, FrameFeatures, extract
+from jaxpose.vision.undistort import check_roi
+
+__all__ = [
+    "as_gray_uint8",
+    "checked_pair",
+    "detect_features",
+    "feature_options",
+    "target_area",
+    "target_roi",
+]
+
+
+def target_roi(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> np.ndarray | None:
+    """Bounding box ``(u0, v0, u1, v1)`` of the pixels brighter than ``threshold`` (a target on a
+    dark sky), from a ``step``-subsampled image; ``None`` when nothing is bright."""
+    small = np.asarray(image)[::step, ::step]
+    vv, uu = np.nonzero(small > threshold)
+    if len(uu) < 4:
+        return None
+    return np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float) * step
+
+
+def target_area(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> float:
+    """Apparent area of the target, pixels: the pixels brighter than ``threshold`` (a target on a
+    dark sky), counted on a ``step``-subsampled image."""
+    small = np.asarray(image)[::step, ::step]
+    return float(np.count_nonzero(small > threshold)) * step * step
+
+
+def as_gray_uint8(image, name: str = "image") -> np.ndarray:
+    """A 2-D ``uint8`` grayscale image by the library's one image convention
+    (:func:`jaxpose.vision.features.to_gray`, as :func:`~jaxpose.initialise_pose` reads an
+    image): ``(H, W)`` or BGR(A) ``(H, W, 3|4)``; ``uint8`` as is; ``uint16`` divided by 257;
+    floats on the ``[0, 1]`` scale when their maximum is at most 1, otherwise on the 0-255 scale,
+    non-finite pixels black. Raises ``ValueError`` naming ``name`` for another shape or a
+    non-numeric image."""
+    return to_gray(image, name)
+
+
+def checked_pair(left, right, rig: StereoCamera) -> tuple[np.ndarray, np.ndarray]:
+    """The pair as ``uint8`` grey images (:func:`as_gray_uint8`); ``ValueError`` naming the image
+    for ``None`` (what ``cv2.imread`` returns for a file it cannot read) or a size other than
+    the rig's."""
+    for name, image in (("left", left), ("right", right)):
+        if image is None:
+            raise ValueError(f"the {name} image is None (a file that could not be read?)")
+    left, right = np.asarray(left), np.asarray(right)
+    H, W = rig.left.height, rig.left.width
+    if left.shape[:2] != (H, W) or right.shape[:2] != (H, W):
+        raise ValueError(
+            f"images must be {W}x{H} (the rig's size); got {left.shape} and {right.shape}"
+        )
+    return as_gray_uint8(left, "left"), as_gray_uint8(right, "right")
+
+
+def feature_options(options: TrackerOptions, target_area_px: float | None = None) -> FeatureOptions:
+    """The feature options of a frame whose target covers ``target_area_px`` pixels: the ORB
+    budget at one keypoint per ``keypoint_spacing_px^2`` pixels of target (a constant keypoint
+    density on the target, whatever its range and attitude), at least ``keypoint_floor`` (ORB's
+    corners are repeatable from frame to frame only with a budget that keeps most of a small
+    target's corners), and LSD's scale reduced by ``sqrt(lsd_area_px / target_area_px)`` on a
+    target larger than ``lsd_area_px`` (at least 0.4)."""
+    o = options
+    if target_area_px is None:
+        return o.features
+    f = o.features
+    if o.keypoint_spacing_px is not None:
+        n = int(round(target_area_px / o.keypoint_spacing_px**2, -2))
+        f = replace(f, n_points=min(f.n_points, max(o.keypoint_floor, n)))
+    if o.lsd_area_px is not None and target_area_px > o.lsd_area_px:
+        # LSD on about lsd_area_px pixels of target at the scale of the options: a near
+        # target's edges are long, and LSD's time goes with the pixels it scans
+        scale = f.lsd_scale * np.sqrt(o.lsd_area_px / target_area_px)
+        f = replace(f, lsd_scale=round(float(max(scale, 0.4)), 2))
+    return f
+
+
+def detect_features(left: np.ndarray, options: TrackerOptions, *, roi=None) -> FrameFeatures:
+    """The features of a left image (``uint8`` grey, as :func:`checked_pair` returns it): ORB
+    points and, with ``options.use_lines``, LSD segments with LBD descriptors, within ``roi``
+    (``[u0, v0, u1, v1]``, checked; default: :func:`target_roi`), at the budget of
+    :func:`feature_options` for the image's :func:`target_area`."""
+    roi = target_roi(left) if roi is None else check_roi(roi, left.shape)
+    return extract(
+        left,
+        options=feature_options(options, target_area(left)),
+        roi=roi,
+        lines=options.use_lines,
+        threads=options.threads,
+    )

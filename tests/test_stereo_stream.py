@@ -1,0 +1,85 @@
+"""A sequence tracked as a stream (the next pair's features extracted ahead, in a worker) gives
+the poses of process() called pair by pair."""
+
+import numpy as np
+import pytest
+
+from jaxpose.pipelines.stereo import STAGES, StereoTracker, TrackerOptions, track_stream
+from jaxpose.studies.stereo_track import track_sequence
+from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
+
+RIG = default_rig()
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return list(render_sequence(StereoScene(frames=6), RIG))
+
+
+def _poses(results):
+    return np.array([np.r_[np.ravel(r.R), r.t] for r in results])
+
+
+def test_the_stream_tracks_as_process_pair_by_pair(frames):
+    one = StereoTracker(RIG, frames[0].pose)
+    by_pair = [one.process(f.left, f.right) for f in frames]
+    for prefetch in (True, False):
+        tracker = StereoTracker(RIG, frames[0].pose)
+        streamed = list(
+            track_stream(tracker, ((f.left, f.right) for f in frames), prefetch=prefetch)
+        )
+        assert len(streamed) == len(frames)
+        np.testing.assert_array_equal(_poses(streamed), _poses(by_pair))
+        assert [r.inliers for r in streamed] == [r.inliers for r in by_pair]
+        for r in streamed:
+            assert set(STAGES) <= set(r.timings)
+            assert all(v >= 0 for v in r.timings.values())
+            # extracted ahead: its own figure, not a stage the frame waited on
+            assert ("features_ahead" in r.timings) == prefetch
+
+
+def test_track_sequence_excludes_the_time_to_produce_a_frame(frames):
+    """Frames that take 0.2 s each to produce (a slow reader) do not slow the tracking time."""
+    import time
+
+    def slow():
+        for f in frames:
+            time.sleep(0.2)
+            yield f
+
+    results, truths, seconds = track_sequence(slow(), RIG, prefetch=True)
+    assert len(results) == len(truths) == len(seconds) == len(frames)
+    assert all(t is f.pose for t, f in zip(truths, frames, strict=True))
+    fast = track_sequence(frames, RIG, prefetch=False)
+    np.testing.assert_array_equal(_poses(results), _poses(fast[0]))
+    assert np.median(seconds[2:]) < np.median(fast[2][2:]) + 0.15
+
+
+@pytest.mark.typecheck_off
+def test_a_refused_pair_is_named_in_its_turn(frames):
+    pairs = [(f.left, f.right) for f in frames[:4]]
+    pairs[2] = (frames[2].left, None)
+    for prefetch in (True, False):
+        seen = []
+        with pytest.raises(ValueError, match="pair 2: the right image is None"):
+            for r in track_stream(StereoTracker(RIG, frames[0].pose), pairs, prefetch=prefetch):
+                seen.append(r)
+        assert len(seen) == 2  # the pairs before it were tracked and yielded
+    with pytest.raises(TypeError, match="pair 0: expected a \\(left, right\\) pair"):
+        next(track_stream(StereoTracker(RIG, frames[0].pose), [frames[0].left]))
+    with pytest.raises(ValueError, match="pair 1: images must be"):
+        list(
+            track_stream(
+                StereoTracker(RIG, frames[0].pose),
+                [(frames[0].left, frames[0].right), (frames[1].left[:100], frames[1].right)],
+            )
+        )
+
+
+def test_process_takes_the_features_of_detect_only(frames):
+    tracker = StereoTracker(RIG, frames[0].pose, options=TrackerOptions(use_lines=False))
+    f = frames[0]
+    r = tracker.process(f.left, f.right, features=tracker.detect(f.left))
+    assert r.status == 0
+    with pytest.raises(TypeError, match="FrameFeatures of StereoTracker.detect"):
+        tracker.process(f.left, f.right, features=np.zeros((10, 2)))
