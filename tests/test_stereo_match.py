@@ -267,3 +267,41 @@ def test_the_search_scores_each_window_by_its_zncc_in_chunks_of_any_size(pair, m
     chunked = match_points_stereo(left, right, pts, (5, 60), options=o)
     np.testing.assert_array_equal(chunked.pixels_right, pm.pixels_right)
     np.testing.assert_array_equal(chunked.ok, pm.ok)
+
+
+def test_twins_are_searched_once_and_keep_their_own_column(pair, monkeypatch):
+    """merge_px: points within one cell of its grid (ORB's one corner at several levels) are
+    searched once; each keeps the searched twin's disparity at its own pixel, and the matches
+    are those of every point searched, to the sub-pixel peak's wobble (0.2 px)."""
+    import jaxpose.vision.stereo_match as sm
+
+    left, right, d = pair
+    pts = np.floor(extract(left).points[:60] / 0.01) * 0.01 + 0.004  # inside their 0.01 cells
+    twins = pts[:20] + [0.003, -0.002]  # in the cells of their originals
+    grid_apart = pts[20:30] + [0.5, 0.0]  # other cells: searched apart
+    allp = np.concatenate([pts, twins, grid_apart])
+    ranges = (5, 60)
+    plain = match_points_stereo(left, right, allp, ranges)
+    searched = []
+    real = sm._search_rows
+
+    def counting(L, padded, p, *args):
+        searched.append(len(p))
+        return real(L, padded, p, *args)
+
+    monkeypatch.setattr(sm, "_search_rows", counting)
+    merged = match_points_stereo(
+        left, right, allp, ranges, options=StereoMatchOptions(merge_px=0.01)
+    )
+    assert plain.ok.sum() > 40
+    np.testing.assert_array_equal(merged.ok, plain.ok)
+    ok = plain.ok
+    assert np.abs(merged.pixels_right[ok] - plain.pixels_right[ok]).max() < 0.2
+    n_cells = len(np.unique(np.floor(allp / 0.01), axis=0))
+    assert sum(searched) == n_cells < len(allp)
+    # a twin takes its original's disparity, at its own pixel
+    disparity = allp[:, 0] - merged.pixels_right[:, 0]
+    np.testing.assert_allclose(disparity[60:80], disparity[:20])
+    np.testing.assert_array_equal(merged.pixels_right[:, 1], allp[:, 1])
+    with pytest.raises(ValueError, match="merge_px"):
+        StereoMatchOptions(merge_px=-0.01)
