@@ -495,7 +495,10 @@ class FrameResult:
         n_points, n_lines: features given to the solver.
         inliers: post-fit inliers; ``rms_px``: their post-fit RMS (pixels).
         keyframe: this frame updated the landmark map.
-        timings: wall-clock seconds by stage (:data:`STAGES`).
+        timings: wall-clock seconds by stage (:data:`STAGES`); tracked by
+            :func:`~jaxpose.pipelines.stereo.track_stream` with ``prefetch``, ``features`` is
+            the wait for the features extracted ahead and ``features_ahead`` their extraction
+            in the worker.
         cpu_timings: CPU seconds of the process by stage (all its threads; steadier than wall
             time on a shared machine); the feature budget's selection is timed in wall time
             only, its CPU time counts in ``pose``.
