@@ -67,6 +67,12 @@ def test_a_refused_pair_is_named_in_its_turn(frames):
         assert len(seen) == 2  # the pairs before it were tracked and yielded
     with pytest.raises(TypeError, match="pair 0: expected a \\(left, right\\) pair"):
         next(track_stream(StereoTracker(RIG, frames[0].pose), [frames[0].left]))
+    seen = []
+    with pytest.raises(TypeError, match="pair 1: expected a \\(left, right\\) pair"):
+        odd = [(frames[0].left, frames[0].right), frames[1].left]
+        for r in track_stream(StereoTracker(RIG, frames[0].pose), odd):
+            seen.append(r)
+    assert len(seen) == 1
     with pytest.raises(ValueError, match="pair 1: images must be"):
         list(
             track_stream(

@@ -34,8 +34,8 @@ def track_stream(tracker, pairs: Iterable, *, prefetch: bool = True) -> Iterator
     the pipe runs), ``timings["features_ahead"]`` the wall time of their extraction in the
     worker, and the CPU time by stage counts the worker's CPU in the stage it overlapped (the
     frame's total is exact). ``False``: ``process`` pair by pair. Either way the poses are
-    the same (tested). A pair the tracker refuses (``None``, another size) raises its
-    ``ValueError`` naming the pair's index when its turn comes.
+    the same (tested). A pair the tracker refuses (``None``, another size: ``ValueError``; not
+    a pair: ``TypeError``) raises naming the pair's index when its turn comes.
     """
     it = iter(pairs)
     if not prefetch:
@@ -56,7 +56,11 @@ def track_stream(tracker, pairs: Iterable, *, prefetch: bool = True) -> Iterator
             if pair is None:
                 return None
             try:
-                left, right = checked_pair(*_unpacked(pair, index), tracker.rig)
+                left, right = _unpacked(pair, index)
+            except TypeError as err:
+                return err
+            try:
+                left, right = checked_pair(left, right, tracker.rig)
             except ValueError as err:
                 return ValueError(f"pair {index}: {err}")
             return left, right, pool.submit(timed_detect, left)
@@ -69,7 +73,7 @@ def track_stream(tracker, pairs: Iterable, *, prefetch: bool = True) -> Iterator
         index = 0
         current = ahead(index)
         while current is not None:
-            if isinstance(current, ValueError):
+            if isinstance(current, Exception):
                 raise current
             left, right, pending = current
             t0, c0 = time.perf_counter(), time.process_time()
