@@ -576,7 +576,6 @@ class _LineSamples:
     d: np.ndarray
     length: np.ndarray
     steep: np.ndarray
-    n: np.ndarray
     samples: np.ndarray
     owner: np.ndarray
     ranges: np.ndarray
@@ -590,7 +589,7 @@ class _LineSamples:
         idx = np.nonzero(steep)[0]
         samples, owner_local = _line_samples(seg[idx], d[idx], n[idx])
         owner = idx[owner_local]
-        return cls(seg, d, length, steep, n, samples, owner, d_seg[owner].reshape(-1, 2))
+        return cls(seg, d, length, steep, samples, owner, d_seg[owner].reshape(-1, 2))
 
     def fit(self, pm: PointMatches, options: StereoMatchOptions) -> LineMatches:
         """Eq. 5 on the matches ``pm`` of :attr:`samples`."""
