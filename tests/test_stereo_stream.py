@@ -94,3 +94,14 @@ def test_process_takes_the_features_of_detect_only(frames):
     assert r.status == 0
     with pytest.raises(TypeError, match="FrameFeatures of StereoTracker.detect"):
         tracker.process(f.left, f.right, features=np.zeros((10, 2)))
+
+
+def test_detect_in_one_thread_finds_the_features_of_two(frames):
+    """The stream's worker extracts in one thread (points, then lines); the features are those
+    of the lines' own thread beside the points'."""
+    tracker = StereoTracker(RIG, frames[0].pose)
+    left = frames[2].left
+    one, two = tracker.detect(left, threads=False), tracker.detect(left, threads=True)
+    assert len(one.points) > 100 and len(one.segments) > 5
+    for name in ("points", "point_desc", "segments", "line_desc", "point_response"):
+        np.testing.assert_array_equal(getattr(one, name), getattr(two, name), err_msg=name)

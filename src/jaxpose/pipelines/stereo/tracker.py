@@ -205,12 +205,17 @@ class StereoTracker:
         (:func:`~jaxpose.pipelines.stereo.frames.feature_options`)."""
         return feature_options(self.options, target_area_px)
 
-    def detect(self, left: np.ndarray, *, roi=None) -> FrameFeatures:
+    def detect(self, left: np.ndarray, *, roi=None, threads: bool | None = None) -> FrameFeatures:
         """The features :meth:`process` extracts from a left image (``uint8`` grey of the rig's
         size; :func:`~jaxpose.pipelines.stereo.frames.detect_features`). They depend on the
         image and the options only, not on the tracker's state, so :func:`~jaxpose.pipelines.
-        stereo.track_stream` extracts the next pair's in another thread."""
-        return detect_features(left, self.options, roi=roi)
+        stereo.track_stream` extracts the next pair's in another thread. ``threads``: the lines
+        in a second thread beside the points' (default ``options.threads``; the same features
+        either way)."""
+        o = self.options
+        if threads is not None and bool(threads) != o.threads:
+            o = replace(o, threads=bool(threads))
+        return detect_features(left, o, roi=roi)
 
     def _update_radius(self, landmarks_xyz: np.ndarray, pose_pred: Pose, pose: Pose) -> None:
         """The next frame's search radius from this frame's prediction error (``adaptive_radius``):
