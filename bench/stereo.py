@@ -23,9 +23,10 @@ prints a Markdown table and, last, one JSON line: scenes run, how many meet the 
 issue 16 (per-axis RMS position <= 5 mm per metre of range, attitude <= 1 deg, no lost frame)
 per split, the median wall frame rate (``median_fps``) and CPU seconds a frame
 (``median_cpu_s_per_frame``, ``time.process_time`` of the process), a machine yardstick run on
-the same frames (``median_opencv_yardstick_ms``: OpenCV's ORB and block matching of a pair, see
-:func:`yardstick_ms`) and the frame's wall time over it (``median_frame_over_yardstick``: a
-figure that moves with the code, not with the machine, to first order), the wall and CPU
+the same frames before and after each scene's tracking, averaged (``median_opencv_yardstick_ms``:
+OpenCV's ORB and block matching of a pair, see :func:`yardstick_ms`) and the frame's wall time
+over it (``median_frame_over_yardstick``: a figure that moves with the code, not with the
+machine, to first order), the wall and CPU
 milliseconds a frame by stage (``median_stage_ms``, ``median_stage_cpu_ms``; points+lines,
 medians over the scenes) and the machine's load average before and after the run.
 
@@ -212,6 +213,10 @@ def run_scene(
     t_render = time.perf_counter()
     frames = list(render_sequence(scene, rig))
     render_s = time.perf_counter() - t_render
+    # the machine's yardstick on the same frames before and after the tracking, averaged: this
+    # machine's speed drifts within minutes, and one side alone lent a scene the speed of the
+    # minutes before or after its tracking
+    before = [yardstick_ms(fr.left, fr.right) for fr in frames]
     for mode in modes:
         base = TrackerOptions() if options is None else options
         opts = replace(base, use_lines=mode == "points+lines", depth_range_m=depth)
@@ -228,7 +233,8 @@ def run_scene(
             results.append(res)
             truths.append(fr.pose)
             t0, c0 = time.perf_counter(), time.process_time()
-    yardstick = [yardstick_ms(fr.left, fr.right) for fr in frames]  # OpenCV, the same frames
+    after = [yardstick_ms(fr.left, fr.right) for fr in frames]
+    yardstick = [0.5 * (a + b) for a, b in zip(before, after, strict=True)]
     split, params = SCENES[name]
     out = {
         "scene": {
@@ -244,6 +250,9 @@ def run_scene(
         "render_s_per_frame": render_s / scene.n_frames(),
         # frames 0-1 left out, as from the frame rate
         "opencv_yardstick_ms": float(np.mean(yardstick[2:])) if len(yardstick) > 2 else None,
+        "opencv_yardstick_ms_before_after": (
+            [float(np.mean(before[2:])), float(np.mean(after[2:]))] if len(yardstick) > 2 else None
+        ),
     }
     for mode, (results, truths, seconds) in logs.items():
         # frame 0 makes the first keyframe; frame 1 compiles the solver: both left out of timings
