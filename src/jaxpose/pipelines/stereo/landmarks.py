@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jaxpose.core.geometry import Pose
-from jaxpose.pipelines.stereo._arrays import rt
+from jaxpose.pipelines.stereo._arrays import rt, sym3_eigvalsh
 
 __all__ = ["LandmarkMap", "LandmarkSet"]
 
@@ -212,7 +212,7 @@ class LandmarkMap:
         np.add.at(s.M, idx, P)
         np.add.at(s.b, idx, np.einsum("nij,nj->ni", P, c))
         u = np.unique(idx)
-        ev = np.linalg.eigvalsh(s.M[u])
+        ev = sym3_eigvalsh(s.M[u])
         ok = ev[:, 0] > 1e-4 * ev[:, 2]
         u = u[ok]
         if len(u):

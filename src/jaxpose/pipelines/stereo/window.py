@@ -45,7 +45,7 @@ from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.refine import WindowLines, WindowObservations, WindowOptions, adjust_window
 from jaxpose.core.status import Status
-from jaxpose.pipelines.stereo._arrays import find
+from jaxpose.pipelines.stereo._arrays import find, sym3_eigvalsh
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap, planes_meet
 
 __all__ = ["FrameRays", "WindowAdjuster"]
@@ -378,7 +378,7 @@ class WindowAdjuster:
             return None
         jj, at, n, d, cam, w = (np.concatenate(c) for c in zip(*rows, strict=True))
         lu, li = np.unique(at, return_inverse=True)
-        ev = np.linalg.eigvalsh(s.M[lu])
+        ev = sym3_eigvalsh(s.M[lu])
         count = np.bincount(li, minlength=len(lu))
         ok = planes_meet(ev)
         order = np.lexsort((lu, -count))
