@@ -45,7 +45,9 @@ def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
         lines_img=L,
         line_mask=lmask,
         line_sigma=line_sigma,
-        options=RefineOptions(robust=robust, max_steps=30, rtol=1e-9, atol=1e-10),
+        # converged at steps of 1e-7 (relative position, radians): three orders below the
+        # pose's noise, and 1.3 fewer steps in the first pass than at 1e-9
+        options=RefineOptions(robust=robust, max_steps=30, rtol=1e-7, atol=1e-8),
         throw=False,
     )
     pose = res.pose
