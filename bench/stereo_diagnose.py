@@ -241,11 +241,15 @@ def track_with_history(scene, option=()):
 
 
 def _scene_by_name(name: str, frames: int, seed: int):
-    """A scene of ``bench/stereo.py``, or ``hNN`` of ``bench/stereo_heldout.py`` (its default
-    draw)."""
+    """A scene of ``bench/stereo.py``, ``hNN`` of ``bench/stereo_heldout.py`` (its default
+    draw), or a scene of your own as ``NAME={StereoScene fields as JSON}`` (as ``bench/stereo.py
+    --scene`` takes it)."""
     sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
     import stereo  # bench/stereo.py
 
+    if "=" in name:
+        fields = json.loads(name.split("=", 1)[1])
+        return StereoScene(frames=frames, seed=seed, **fields)
     if name in stereo.SCENES:
         return stereo.scene_of(name, frames, seed)
     from stereo_heldout import DRAW_SEED, N_SCENES, draw_scenes
