@@ -193,8 +193,9 @@ def test_observe_lines_intersects_the_planes_and_moves_endpoints_across_the_line
 
 def test_sym3_eigvalsh_agrees_with_lapack_and_keeps_the_conditioning_test():
     """The closed-form eigenvalues the map's conditioning tests use, against
-    ``np.linalg.eigvalsh``: ray-projector sums from nearly parallel to wide rays (the map's
-    matrices), a double and a triple eigenvalue, zero and random symmetric matrices."""
+    ``np.linalg.eigvalsh``: ray-projector sums from nearly parallel rays (a near-double
+    eigenvalue) to wide ones (the map's matrices), a triple eigenvalue, zero and random
+    symmetric matrices."""
     from jaxpose.pipelines.stereo._arrays import sym3_eigvalsh
 
     rng = np.random.default_rng(3)

@@ -46,7 +46,7 @@ def _solve(pose0, P, uv, mask, S, L, lmask, camera, robust, sigma, line_sigma):
         line_mask=lmask,
         line_sigma=line_sigma,
         # converged at steps of 1e-7 (relative position, radians): three orders below the
-        # pose's noise, and 1.3 fewer steps in the first pass than at 1e-9
+        # pose's noise, and 0.5-1.3 fewer steps in the first pass than at 1e-9
         options=RefineOptions(robust=robust, max_steps=30, rtol=1e-7, atol=1e-8),
         throw=False,
     )

@@ -70,7 +70,7 @@ def track_stream(tracker, pairs: Iterable, *, prefetch: bool = True) -> Iterator
             t0 = time.perf_counter()
             # one thread: this worker already runs beside the tracking thread, and the lines'
             # own thread would take the tracking's core from it (paired on 2 cores: the frame
-            # 4-15% shorter than with the lines in a third thread; the same features)
+            # 2-17% shorter than with the lines in a third thread; the same features)
             features = tracker.detect(left, threads=False)
             return features, time.perf_counter() - t0
 
