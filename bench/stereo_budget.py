@@ -46,6 +46,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 import jaxpose.pipelines.stereo.budget as budget_mod  # noqa: E402
+import jaxpose.pipelines.stereo.frames as frames_mod  # noqa: E402
 import jaxpose.pipelines.stereo.tracker as tracker_mod  # noqa: E402
 from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions  # noqa: E402
 from jaxpose.pipelines.stereo.options import BUDGET_NOISE, BUDGET_WEIGHTS  # noqa: E402
@@ -115,10 +116,12 @@ def _dop_ratio(landmarks, feats, stereo, matches, pose_pred, rig, o, line_sigma,
 
 
 class _SharedFeatures:
-    """One feature extraction per image for every tracker (keyed by the image's identity)."""
+    """One feature extraction per image for every tracker (keyed by the image's identity; the
+    features stage's ``extract`` in :mod:`jaxpose.pipelines.stereo.frames`, whatever thread it
+    runs the lines in)."""
 
     def __init__(self):
-        self._extract = tracker_mod.extract
+        self._extract = frames_mod.extract
         self._cache: dict = {}
 
     def __enter__(self):
@@ -129,11 +132,11 @@ class _SharedFeatures:
                 self._cache[key] = self._extract(image, **kw)
             return self._cache[key]
 
-        tracker_mod.extract = extract
+        frames_mod.extract = extract
         return self
 
     def __exit__(self, *exc):
-        tracker_mod.extract = self._extract
+        frames_mod.extract = self._extract
 
 
 def configs(budgets=BUDGETS, rules=RULES) -> list[tuple[str, int | None]]:

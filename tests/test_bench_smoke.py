@@ -82,3 +82,28 @@ def test_stereo_matching_bench_counts_what_it_finds(tmp_path):
     assert 0 < orb["distinct_corners_1px"] <= orb["refined_keypoints"]
     assert 0 < out["median_right"] <= out["median_matched"]
     assert out["median_right"] <= out["median_findable"]
+
+
+@pytest.mark.slow
+def test_stereo_budget_bench_runs_every_rule_on_shared_features(tmp_path):
+    """``bench/stereo_budget.py`` shares one feature extraction among its trackers by replacing
+    the features stage's ``extract``: a move of that stage broke it once without a test."""
+    out = _last_json_line(
+        [
+            str(REPO / "bench" / "stereo_budget.py"),
+            "--scenes",
+            "d1-clean-2m",
+            "--frames",
+            "3",
+            "--budgets",
+            "30",
+            "--rules",
+            "dop",
+            "random",
+            "--out",
+            str(tmp_path / "b"),
+        ],
+        tmp_path,
+    )
+    assert out["bench"] == "stereo-budget" and out["scenes"] == 1 and out["N"] == 30
+    assert {"all", "dop@30", "random@30"} <= set(out["median_pose_cpu_ms"])
