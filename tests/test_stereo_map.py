@@ -197,6 +197,7 @@ def test_sym3_eigvalsh_agrees_with_lapack_and_keeps_the_conditioning_test():
     eigenvalue) to wide ones (the map's matrices), a triple eigenvalue, zero and random
     symmetric matrices."""
     from jaxpose.pipelines.stereo._arrays import sym3_eigvalsh
+    from jaxpose.pipelines.stereo.landmarks import rays_meet
 
     rng = np.random.default_rng(3)
     k = 2000
@@ -212,4 +213,5 @@ def test_sym3_eigvalsh_agrees_with_lapack_and_keeps_the_conditioning_test():
     scale = np.maximum(np.abs(want).max(1), 1e-300)
     assert np.all(np.abs(got - want).max(1) <= 1e-7 * scale)
     np.testing.assert_array_equal(got[:, 0] > 1e-4 * got[:, 2], want[:, 0] > 1e-4 * want[:, 2])
+    np.testing.assert_array_equal(rays_meet(M), want[:, 0] > 1e-4 * want[:, 2])
     assert 0 < np.sum(want[:k, 0] > 1e-4 * want[:k, 2]) < k  # both sides of the test exercised

@@ -81,6 +81,7 @@ from jaxpose.pipelines.stereo.frame_pose import (
     postfit_errors,
     postfit_summary,
 )
+from jaxpose.pipelines.stereo.landmarks import rays_meet
 from jaxpose.pipelines.stereo.options import TrackerOptions
 from jaxpose.pipelines.stereo.repeats import selection_history
 
@@ -419,8 +420,7 @@ def landmark_covariance(M, X_body, pose: Pose, camera, baseline_m: float, sigma_
     uu = u[:, :, None] * u[:, None, :]
     cam = across[:, None, None] * (np.eye(3) - uu) + along[:, None, None] * uu
     cov = np.einsum("ji,njk,kl->nil", R, cam, R)  # R^T C R
-    ev = np.linalg.eigvalsh(M) if len(M) else np.zeros((0, 3))
-    ok = ev[:, 0] > 1e-4 * np.maximum(ev[:, 2], 1e-300)
+    ok = rays_meet(M)  # the map's own test of a determined triangulation
     if ok.any():
         cov[ok] = (sigma_px / f) ** 2 * np.linalg.inv(M[ok])
     return cov

@@ -85,6 +85,15 @@ class LandmarkSet:
             setattr(self, name, getattr(self, name)[keep])
 
 
+def rays_meet(M: np.ndarray) -> np.ndarray:
+    """Whether point landmarks' observation rays meet in a point, from their summed normal
+    matrices ``M (k, 3, 3)`` (``sum w (I - d d^T)``, :meth:`LandmarkMap.observe`): the smallest
+    eigenvalue at least ``1e-4`` of the largest (nearly parallel rays leave the depth
+    undetermined). ``(k,)`` bool."""
+    ev = sym3_eigvalsh(M)
+    return ev[:, 0] > 1e-4 * ev[:, 2]
+
+
 def planes_meet(ev: np.ndarray) -> np.ndarray:
     """Whether a line landmark's observation planes meet in a line, from the ascending
     eigenvalues ``ev (k, 3)`` of their summed ``sum w n n^T``: the second at least ``1e-4`` of
@@ -212,9 +221,7 @@ class LandmarkMap:
         np.add.at(s.M, idx, P)
         np.add.at(s.b, idx, np.einsum("nij,nj->ni", P, c))
         u = np.unique(idx)
-        ev = sym3_eigvalsh(s.M[u])
-        ok = ev[:, 0] > 1e-4 * ev[:, 2]
-        u = u[ok]
+        u = u[rays_meet(s.M[u])]
         if len(u):
             s.X[u] = np.linalg.solve(s.M[u], s.b[u][..., None])[..., 0]
 
