@@ -107,3 +107,17 @@ def test_stereo_budget_bench_runs_every_rule_on_shared_features(tmp_path):
     )
     assert out["bench"] == "stereo-budget" and out["scenes"] == 1 and out["N"] == 30
     assert {"all", "dop@30", "random@30"} <= set(out["median_pose_cpu_ms"])
+
+
+@pytest.mark.slow
+def test_stereo_turnover_bench_measures_matches_against_the_truth(tmp_path):
+    out = _last_json_line(
+        [str(REPO / "bench" / "stereo_turnover.py"), "d1-clean-2m", "--frames", "6"], tmp_path
+    )
+    early = out["summary"]["early"]
+    assert early["matches"] > 100
+    # on the clean 2 m scene the matched keypoints lie on their landmarks' true projections
+    # (a wrong pose convention or ray cast would put them tens of pixels away)
+    assert early["median_e_true_px"] < 1.5
+    lateral, depth = early["old_lat_dep_mm"]
+    assert 0 < lateral < 5 and 0 < depth < 20
