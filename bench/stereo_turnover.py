@@ -21,10 +21,12 @@ repository root::
         "frame_rate_hz": 5, "noise_sigma": 0.02}' --frames 30       # (one line)
     python bench/stereo_turnover.py d6-blur-5m-slow --frames 12
     python bench/stereo_turnover.py SCENE --option anchor_points=True
+    python bench/stereo_turnover.py SCENE_A SCENE_B --figure turnover.png   # side by side
 
 ``SCENE``: a scene of ``bench/stereo.py``, ``hNN`` of ``bench/stereo_heldout.py``'s default draw,
-or ``NAME={StereoScene fields as JSON}``. Prints a row a frame and ends with one JSON line: the
-figures pooled over frames 1-9 and over frames 10 onwards.
+or ``NAME={StereoScene fields as JSON}``; several scenes run one after the other. Prints a row a
+frame and ends with one JSON line: per scene, the figures pooled over frames 1-9 and over frames
+10 onwards. ``--figure PATH``: the rows of every scene side by side.
 """
 
 from __future__ import annotations
@@ -146,17 +148,66 @@ def turnover(name: str, frames: int, seed: int, option=()) -> dict:
     }
 
 
+def figure(results: list[dict], path: str) -> None:
+    """Per frame, one line a scene: the landmarks matched and the inliers; the matches' median
+    distance to their true projections and the share beyond 2 px; the older landmarks' error
+    across the line of sight."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, res in enumerate(results):
+        color = colors[i % len(colors)]
+        label = res["scene"].split("=")[0]
+        rows = res["rows"]
+        k = [r["frame"] for r in rows]
+        axes[0].plot(k, [r["matched"] for r in rows], color=color, label=f"{label}: matched")
+        axes[0].plot(k, [r["inliers"] for r in rows], "--", color=color, label=f"{label}: inliers")
+        pct = [r["e_true_px_pct_10_25_50_75_90"] or [np.nan] * 5 for r in rows]
+        axes[1].plot(k, [p[2] for p in pct], color=color, label=f"{label}: median")
+        axes[1].plot(k, [p[4] for p in pct], ":", color=color, label=f"{label}: 90th percentile")
+        old = [np.nan if r["old_lat_dep_mm"][0] is None else r["old_lat_dep_mm"][0] for r in rows]
+        young = [
+            np.nan if r["young_lat_dep_mm"][0] is None else r["young_lat_dep_mm"][0] for r in rows
+        ]
+        axes[2].plot(k, old, color=color, label=f"{label}: older than {YOUNG_FRAMES} frames")
+        axes[2].plot(k, young, "--", color=color, label=f"{label}: younger")
+    axes[0].set_title("point landmarks matched, inliers")
+    axes[1].set_title("match to true projection (px)")
+    axes[2].set_title("landmark error across the line of sight (mm)")
+    for ax in axes:
+        ax.set_xlabel("frame")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("scene", help="a suite scene, hNN, or NAME={StereoScene fields as JSON}")
+    p.add_argument(
+        "scenes",
+        nargs="+",
+        metavar="SCENE",
+        help="a suite scene, hNN, or NAME={StereoScene fields as JSON}",
+    )
     p.add_argument("--frames", type=int, default=30)
     p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
     p.add_argument(
         "--option", action="append", default=[], help="a TrackerOptions field, NAME=VALUE"
     )
+    p.add_argument("--figure", default=None, help="a PNG of the scenes' rows side by side")
     args = p.parse_args(argv)
-    out = turnover(args.scene, args.frames, args.seed, tuple(args.option))
-    print(json.dumps({k: v for k, v in out.items() if k != "rows"}))
+    results = [turnover(s, args.frames, args.seed, tuple(args.option)) for s in args.scenes]
+    if args.figure:
+        figure(results, args.figure)
+        print(f"figure: {args.figure}")
+    lines = [{k: v for k, v in out.items() if k != "rows"} for out in results]
+    print(json.dumps({"bench": "stereo_turnover", "scenes": lines}))
     return 0
 
 

@@ -111,10 +111,21 @@ def test_stereo_budget_bench_runs_every_rule_on_shared_features(tmp_path):
 
 @pytest.mark.slow
 def test_stereo_turnover_bench_measures_matches_against_the_truth(tmp_path):
+    figure = tmp_path / "turnover.png"
     out = _last_json_line(
-        [str(REPO / "bench" / "stereo_turnover.py"), "d1-clean-2m", "--frames", "6"], tmp_path
+        [
+            str(REPO / "bench" / "stereo_turnover.py"),
+            "d1-clean-2m",
+            "--frames",
+            "6",
+            "--figure",
+            str(figure),
+        ],
+        tmp_path,
     )
-    early = out["summary"]["early"]
+    assert figure.stat().st_size > 10_000
+    (scene,) = out["scenes"]
+    early = scene["summary"]["early"]
     assert early["matches"] > 100
     # on the clean 2 m scene the matched keypoints lie on their landmarks' true projections
     # (a wrong pose convention or ray cast would put them tens of pixels away)
