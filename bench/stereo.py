@@ -489,11 +489,12 @@ def main(argv=None) -> int:
     return 0
 
 
-def _own_scene(parser, spec: str) -> str:
-    """``--scene NAME=JSON``: the scene added to :data:`SCENES` (split ``own``); its name."""
+def own_scene_params(spec: str) -> tuple[str, dict]:
+    """``NAME=JSON`` (a scene of one's own): its name and ``StereoScene`` fields, checked by the
+    scene itself; ``ValueError`` naming what is wrong."""
     name, sep, text = spec.partition("=")
     if not sep or not name or name in SCENES:
-        parser.error(f"--scene wants NAME=JSON with a new name; got {spec!r}")
+        raise ValueError(f"a scene of your own is NAME=JSON with a new name; got {spec!r}")
     try:
         params = json.loads(text)
         if not isinstance(params, dict):
@@ -501,7 +502,16 @@ def _own_scene(parser, spec: str) -> str:
         params = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
         StereoScene(frames=2, **params)  # the scene's own checks
     except (ValueError, TypeError) as e:  # JSONDecodeError is a ValueError
-        parser.error(f"--scene {name}: {e}")
+        raise ValueError(f"scene {name}: {e}") from None
+    return name, params
+
+
+def _own_scene(parser, spec: str) -> str:
+    """``--scene NAME=JSON``: the scene added to :data:`SCENES` (split ``own``); its name."""
+    try:
+        name, params = own_scene_params(spec)
+    except ValueError as e:
+        parser.error(f"--scene: {e}")
     SCENES[name] = ("own", params)
     return name
 

@@ -248,8 +248,7 @@ def _scene_by_name(name: str, frames: int, seed: int):
     import stereo  # bench/stereo.py
 
     if "=" in name:
-        fields = json.loads(name.split("=", 1)[1])
-        return StereoScene(frames=frames, seed=seed, **fields)
+        return StereoScene(frames=frames, seed=seed, **stereo.own_scene_params(name)[1])
     if name in stereo.SCENES:
         return stereo.scene_of(name, frames, seed)
     from stereo_heldout import DRAW_SEED, N_SCENES, draw_scenes

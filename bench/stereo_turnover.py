@@ -60,6 +60,16 @@ def _median_mm(x) -> float | None:
     return round(1e3 * float(np.median(x)), 1) if len(x) else None
 
 
+def _figures(e, lat, dep, young) -> dict:
+    """The figures of a set of matches (one frame's, or frames pooled): the share of matches
+    beyond 2 px of their true projections and the young and old landmarks' median errors."""
+    return {
+        "share_e_true_over_2px": round(float(np.mean(e > 2.0)), 3) if len(e) else None,
+        "young_lat_dep_mm": [_median_mm(lat[young]), _median_mm(dep[young])],
+        "old_lat_dep_mm": [_median_mm(lat[~young]), _median_mm(dep[~young])],
+    }
+
+
 def turnover(name: str, frames: int, seed: int, option=()) -> dict:
     import jax
 
@@ -113,9 +123,7 @@ def turnover(name: str, frames: int, seed: int, option=()) -> dict:
             ]
             if len(e)
             else None,
-            "share_e_true_over_2px": round(float(np.mean(e > 2.0)), 3) if len(e) else None,
-            "young_lat_dep_mm": [_median_mm(lat[young]), _median_mm(dep[young])],
-            "old_lat_dep_mm": [_median_mm(lat[~young]), _median_mm(dep[~young])],
+            **_figures(e, lat, dep, young),
         }
         rows.append(row)
         pooled["early" if k < 10 else "late"].append((e, lat, dep, young))
@@ -134,9 +142,7 @@ def turnover(name: str, frames: int, seed: int, option=()) -> dict:
         summary[part] = {
             "matches": int(len(e)),
             "median_e_true_px": round(float(np.median(e)), 2),
-            "share_e_true_over_2px": round(float(np.mean(e > 2.0)), 3),
-            "young_lat_dep_mm": [_median_mm(lat[young]), _median_mm(dep[young])],
-            "old_lat_dep_mm": [_median_mm(lat[~young]), _median_mm(dep[~young])],
+            **_figures(e, lat, dep, young),
         }
     return {
         "scene": name,
@@ -169,12 +175,12 @@ def figure(results: list[dict], path: str) -> None:
         pct = [r["e_true_px_pct_10_25_50_75_90"] or [np.nan] * 5 for r in rows]
         axes[1].plot(k, [p[2] for p in pct], color=color, label=f"{label}: median")
         axes[1].plot(k, [p[4] for p in pct], ":", color=color, label=f"{label}: 90th percentile")
-        old = [np.nan if r["old_lat_dep_mm"][0] is None else r["old_lat_dep_mm"][0] for r in rows]
-        young = [
-            np.nan if r["young_lat_dep_mm"][0] is None else r["young_lat_dep_mm"][0] for r in rows
-        ]
-        axes[2].plot(k, old, color=color, label=f"{label}: older than {YOUNG_FRAMES} frames")
-        axes[2].plot(k, young, "--", color=color, label=f"{label}: younger")
+        for key, style, what in (
+            ("old_lat_dep_mm", "-", f"older than {YOUNG_FRAMES} frames"),
+            ("young_lat_dep_mm", "--", "younger"),
+        ):
+            lateral = [np.nan if r[key][0] is None else r[key][0] for r in rows]
+            axes[2].plot(k, lateral, style, color=color, label=f"{label}: {what}")
     axes[0].set_title("point landmarks matched, inliers")
     axes[1].set_title("match to true projection (px)")
     axes[2].set_title("landmark error across the line of sight (mm)")
