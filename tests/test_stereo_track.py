@@ -486,3 +486,63 @@ def test_option_pairs_take_lists_and_numpy_arrays():
         assert o.depth_range_m == (0.5, 6.0) and isinstance(o.depth_range_m, tuple)
         assert o.window_motion_sigma == (0.3, 5.0)
         assert hash(o) == hash(TrackerOptions(depth_range_m=(0.5, 6.0)))
+
+
+def test_predicted_disparity_windows_narrow_after_the_warm_up(frames):
+    """With ``predicted_disparity`` and ``predicted_disparity_after=3`` the first three tracked
+    frames search every feature over the map's depth window (one range for all, as with the
+    option off) while the margin is measured; from the fourth on, the matched points get their
+    own windows, narrower than the depth window."""
+    opts = TrackerOptions(predicted_disparity=True, predicted_disparity_after=3)
+    tracker = StereoTracker(RIG, frames[0].pose, options=opts)
+    seen = []
+    inner = tracker.feature_disparities
+
+    def spy(feats, pose_pred, matches=None):
+        out = inner(feats, pose_pred, matches)
+        if matches is not None:
+            seen.append((tracker._run, tracker._disparity_margin, out))
+        return out
+
+    tracker.feature_disparities = spy
+    for fr in frames:
+        assert tracker.process(fr.left, fr.right).status == Status.OK
+    assert [run for run, _, _ in seen] == [0, 1, 2, 3, 4]
+    base_width = None
+    for _, _, (dp, dl, predicted) in seen[:3]:
+        assert predicted is not None and len(predicted[0]) > 50
+        assert len(np.unique(dp, axis=0)) == 1 and len(np.unique(dl, axis=0)) <= 1
+        base_width = dp[0, 1] - dp[0, 0]
+    assert seen[1][1] != opts.disparity_margin_px  # measured on the first tracked frame
+    for _, margin, (dp, _, (i_cur, _)) in seen[3:]:
+        widths = dp[i_cur, 1] - dp[i_cur, 0]
+        assert np.all(widths <= 2 * margin + 2) and np.median(widths) < base_width / 2
+    # without the warm-up the windows narrow from the first tracked frame
+    tracker0 = StereoTracker(
+        RIG,
+        frames[0].pose,
+        options=TrackerOptions(predicted_disparity=True, predicted_disparity_after=0),
+    )
+    tracker0.process(frames[0].left, frames[0].right)
+    feats = tracker0.detect(frames[1].left)
+    dp, _, predicted = tracker0.feature_disparities(
+        feats, tracker0._pose_prev, _matches(tracker0, feats)
+    )
+    assert predicted is not None and len(np.unique(dp, axis=0)) > 1
+
+
+def _matches(tracker, feats):
+    """The search by projection of ``feats`` at the tracker's last pose, as ``process`` calls it."""
+    from jaxpose.pipelines.stereo.guided import match_by_projection
+
+    (i_m, i_cur, _), (l_m, l_cur, _) = match_by_projection(
+        tracker.map,
+        feats,
+        tracker._pose_prev,
+        tracker.rig.left,
+        tracker._radius,
+        use_lines=True,
+        line_angle_deg=tracker.options.line_angle_deg,
+        options=tracker.options.features,
+    )
+    return i_m, i_cur, l_m, l_cur

@@ -163,6 +163,7 @@ class StereoTracker:
         self._pose_prev = pose  # last good pose (body to left camera)
         self._delta = Pose.identity()  # last inter-frame motion (constant-velocity prediction)
         self._misses = 0  # frames lost since the last good one
+        self._run = 0  # frames tracked in a row since the first or the last lost one
         self._since_kf = 0
         self._started = False  # the map has its first landmarks
         self._rejected_p: set = set()
@@ -294,6 +295,10 @@ class StereoTracker:
           a depth edge among the neighbours widens the window by itself);
         * the others: the window of :meth:`_disparities`.
 
+        Before ``predicted_disparity_after`` frames tracked in a row every feature keeps the
+        window of :meth:`_disparities` (the predicted disparities are still returned, so the
+        margin is measured).
+
         A true disparity outside its window usually puts the ZNCC maximum on the window's edge,
         which the search rejects (no sub-pixel parabola there): a narrow window mostly loses such
         a match, unless a second peak inside it passes the NCC threshold. ``predicted`` holds
@@ -313,6 +318,8 @@ class StereoTracker:
             d = fb / z
         good = np.isfinite(d) & (z > 0)
         i_cur, d = i_cur[good], d[good]
+        if self._run < o.predicted_disparity_after:  # the depth window; the margin measured
+            return dp.astype(np.int64), dl.astype(np.int64), (i_cur, d)
         matched = np.zeros(len(dp), bool)
         matched[i_cur] = True
         if len(i_cur) >= 3:
@@ -619,6 +626,7 @@ class StereoTracker:
                 self._delta = _fractional_step(relative(pose, self._pose_prev), steps)
                 self._pose_prev = pose
                 self._misses = 0
+                self._run += 1
                 if o.measured_line_sigma and n_l:
                     self.update_line_scale(*fit.kept_errors)
                 result.pose = pose
@@ -656,5 +664,6 @@ class StereoTracker:
                 self._rejected_l = set(l_cur[~in_l].tolist())
         if result.status != Status.OK:
             self._misses += 1
+            self._run = 0
             self._pose_prev = pose_pred  # predict one more step of constant motion next time
         return result, update

@@ -1,0 +1,151 @@
+"""Two configurations of the stereo tracker timed against each other on the same frames, in one
+process.
+
+This machine's speed moves by up to 2x within minutes, so two runs of ``bench/stereo.py`` taken
+one after the other do not measure a change that saves a few per cent. Here tracker ``A`` (the
+defaults, or ``--base-option``) and tracker ``B`` (``--option``) track the same rendered frames
+frame by frame, one after the other, the order alternating from frame to frame and from
+repetition to repetition, each pair by :meth:`StereoTracker.process` (the features in the
+calling thread; no stream). Reported, over frames 2 onwards (the first tracked frame compiles):
+the mean wall and CPU milliseconds a frame of each stage and of the whole ``process`` call, the
+ratios ``B / A``, and whether the two trackers' poses are the same to the bit on every frame (a
+change meant to leave the tracking alone). Run from the repository root::
+
+    python bench/stereo_paired.py d3-glints-1.5m-10hz --option predicted_disparity=True
+    python bench/stereo_paired.py d1-clean-2m d6-blur-5m-slow --frames 20 --reps 3 \\
+        --option window_every=2
+
+``SCENE``: a scene of ``bench/stereo.py``, ``hNN`` of ``bench/stereo_heldout.py``'s default draw,
+or ``NAME={StereoScene fields as JSON}``. Ends with one JSON line: per scene, both
+configurations' figures and the ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+
+def paired(name: str, frames: int, reps: int, seed: int, option_a=(), option_b=()) -> dict:
+    """Track scene ``name`` with both configurations, ``reps`` times; the figures of one scene."""
+    import stereo  # bench/stereo.py
+    from stereo_diagnose import _scene_by_name
+
+    from jaxpose.pipelines.stereo import STAGES, StereoTracker, TrackerOptions
+    from jaxpose.vision.stereo_render import default_rig, render_sequence
+
+    scene = _scene_by_name(name, frames, seed)
+    rig = default_rig()
+    seq = list(render_sequence(scene, rig))
+    base = TrackerOptions(depth_range_m=stereo.depth_range(scene))
+    configs = {
+        "A": stereo.tracker_options(option_a, base),
+        "B": stereo.tracker_options(option_b, base),
+    }
+    keys = [*STAGES, "frame"]
+    wall = {c: {k: [] for k in keys} for c in configs}
+    cpu = {c: {k: [] for k in keys} for c in configs}
+    same = True
+    for rep in range(reps):
+        trackers = {c: StereoTracker(rig, seq[0].pose, options=o) for c, o in configs.items()}
+        for i, fr in enumerate(seq):
+            order = ["A", "B"] if (i + rep) % 2 == 0 else ["B", "A"]
+            out = {}
+            for c in order:
+                t0, c0 = time.perf_counter(), time.process_time()
+                out[c] = res = trackers[c].process(fr.left, fr.right)
+                if i < 2:
+                    continue
+                wall[c]["frame"].append(time.perf_counter() - t0)
+                cpu[c]["frame"].append(time.process_time() - c0)
+                for k in STAGES:
+                    wall[c][k].append(res.timings.get(k, 0.0))
+                    cpu[c][k].append(res.cpu_timings.get(k, 0.0))
+            same = same and all(
+                np.array_equal(np.asarray(getattr(out["A"], a)), np.asarray(getattr(out["B"], a)))
+                for a in ("R", "t", "status")
+            )
+
+    def means(d):
+        return {k: round(1e3 * float(np.mean(v)), 2) for k, v in d.items() if v}
+
+    res = {"scene": name, "frames": frames, "reps": reps, "seed": seed, "same_poses": bool(same)}
+    for c in configs:
+        res[c] = {"wall_ms": means(wall[c]), "cpu_ms": means(cpu[c])}
+    res["ratio_B_over_A"] = {
+        what: {
+            k: round(res["B"][what][k] / res["A"][what][k], 3)
+            for k in res["A"][what]
+            if res["A"][what][k] > 0.05 and k in res["B"][what]
+        }
+        for what in ("wall_ms", "cpu_ms")
+    }
+    return res
+
+
+def _print(res: dict) -> None:
+    print(
+        f"\n{res['scene']}: {res['frames']} frames x {res['reps']}, poses the same: "
+        f"{res['same_poses']}"
+    )
+    print(
+        f"  {'stage':12s} {'A wall':>8s} {'B wall':>8s} {'B/A':>6s} {'A cpu':>8s} "
+        f"{'B cpu':>8s} {'B/A':>6s}"
+    )
+    for k in res["A"]["wall_ms"]:
+        ra = res["ratio_B_over_A"]["wall_ms"].get(k, float("nan"))
+        rc = res["ratio_B_over_A"]["cpu_ms"].get(k, float("nan"))
+        print(
+            f"  {k:12s} {res['A']['wall_ms'][k]:8.1f} {res['B']['wall_ms'][k]:8.1f} {ra:6.3f} "
+            f"{res['A']['cpu_ms'][k]:8.1f} {res['B']['cpu_ms'][k]:8.1f} {rc:6.3f}"
+        )
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("scenes", nargs="+", help="scenes (see the module docstring)")
+    p.add_argument("--frames", type=int, default=30, help="frames a scene (default 30)")
+    p.add_argument("--reps", type=int, default=2, help="repetitions (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="sensor-noise seed of the rendering")
+    p.add_argument("--option", action="append", default=[], help="NAME=VALUE of configuration B")
+    p.add_argument(
+        "--base-option", action="append", default=[], help="NAME=VALUE of configuration A"
+    )
+    args = p.parse_args(argv)
+    if args.frames < 4:
+        p.error(f"--frames must be at least 4; got {args.frames}")
+    if args.reps < 1:
+        p.error(f"--reps must be at least 1; got {args.reps}")
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    results = []
+    for name in args.scenes:
+        try:
+            res = paired(name, args.frames, args.reps, args.seed, args.base_option, args.option)
+        except (KeyError, ValueError) as err:
+            p.error(f"scene {name}: {err}")
+        _print(res)
+        results.append(res)
+    print(
+        json.dumps(
+            {
+                "bench": "stereo-paired",
+                "option_A": args.base_option,
+                "option_B": args.option,
+                "scenes": results,
+            }
+        )
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
