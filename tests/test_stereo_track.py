@@ -1,6 +1,7 @@
 """Stereo sequence renderer, tracker and the stereo-track command on small rendered sequences."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -202,6 +203,63 @@ def test_keypoint_budget_follows_the_target_area():
         TrackerOptions(lsd_area_px=-1.0)
     with pytest.raises(ValueError, match="keypoint_floor"):
         TrackerOptions(keypoint_floor=0)
+
+
+def test_a_near_target_can_get_full_resolution_corners_at_their_response_peak():
+    """With ``fine_corners_area_px``, from that apparent area up one ORB level and the
+    response's sub-pixel peak; below it (and with the option off, the default) ORB's pyramid
+    and ``cornerSubPix``."""
+    from jaxpose.vision.stereo_features import detect_points
+
+    limit = 100_000.0
+    assert TrackerOptions().fine_corners_area_px is None  # off by default
+    tracker = StereoTracker(RIG, None, options=TrackerOptions(fine_corners_area_px=limit))
+    near, far = tracker.feature_options(limit), tracker.feature_options(0.99 * limit)
+    assert (near.orb_levels, near.subpixel) == (1, "peak")
+    assert (far.orb_levels, far.subpixel) == (8, True)
+    assert near.n_points == round(limit / 8.0**2, -2)  # the budget still follows the area
+    off = StereoTracker(RIG, None, options=TrackerOptions(fine_corners_area_px=None))
+    assert off.feature_options(10 * limit).orb_levels == 8
+    with pytest.raises(ValueError, match="fine_corners_area_px"):
+        TrackerOptions(fine_corners_area_px=0.0)
+    # hysteresis: entered at the threshold, left below threshold / FINE_CORNERS_BAND
+    from jaxpose.pipelines.stereo.frames import FINE_CORNERS_BAND, fine_corners
+
+    o, low = tracker.options, limit / FINE_CORNERS_BAND
+    areas = [0.9 * limit, limit, 0.9 * limit, 1.01 * low, 0.99 * low, 0.9 * limit, 2 * limit]
+    kinds, previous = [], None
+    for a in areas:
+        previous = fine_corners(o, a, previous)
+        kinds.append(previous)
+    assert kinds == [False, True, True, True, False, False, True]
+    assert fine_corners(off.options, 10 * limit) is False
+    # the tracker keeps the last frame's kind: a frame within the band stays as the one before
+
+    def disc(area):
+        img = np.zeros((768, 1024), np.uint8)
+        vv, uu = np.mgrid[:768, :1024]
+        img[(uu - 512) ** 2 + (vv - 384) ** 2 < area / np.pi] = 120
+        return img
+
+    seq = StereoTracker(RIG, None, options=tracker.options)
+    seq.detect(disc(1.2 * limit))
+    assert seq._fine is True
+    seq.detect(disc(0.85 * limit))
+    assert seq._fine is True
+    fresh = StereoTracker(RIG, None, options=tracker.options)
+    fresh.detect(disc(0.85 * limit))
+    assert fresh._fine is False
+    # the near options' keypoints are ORB's full-resolution corners, each moved by at most half
+    # a pixel on each axis from its whole pixel (cornerSubPix moves them by pixels)
+    img = render_stereo_frame(StereoScene(range_m=1.5), RIG, 0).left
+    roi = target_roi(img)
+    pts, _ = detect_points(img, options=near, roi=roi)
+    raw, _ = detect_points(img, options=replace(near, subpixel=False), roi=roi)
+    assert len(pts) == len(raw) > 200
+    moved = pts - np.rint(raw)
+    assert np.abs(moved).max() <= 0.5 + 1e-6 and np.mean(np.abs(moved) > 0.01) > 0.5
+    refined, _ = detect_points(img, options=replace(near, subpixel=True), roi=roi)
+    assert np.abs(refined - np.rint(raw)).max() > 1.0
 
 
 def test_search_radius_follows_the_measured_prediction_error(frames):

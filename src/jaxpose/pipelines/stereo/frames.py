@@ -25,6 +25,7 @@ __all__ = [
     "checked_pair",
     "detect_features",
     "feature_options",
+    "fine_corners",
     "target_area",
     "target_roi",
 ]
@@ -73,13 +74,17 @@ def checked_pair(left, right, rig: StereoCamera) -> tuple[np.ndarray, np.ndarray
     return as_gray_uint8(left, "left"), as_gray_uint8(right, "right")
 
 
-def feature_options(options: TrackerOptions, target_area_px: float | None = None) -> FeatureOptions:
+def feature_options(
+    options: TrackerOptions, target_area_px: float | None = None, *, fine: bool | None = None
+) -> FeatureOptions:
     """The feature options of a frame whose target covers ``target_area_px`` pixels: the ORB
     budget at one keypoint per ``keypoint_spacing_px^2`` pixels of target (a constant keypoint
     density on the target, whatever its range and attitude), at least ``keypoint_floor`` (ORB's
     corners are repeatable from frame to frame only with a budget that keeps most of a small
     target's corners), and LSD's scale reduced by ``sqrt(lsd_area_px / target_area_px)`` on a
-    target larger than ``lsd_area_px`` (at least 0.4)."""
+    target larger than ``lsd_area_px`` (at least 0.4). ``fine``: full-resolution corners at
+    their response's sub-pixel peak (``None``: on a target of at least
+    ``fine_corners_area_px``, :func:`fine_corners`)."""
     o = options
     if target_area_px is None:
         return o.features
@@ -92,18 +97,50 @@ def feature_options(options: TrackerOptions, target_area_px: float | None = None
         # target's edges are long, and LSD's time goes with the pixels it scans
         scale = f.lsd_scale * np.sqrt(o.lsd_area_px / target_area_px)
         f = replace(f, lsd_scale=round(float(max(scale, 0.4)), 2))
+    if fine is None:
+        fine = fine_corners(o, target_area_px)
+    if fine:
+        f = replace(f, orb_levels=1, subpixel="peak")
     return f
 
 
-def detect_features(left: np.ndarray, options: TrackerOptions, *, roi=None) -> FrameFeatures:
+#: A sequence's keypoints leave the full-resolution corners (:func:`fine_corners`) only when the
+#: target's apparent area falls below ``fine_corners_area_px`` divided by this. At one range
+#: the area changes with the attitude by up to a fifth within a turn (1.2-1.23 times from the
+#: smallest to the largest on the suite's scenes at 2-2.25 m), and each switch of kind costs:
+#: the landmarks placed with one kind's pixels are then observed with the other's (a scene at
+#: 2.25 m whose area grows through the threshold at frame 10: 6.0 mm worst axis against 3.4
+#: with the pyramid and 2.1 with the full-resolution corners throughout). The band keeps a
+#: sequence at one range from switching back and forth; the one switch stays.
+FINE_CORNERS_BAND = 1.5
+
+
+def fine_corners(
+    options: TrackerOptions, target_area_px: float | None, previous: bool | None = None
+) -> bool:
+    """Whether a frame whose target covers ``target_area_px`` pixels takes full-resolution
+    corners (``TrackerOptions.fine_corners_area_px``), with hysteresis: entered at the threshold,
+    left below the threshold over :data:`FINE_CORNERS_BAND`, ``previous`` the last frame's
+    choice (``None``: none yet)."""
+    limit = options.fine_corners_area_px
+    if limit is None or target_area_px is None:
+        return False
+    return bool(target_area_px >= (limit / FINE_CORNERS_BAND if previous else limit))
+
+
+def detect_features(
+    left: np.ndarray, options: TrackerOptions, *, roi=None, area=None, fine=None
+) -> FrameFeatures:
     """The features of a left image (``uint8`` grey, as :func:`checked_pair` returns it): ORB
     points and, with ``options.use_lines``, LSD segments with LBD descriptors, within ``roi``
     (``[u0, v0, u1, v1]``, checked; default: :func:`target_roi`), at the budget of
-    :func:`feature_options` for the image's :func:`target_area`."""
+    :func:`feature_options` for the image's :func:`target_area` (``area``, when measured
+    already) and ``fine``."""
     roi = target_roi(left) if roi is None else check_roi(roi, left.shape)
+    area = target_area(left) if area is None else area
     return extract(
         left,
-        options=feature_options(options, target_area(left)),
+        options=feature_options(options, area, fine=fine),
         roi=roi,
         lines=options.use_lines,
         threads=options.threads,

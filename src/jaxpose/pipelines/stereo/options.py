@@ -79,6 +79,7 @@ _FIELD_KINDS = dict(
         "inlier_px",
         "keypoint_spacing_px",
         "lsd_area_px",
+        "fine_corners_area_px",
         "neighbour_px",
         "window_depth_m",
         "budget_subsample",
@@ -103,6 +104,7 @@ _FIELD_KINDS = dict(
         "depth_margin_m",
         "keypoint_spacing_px",
         "lsd_area_px",
+        "fine_corners_area_px",
         "window_depth_m",
         "anchor_turn_deg",
     ),
@@ -193,6 +195,18 @@ class TrackerOptions:
             at 2 m, and the near target's edges are long enough to be found on the coarser image
             (on ``d3``, 1.5 m: scale 0.6, 12 ms instead of 21 ms of LSD, as many segments longer
             than eq. 1's bound). ``None``: always ``features.lsd_scale``.
+        fine_corners_area_px: on a target of apparent area at least this (pixels), the
+            keypoints are ORB's full-resolution corners at the sub-pixel peak of their corner
+            response (``features.orb_levels=1``, ``features.subpixel="peak"``) instead of its
+            eight pyramid levels refined by ``cornerSubPix``; a sequence leaves them only below
+            the threshold over :data:`~jaxpose.pipelines.stereo.frames.FINE_CORNERS_BAND`
+            (hysteresis). A speed option, off by default (``None``): at 100 000 (the 1 m
+            target nearer than about 2.3 m) a frame at 1.5-2 m takes two thirds of the CPU
+            (fewer, distinct corners, cheaper to find, search in stereo and match), and the
+            clean and glinting development scenes at 1.5-2 m gain a little accuracy, but on a
+            tumbling, blurred target at 2 m the errors about double (a development scene of
+            our own, noise seeds 0-2: worst axes 5.0, 8.6, 6.7 mm against 2.4, 3.6, 5.3), and
+            at 2.5 m and beyond too few corners remain (``docs/stereo-evaluation.md``).
         line_planes: refine the line landmarks from all their observation planes (the planes
             through each camera centre and the segment, body frame, of every stereo pair that
             matched the landmark; :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe_lines`)
@@ -382,6 +396,7 @@ class TrackerOptions:
     keypoint_spacing_px: float | None = 8.0
     keypoint_floor: int = 1000
     lsd_area_px: float | None = 120_000.0
+    fine_corners_area_px: float | None = None
     line_planes: bool = True
     line_stereo_residuals: bool = True
     measured_line_sigma: bool = True

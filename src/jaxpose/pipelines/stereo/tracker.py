@@ -68,6 +68,7 @@ from jaxpose.pipelines.stereo.frames import (
     checked_pair,
     detect_features,
     feature_options,
+    fine_corners,
     target_area,
     target_roi,
 )
@@ -163,6 +164,7 @@ class StereoTracker:
         self._pose_prev = pose  # last good pose (body to left camera)
         self._delta = Pose.identity()  # last inter-frame motion (constant-velocity prediction)
         self._misses = 0  # frames lost since the last good one
+        self._fine = None  # the last frame's keypoints were full-resolution corners (detect)
         self._run = 0  # frames tracked in a row since the first or the last lost one
         self._since_kf = 0
         self._started = False  # the map has its first landmarks
@@ -208,15 +210,19 @@ class StereoTracker:
 
     def detect(self, left: np.ndarray, *, roi=None, threads: bool | None = None) -> FrameFeatures:
         """The features :meth:`process` extracts from a left image (``uint8`` grey of the rig's
-        size; :func:`~jaxpose.pipelines.stereo.frames.detect_features`). They depend on the
-        image and the options only, not on the tracker's state, so :func:`~jaxpose.pipelines.
-        stereo.track_stream` extracts the next pair's in another thread. ``threads``: the lines
-        in a second thread beside the points' (default ``options.threads``; the same features
-        either way)."""
+        size; :func:`~jaxpose.pipelines.stereo.frames.detect_features`). Call it once a frame,
+        in the frames' order (as :meth:`process` and :func:`~jaxpose.pipelines.stereo.
+        track_stream` do): they depend on the image, the options and the keypoints' kind of the
+        frame before (:func:`~jaxpose.pipelines.stereo.frames.fine_corners`' hysteresis), not on
+        the poses or the map, so :func:`~jaxpose.pipelines.stereo.track_stream` extracts the
+        next pair's in another thread. ``threads``: the lines in a second thread beside the
+        points' (default ``options.threads``; the same features either way)."""
         o = self.options
         if threads is not None and bool(threads) != o.threads:
             o = replace(o, threads=bool(threads))
-        return detect_features(left, o, roi=roi)
+        area = target_area(left)
+        self._fine = fine_corners(o, area, self._fine)
+        return detect_features(left, o, roi=roi, area=area, fine=self._fine)
 
     def _update_radius(self, landmarks_xyz: np.ndarray, pose_pred: Pose, pose: Pose) -> None:
         """The next frame's search radius from this frame's prediction error (``adaptive_radius``):
