@@ -96,7 +96,7 @@ def pose_covariance(observations, poses, points, free, focal, sigma) -> np.ndarr
 
 def _scene(name: str, frames: int, seed: int):
     """A scene of ``bench/stereo.py`` or ``hNN`` (``stereo_diagnose._scene_by_name``);
-    ``KeyError`` for an unknown name."""
+    ``ValueError`` naming the choices for an unknown name."""
     sys.path.insert(0, str(Path(__file__).parent))
     from stereo_diagnose import _scene_by_name
 
@@ -109,8 +109,8 @@ def check_scenes(parser: argparse.ArgumentParser, names) -> None:
     for name in names:
         try:
             _scene(name, 3, 0)
-        except KeyError:
-            parser.error(f"unknown scene {name!r}: a scene of bench/stereo.py or hNN (held-out)")
+        except ValueError as err:
+            parser.error(str(err))
 
 
 def bound(name: str, frames: int, seed: int, sigma: float | None = None) -> dict:

@@ -240,6 +240,22 @@ def track_with_history(scene, option=()):
     return rig, seq, tracker, [tracker.process(fr.left, fr.right) for fr in seq]
 
 
+def rendered(name: str, frames: int, seed: int):
+    """Scene ``name`` (:func:`_scene_by_name`) rendered with the default rig, and the tracker
+    options at the bench's depths (``stereo.depth_range``): ``(rig, frames, options)``."""
+    import stereo  # bench/stereo.py
+
+    from jaxpose.pipelines.stereo import TrackerOptions
+
+    scene = _scene_by_name(name, frames, seed)
+    rig = default_rig()
+    return (
+        rig,
+        list(render_sequence(scene, rig)),
+        TrackerOptions(depth_range_m=stereo.depth_range(scene)),
+    )
+
+
 def _scene_by_name(name: str, frames: int, seed: int):
     """A scene of ``bench/stereo.py``, ``hNN`` of ``bench/stereo_heldout.py`` (its default
     draw), or a scene of your own as ``NAME={StereoScene fields as JSON}`` (as ``bench/stereo.py
@@ -254,6 +270,12 @@ def _scene_by_name(name: str, frames: int, seed: int):
     from stereo_heldout import DRAW_SEED, N_SCENES, draw_scenes
 
     drawn = {k.split("-")[0]: v for k, v in draw_scenes(N_SCENES, DRAW_SEED).items()}
+    if name.split("-")[0] not in drawn:
+        raise ValueError(
+            f"unknown scene {name!r}: a scene of bench/stereo.py ({', '.join(stereo.SCENES)}), "
+            f"{', '.join(drawn)} of bench/stereo_heldout.py's draw, or NAME={{StereoScene "
+            "fields as JSON}"
+        )
     return StereoScene(frames=frames, seed=seed, **drawn[name.split("-")[0]])
 
 

@@ -36,15 +36,11 @@ sys.path.insert(0, str(Path(__file__).parent))
 def paired(name: str, frames: int, reps: int, seed: int, option_a=(), option_b=()) -> dict:
     """Track scene ``name`` with both configurations, ``reps`` times; the figures of one scene."""
     import stereo  # bench/stereo.py
-    from stereo_diagnose import _scene_by_name
+    from stereo_diagnose import rendered
 
-    from jaxpose.pipelines.stereo import STAGES, StereoTracker, TrackerOptions
-    from jaxpose.vision.stereo_render import default_rig, render_sequence
+    from jaxpose.pipelines.stereo import STAGES, StereoTracker
 
-    scene = _scene_by_name(name, frames, seed)
-    rig = default_rig()
-    seq = list(render_sequence(scene, rig))
-    base = TrackerOptions(depth_range_m=stereo.depth_range(scene))
+    rig, seq, base = rendered(name, frames, seed)
     configs = {
         "A": stereo.tracker_options(option_a, base),
         "B": stereo.tracker_options(option_b, base),
@@ -130,7 +126,7 @@ def main(argv=None) -> int:
     for name in args.scenes:
         try:
             res = paired(name, args.frames, args.reps, args.seed, args.base_option, args.option)
-        except (KeyError, ValueError) as err:
+        except ValueError as err:
             p.error(f"scene {name}: {err}")
         _print(res)
         results.append(res)

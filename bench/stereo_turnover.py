@@ -75,16 +75,14 @@ def turnover(name: str, frames: int, seed: int, option=()) -> dict:
 
     jax.config.update("jax_enable_x64", True)
     import stereo  # bench/stereo.py
-    from stereo_diagnose import _scene_by_name, raycast
+    from stereo_diagnose import raycast, rendered
 
-    from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
+    from jaxpose.pipelines.stereo import StereoTracker
     from jaxpose.pipelines.stereo._arrays import project
-    from jaxpose.vision.stereo_render import default_rig, render_sequence, tumbler_model
+    from jaxpose.vision.stereo_render import tumbler_model
 
-    scene = _scene_by_name(name, frames, seed)
-    rig = default_rig()
-    seq = list(render_sequence(scene, rig))
-    opts = stereo.tracker_options(option, TrackerOptions(depth_range_m=stereo.depth_range(scene)))
+    rig, seq, base = rendered(name, frames, seed)
+    opts = stereo.tracker_options(option, base)
     seen = {}
 
     class Spy(StereoTracker):

@@ -83,3 +83,18 @@ def test_schur_covariance_equals_the_inverse_of_the_whole_information():
     J = np.concatenate(rows)
     full = sigma**2 * np.linalg.inv(J.T @ J)
     np.testing.assert_allclose(C, full[: 6 * len(free), : 6 * len(free)], rtol=1e-6, atol=1e-12)
+
+
+def test_an_unknown_scene_is_a_usage_error_that_names_the_choices(capsys):
+    """``check_scenes`` (shared by the stereo diagnostics through ``_scene_by_name``) refuses a
+    name that is neither a suite scene, an ``hNN`` of the held-out draw nor ``NAME=JSON``."""
+    import argparse
+
+    import pytest
+
+    parser = argparse.ArgumentParser(prog="stereo_bound.py")
+    bench.check_scenes(parser, ["d1-clean-2m", "h03"])  # both known: no error
+    with pytest.raises(SystemExit):
+        bench.check_scenes(parser, ["d1-clean-2m", "nosuch"])
+    err = capsys.readouterr().err
+    assert "unknown scene 'nosuch'" in err and "d6-blur-5m-slow" in err and "h12" in err
