@@ -195,3 +195,105 @@ def check_fields(
         value = getattr(obj, name)
         if not (value is None and name in optional) and not (_is_integer(value) and value >= least):
             bad(name, f"an integer >= {least}", value)
+
+
+def _described(x) -> str:
+    """``x`` for a message: its repr, or its shape and dtype when it is a larger array."""
+    shape, dtype = getattr(x, "shape", None), getattr(x, "dtype", None)
+    if shape is not None and dtype is not None and int(np.prod(shape)) > 9:
+        return f"an array of shape {tuple(shape)} and dtype {dtype}"
+    return repr(x)
+
+
+def check_real(x, name: str, *, prefix: str = "") -> None:
+    """``ValueError`` naming ``name`` when ``x`` does not hold real numbers (integers or floats):
+    a bool (which would be taken as 1 or 0), a string (which would be parsed, or fail deep in
+    JAX), a complex number (whose imaginary part would be dropped) or an object. A traced ``x`` is
+    judged by its dtype; values are not looked at here."""
+    if isinstance(x, bool | np.bool_ | str | bytes):
+        raise ValueError(f"{prefix}{name} must be a real number or an array of them; got {x!r}")
+    dtype = getattr(x, "dtype", None)  # arrays, tracers, NumPy scalars
+    if dtype is None:
+        try:
+            dtype = np.asarray(x).dtype
+        except (TypeError, ValueError):  # a ragged list, an object NumPy cannot read
+            dtype = np.dtype(object)
+    if not (jnp.issubdtype(dtype, jnp.integer) or jnp.issubdtype(dtype, jnp.floating)):
+        raise ValueError(
+            f"{prefix}{name} must be a real number or an array of them; got {_described(x)} "
+            f"(dtype {dtype})"
+        )
+
+
+def as_image_size(x, name: str, *, prefix: str = "") -> int:
+    """``x`` as an image side in pixels: an integer ``>= 0`` (an integral float such as ``640.0``
+    too). ``ValueError`` naming ``name`` for a bool, a string, a fraction (``640.7``), a negative
+    or non-finite number, an array of more than one number, or a traced value (an image size is
+    static)."""
+
+    def bad():
+        return ValueError(
+            f"{prefix}{name} must be an image size in pixels, an integer >= 0; got {x!r}"
+        )
+
+    if isinstance(x, jax.core.Tracer):
+        raise ValueError(
+            f"{prefix}{name} must be a concrete integer (the image size is static); got a traced "
+            "value"
+        )
+    if isinstance(x, bool | np.bool_ | str | bytes):
+        raise bad()
+    if isinstance(x, np.ndarray | jax.Array):
+        if x.ndim != 0:
+            raise bad()
+        x = x.item()
+    if isinstance(x, int | np.integer) and not isinstance(x, bool):
+        value = int(x)
+    elif isinstance(x, float | np.floating) and np.isfinite(x) and float(x) == int(x):
+        value = int(x)
+    else:
+        raise bad()
+    if value < 0:
+        raise bad()
+    return value
+
+
+def intrinsic_matrix_problem(K) -> str | None:
+    """What keeps a concrete ``3x3`` ``K`` (finite) from having the layout ``[[fx, 0, cx],
+    [0, fy, cy], [0, 0, 1]]``, which is all a :class:`~jaxpose.core.camera.PinholeCamera` holds:
+    a skew ``K[0, 1]`` above ``1e-9 fx``, a ``K[1, 0]`` above ``1e-9 fy``, or a last row more than
+    ``1e-12`` from ``(0, 0, 1)``; ``None`` when it has that layout."""
+    K = np.asarray(K, dtype=float)
+    if abs(K[0, 1]) > 1e-9 * abs(K[0, 0]):
+        return f"a skew K[0, 1] = {float(K[0, 1]):g} (not supported: it must be 0)"
+    if abs(K[1, 0]) > 1e-9 * abs(K[1, 1]):
+        return f"K[1, 0] = {float(K[1, 0]):g} (it must be 0)"
+    if np.max(np.abs(K[2] - np.array([0.0, 0.0, 1.0]))) > 1e-12:
+        return f"a last row {K[2].tolist()} (it must be (0, 0, 1))"
+    return None
+
+
+def check_rotation(R, name: str = "R", *, nonfinite_ok: bool = False, prefix: str = "") -> None:
+    """``ValueError`` naming ``name`` when a concrete ``R`` (``(..., 3, 3)``) holds a matrix that is
+    not a rotation: the tolerance of :func:`is_rotation` (``R^T R = I`` to ``max(1e-6, 1e3 eps)``
+    entry-wise, ``det R > 0``), computed with NumPy. A traced ``R`` is not looked at (it cannot be
+    without breaking ``jit``); with ``nonfinite_ok``, a matrix holding NaN or inf passes (a failed
+    estimate, which becomes NaN or a status downstream)."""
+    if isinstance(R, jax.core.Tracer):
+        return
+    a = np.asarray(R)
+    dtype = a.dtype if jnp.issubdtype(a.dtype, jnp.floating) else np.dtype(np.float64)
+    tol = max(1e-6, 1e3 * float(jnp.finfo(dtype).eps))
+    a = a.astype(np.float64)
+    with np.errstate(all="ignore"):
+        gram = np.swapaxes(a, -1, -2) @ a
+        ok = np.all(np.abs(gram - np.eye(3)) <= tol, axis=(-2, -1)) & (np.linalg.det(a) > 0)
+    finite = np.all(np.isfinite(a), axis=(-2, -1))
+    if nonfinite_ok:
+        ok = ok | ~finite
+    if not np.all(ok):
+        got = a.tolist() if a.size <= 9 else f"{np.count_nonzero(~ok)} of {ok.size} matrices not"
+        raise ValueError(
+            f"{prefix}{name} must be a {'' if nonfinite_ok else 'finite '}rotation matrix "
+            f"({name}^T {name} = I to {tol:g}, det {name} = +1); got {got}"
+        )

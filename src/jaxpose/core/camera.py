@@ -13,7 +13,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from jaxpose.core._checks import as_float
+from jaxpose.core._checks import (
+    as_float,
+    as_image_size,
+    check_real,
+    check_rotation,
+    intrinsic_matrix_problem,
+)
 from jaxpose.core.geometry import Pose
 
 __all__ = ["PinholeCamera", "StereoCamera", "as_camera"]
@@ -29,7 +35,12 @@ class PinholeCamera(eqx.Module):
         width, height: image size in pixels (static; 0 when unknown).
 
     Leaves are arrays, so a camera can be batched with ``vmap`` and differentiated (the
-    sensitivity of a pose to ``fx`` is a gradient with respect to this module).
+    sensitivity of a pose to ``fx`` is a gradient with respect to this module). One camera per
+    instance: ``fx, fy, cx, cy`` are single numbers (a batch of cameras comes from ``vmap``).
+
+    Raises ``ValueError`` naming the field for an ``fx, fy, cx, cy`` that is not one real number
+    (a bool, a string, an array of several), a known focal length that is not positive, and a
+    ``width``/``height`` that is not an integer ``>= 0``.
     """
 
     fx: Float[Array, ""]
@@ -41,7 +52,17 @@ class PinholeCamera(eqx.Module):
     height: int = eqx.field(static=True, default=0)
 
     def __init__(self, fx, fy, cx, cy, dist=None, *, width: int = 0, height: int = 0):
+        names = ("fx", "fy", "cx", "cy")
+        for name, value in zip(names, (fx, fy, cx, cy), strict=True):
+            check_real(value, name, prefix="PinholeCamera: ")
         self.fx, self.fy, self.cx, self.cy = (as_float(v) for v in (fx, fy, cx, cy))
+        for name in names:  # shapes are static: checked under jit too
+            shape = getattr(self, name).shape
+            if shape != ():
+                raise ValueError(
+                    f"PinholeCamera: {name} must be one number (one camera; a batch of cameras "
+                    f"comes from jax.vmap); got shape {shape}"
+                )
         for name in ("fx", "fy"):
             value = getattr(self, name)
             if not isinstance(value, jax.core.Tracer) and np.any(np.asarray(value) <= 0):
@@ -51,6 +72,7 @@ class PinholeCamera(eqx.Module):
                 )
         if dist is None:
             dist = jnp.zeros(5, dtype=self.fx.dtype)
+        check_real(dist, "dist", prefix="PinholeCamera: ")
         dist = as_float(dist)
         if dist.shape[-1:] != (5,):
             raise ValueError(
@@ -58,12 +80,19 @@ class PinholeCamera(eqx.Module):
                 f"got shape {dist.shape}"
             )
         self.dist = dist
-        self.width, self.height = int(width), int(height)
+        self.width = as_image_size(width, "width", prefix="PinholeCamera: ")
+        self.height = as_image_size(height, "height", prefix="PinholeCamera: ")
 
     # ------------------------------------------------------------------ constructors
     @classmethod
     def from_K(cls, K, dist=None, *, width: int = 0, height: int = 0) -> PinholeCamera:
-        """From a ``3x3`` intrinsic matrix (pixels) and optional distortion coefficients."""
+        """From a ``3x3`` intrinsic matrix (pixels) and optional distortion coefficients.
+
+        ``K`` must be ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``: a known ``K`` with a skew
+        ``K[0, 1]`` (above ``1e-9 fx``), a non-zero ``K[1, 0]`` or a last row other than
+        ``(0, 0, 1)`` (to ``1e-12``) raises ``ValueError`` rather than being dropped.
+        """
+        check_real(K, "K")
         K = jnp.asarray(K)
         if K.shape != (3, 3):
             raise ValueError(f"K must be 3x3; got shape {K.shape}")
@@ -71,6 +100,12 @@ class PinholeCamera(eqx.Module):
             Kn = np.asarray(K, dtype=float)
             if not np.all(np.isfinite(Kn)) or Kn[0, 0] <= 0 or Kn[1, 1] <= 0:
                 raise ValueError(f"K must be finite with positive fx, fy; got {Kn.tolist()}")
+            problem = intrinsic_matrix_problem(Kn)
+            if problem is not None:
+                raise ValueError(
+                    f"K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]; got {problem} in "
+                    f"{Kn.tolist()}"
+                )
         if isinstance(dist, jax.core.Tracer):  # traced coefficients: shape checks only
             if dist.shape != (5,):
                 raise ValueError(f"traced dist must have shape (5,); got {dist.shape}")
@@ -103,7 +138,9 @@ class PinholeCamera(eqx.Module):
                 "focal length and pixel size must be positive; "
                 f"got {focal_length_m}, {pixel_size_m}"
             )
-        w, h = (int(v) for v in image_size)
+        if isinstance(image_size, str) or np.shape(image_size) != (2,):
+            raise ValueError(f"image_size must be (width, height) in pixels; got {image_size!r}")
+        w, h = (as_image_size(v, "image_size") for v in image_size)
         if w <= 0 or h <= 0:
             raise ValueError(f"image_size must be positive (width, height); got {image_size}")
         return cls(
@@ -151,6 +188,7 @@ class PinholeCamera(eqx.Module):
     # ------------------------------------------------------------------ distortion
     def distort(self, xy: Float[ArrayLike, "... 2"]) -> Float[Array, "... 2"]:
         """Apply OpenCV distortion to normalised image coordinates ``(x, y) = (X/Z, Y/Z)``."""
+        xy = _last_axis(xy, 2, "xy")
         k1, k2, p1, p2, k3 = (self.dist[..., i] for i in range(5))
         x, y = xy[..., 0], xy[..., 1]
         r2 = x * x + y * y
@@ -163,6 +201,7 @@ class PinholeCamera(eqx.Module):
         self, xy_distorted: Float[ArrayLike, "... 2"], iterations: int = 8
     ) -> Float[Array, "... 2"]:
         """Invert :meth:`distort` by Newton's method (fixed iteration count, jit-friendly)."""
+        xy_distorted = _last_axis(xy_distorted, 2, "xy_distorted")
 
         def one(xd):
             def step(x, _):
@@ -189,6 +228,7 @@ class PinholeCamera(eqx.Module):
         behind the camera land far off the image and drop out of any in-image test without a
         mask (what the monocular scores use). Gradients are NaN-free everywhere.
         """
+        points_cam = _last_axis(points_cam, 3, "points_cam")
         z = points_cam[..., 2]
         if min_depth is None:
             z_safe = jnp.where(z > 0, z, 1.0)
@@ -210,6 +250,7 @@ class PinholeCamera(eqx.Module):
         self, pixels: Float[ArrayLike, "... 2"], undistort: bool = True
     ) -> Float[Array, "... 2"]:
         """Pixels to normalised coordinates ``(X/Z, Y/Z)`` (undistorted unless told not to)."""
+        pixels = _last_axis(pixels, 2, "pixels")
         xy = jnp.stack(
             [(pixels[..., 0] - self.cx) / self.fx, (pixels[..., 1] - self.cy) / self.fy], -1
         )
@@ -225,6 +266,16 @@ class PinholeCamera(eqx.Module):
         xy = self.normalize(pixels)
         v = jnp.concatenate([xy, jnp.ones_like(xy[..., :1])], -1)
         return v / jnp.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _last_axis(x, size: int, name: str):
+    """``x`` (an array; lists become one) with ``size`` entries on its last axis, else a
+    ``ValueError`` naming ``name`` (the shape is static, so this holds under ``jit`` too)."""
+    if not hasattr(x, "shape"):
+        x = jnp.asarray(x)
+    if x.ndim < 1 or x.shape[-1] != size:
+        raise ValueError(f"{name} must have shape (..., {size}); got {tuple(x.shape)}")
+    return x
 
 
 def as_camera(camera) -> PinholeCamera:
@@ -256,6 +307,10 @@ class StereoCamera(eqx.Module):
         R_rl: ``(3, 3)`` rotation from the left to the right camera frame.
         t_rl: ``(3,)`` left camera origin expressed in the right frame, metres.
 
+    Known (not traced) values are checked: ``R_rl`` must be a finite rotation (``R^T R = I`` to
+    ``max(1e-6, 1e3 eps)``, ``det = +1``) and ``t_rl`` finite and non-zero, else ``ValueError``
+    naming the field. A rig built inside ``jit``, ``vmap`` or ``grad`` is checked for shapes only.
+
     Yang et al. 2024, Sec. 3: stereo correspondences are triangulated with the
     distortion-corrected stereo model (:meth:`triangulate`).
     """
@@ -268,33 +323,57 @@ class StereoCamera(eqx.Module):
     def __init__(self, left: PinholeCamera, right: PinholeCamera, R_rl=None, t_rl=None):
         if not isinstance(left, PinholeCamera) or not isinstance(right, PinholeCamera):
             raise ValueError("StereoCamera needs two PinholeCamera instances (left, right)")
+        if R_rl is not None:
+            check_real(R_rl, "R_rl", prefix="StereoCamera: ")
         R_rl = jnp.eye(3, dtype=left.fx.dtype) if R_rl is None else as_float(R_rl)
         if t_rl is None:
             raise ValueError("t_rl (left camera origin in the right frame, metres) is required")
+        check_real(t_rl, "t_rl", prefix="StereoCamera: ")
         t_rl = as_float(t_rl)
         if R_rl.shape != (3, 3) or t_rl.shape != (3,):
             raise ValueError(
                 f"R_rl must be 3x3 and t_rl of shape (3,); got {R_rl.shape}, {t_rl.shape}"
             )
-        if not isinstance(t_rl, jax.core.Tracer) and float(jnp.linalg.norm(t_rl)) <= 0.0:
-            raise ValueError("the stereo baseline |t_rl| must be positive")
+        check_rotation(R_rl, "R_rl", prefix="StereoCamera: ")  # known values only
+        if not isinstance(t_rl, jax.core.Tracer):
+            tn = np.asarray(t_rl, dtype=float)
+            if not np.all(np.isfinite(tn)):
+                raise ValueError(
+                    f"StereoCamera: t_rl (left camera origin in the right frame, metres) must be "
+                    f"finite; got {tn.tolist()}"
+                )
+            if float(np.linalg.norm(tn)) <= 0.0:
+                raise ValueError("the stereo baseline |t_rl| must be positive")
         self.left, self.right, self.R_rl, self.t_rl = left, right, R_rl, t_rl
 
     @classmethod
     def from_baseline(
-        cls, camera: PinholeCamera, baseline_m: float, right: PinholeCamera | None = None
+        cls,
+        camera: PinholeCamera,
+        baseline_m: float | Float[ArrayLike, ""],
+        right: PinholeCamera | None = None,
     ):
         """A rectified side-by-side rig: identical cameras (unless ``right`` is given), the right
-        camera ``baseline_m`` metres along the left camera's +x axis."""
-        if not baseline_m > 0:
-            raise ValueError(f"baseline_m must be positive; got {baseline_m}")
+        camera ``baseline_m`` metres along the left camera's +x axis.
+
+        ``baseline_m`` is one positive, finite number (metres); it may be traced (a rig built
+        inside ``jit`` or differentiated with respect to its baseline), and is then checked for
+        its shape only."""
+        if not isinstance(camera, PinholeCamera):
+            raise ValueError(f"camera must be a PinholeCamera; got {type(camera).__name__}")
+        what = "baseline_m must be one positive, finite number (metres)"
+        if isinstance(baseline_m, bool | np.bool_ | str | bytes):
+            raise ValueError(f"{what}; got {baseline_m!r}")
+        check_real(baseline_m, "baseline_m")
+        if np.ndim(baseline_m) != 0:
+            raise ValueError(f"{what}; got shape {np.shape(baseline_m)}")
+        if not isinstance(baseline_m, jax.core.Tracer):
+            value = float(np.asarray(baseline_m))
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{what}; got {value}")
         zero = jnp.zeros_like(camera.fx)
-        return cls(
-            camera,
-            camera if right is None else right,
-            None,
-            jnp.stack([-baseline_m + zero, zero, zero]),
-        )
+        b = jnp.asarray(baseline_m).astype(zero.dtype)  # the camera's dtype
+        return cls(camera, camera if right is None else right, None, jnp.stack([-b, zero, zero]))
 
     # ------------------------------------------------------------------ geometry
     @property

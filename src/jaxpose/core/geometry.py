@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from jaxpose.core._checks import check_last, check_matrix
+from jaxpose.core._checks import check_last, check_matrix, check_rotation
 
 __all__ = [
     "DEFAULT_EULER_SEQUENCE",
@@ -429,7 +429,18 @@ class Pose(eqx.Module):
 
     @classmethod
     def from_quat(cls, q_wxyz: Float[ArrayLike, "... 4"], t: Float[ArrayLike, "... 3"]) -> Pose:
-        return cls(quat_to_dcm(q_wxyz), jnp.asarray(t))
+        """From a scalar-first quaternion ``q = (w, x, y, z)`` (normalised first) and ``t``.
+
+        A known (not traced) ``q`` holding NaN or inf, or of zero norm, raises ``ValueError``."""
+        q = check_last(q_wxyz, 4, "q")
+        if not isinstance(q, jax.core.Tracer):
+            qn = np.asarray(q)
+            if not np.all(np.isfinite(qn)):
+                bad = qn if qn.ndim == 1 else qn[~np.all(np.isfinite(qn), axis=-1)][0]
+                raise ValueError(
+                    f"q (q_wxyz) must be a finite quaternion (w, x, y, z); got {bad.tolist()}"
+                )
+        return cls(quat_to_dcm(q), jnp.asarray(t))
 
     @classmethod
     def from_euler(
@@ -447,7 +458,11 @@ class Pose(eqx.Module):
 
     @property
     def quat(self) -> Float[Array, "... 4"]:
-        """Scalar-first unit quaternion ``(w, x, y, z)`` with ``w >= 0``."""
+        """Scalar-first unit quaternion ``(w, x, y, z)`` with ``w >= 0``.
+
+        A known (not traced), finite ``R`` that is not a rotation raises ``ValueError`` (it has no
+        quaternion); a NaN pose gives NaN."""
+        check_rotation(self.R, "R", nonfinite_ok=True, prefix="Pose.quat: ")
         return dcm_to_quat(self.R)
 
     @property
@@ -456,7 +471,11 @@ class Pose(eqx.Module):
         return so3_log(self.R)
 
     def euler(self, sequence: str = DEFAULT_EULER_SEQUENCE) -> Float[Array, "... 3"]:
-        """Euler angles (radians) in SciPy's ``sequence`` naming (default ``"XYZ"``)."""
+        """Euler angles (radians) in SciPy's ``sequence`` naming (default ``"XYZ"``).
+
+        A known (not traced), finite ``R`` that is not a rotation raises ``ValueError`` (it has no
+        Euler angles); a NaN pose gives NaN."""
+        check_rotation(self.R, "R", nonfinite_ok=True, prefix="Pose.euler: ")
         return dcm_to_euler(self.R, sequence)
 
     def apply(self, points_body: Float[ArrayLike, "... n 3"]) -> Float[Array, "... n 3"]:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxpose.core._checks import intrinsic_matrix_problem
 from jaxpose.core.camera import PinholeCamera
 
 __all__ = ["load_camera", "save_camera"]
@@ -21,6 +22,7 @@ def load_camera(path: str | Path) -> PinholeCamera:
 
     Raises ``ValueError`` naming the file and the missing or malformed field: a matrix that is
     not 3x3 numbers, a non-positive or non-finite focal length, a non-finite principal point,
+    a ``cameraMatrix`` with a skew or a last row other than ``(0, 0, 1)`` (not supported),
     distortion coefficients that are not 4 or 5 finite numbers, an image size that is not a
     non-negative integer, or a ``path`` that is not a path.
     """
@@ -64,6 +66,12 @@ def load_camera(path: str | Path) -> PinholeCamera:
             f"camera file {path}: the focal lengths (cameraMatrix[0][0], [1][1]) must be "
             f"positive; got {K[0, 0]}, {K[1, 1]}"
         )
+    problem = intrinsic_matrix_problem(K)
+    if problem is not None:
+        raise ValueError(
+            f"camera file {path}: cameraMatrix must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]; "
+            f"got {problem.replace('K[', 'cameraMatrix[')} in {K.tolist()}"
+        )
     key = "distCoeffs" if "distCoeffs" in data else "dist"
     dist = data.get(key)
     if dist is not None:
@@ -100,6 +108,8 @@ def _numbers(value, path: Path, field: str, expected: str) -> np.ndarray:
 
 def save_camera(camera: PinholeCamera, path: str | Path) -> None:
     """Write a camera in the SPEED ``camera.json`` layout (readable by :func:`load_camera`)."""
+    if not isinstance(camera, PinholeCamera):
+        raise ValueError(f"camera must be a PinholeCamera; got {type(camera).__name__}")
     data = {
         "Nu": camera.width,
         "Nv": camera.height,
