@@ -4,7 +4,12 @@
 Writes ``results.json``, the figures and the resumable chunks under ``--out``; a rerun with the
 same options loads the finished chunks (an interrupted study resumes), and a chunk file that cannot
 be read is recomputed with a warning naming it. Groups above
-:data:`jaxpose.studies.selection.MAX_SUBSETS_PER_CASE` subsets per case are refused.
+:data:`jaxpose.studies.selection.MAX_SUBSETS_PER_CASE` subsets per case are refused, and so is a
+``--cases`` that plans more than :data:`~jaxpose.studies.selection.MAX_STUDY_SUBSETS` subsets or
+:data:`~jaxpose.studies.selection.MAX_STUDY_BYTES` bytes of case data over all groups (checked
+before anything starts), and a scenario that puts more than
+:data:`~jaxpose.studies.selection.MAX_OUTSIDE_FRACTION` of the feature square outside the
+``--image-size`` sensor (a smaller share runs with a one-line warning).
 """
 
 from __future__ import annotations
@@ -24,7 +29,19 @@ from jaxpose.commands._common import (
 )
 from jaxpose.commands._distributed import add_distributed_arguments, start_distributed
 
-__all__ = ["add_arguments", "add_scenario_arguments", "run", "scenario_from_args"]
+__all__ = ["add_arguments", "add_scenario_arguments", "euler_sequence", "run", "scenario_from_args"]
+
+
+def euler_sequence(text: str) -> str:
+    """An Euler sequence as SciPy names it (``XYZ``, ``zyx``, ``ZXZ``); argparse names the option
+    in its error."""
+    from jaxpose.core.geometry import parse_euler_sequence
+
+    try:
+        parse_euler_sequence(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return text
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,7 +64,14 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
         default=d.pixel_size_m * 1e6,
         help="pixel pitch (um)",
     )
-    add_image_size_argument(g, d.image_size, help="sensor size in pixels, W H (or WxH)")
+    add_image_size_argument(
+        g,
+        d.image_size,
+        help="sensor size in pixels, W H (or WxH): it sets the principal point (the DOPs do not "
+        "depend on it) and which features are in the image; a scenario with more than "
+        "MAX_OUTSIDE_FRACTION = 5 %% of the feature square outside it is refused, a smaller "
+        "share is reported with a warning",
+    )
     g.add_argument(
         "--range-m",
         type=positive_float,
@@ -75,6 +99,7 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--sequence",
+        type=euler_sequence,
         default=d.sequence,
         help="Euler sequence of the attitude state, named as SciPy names them (upper case "
         "intrinsic, lower case extrinsic)",
@@ -127,7 +152,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="selected points (default: the paper's groups; with --n only: 8)",
     )
     parser.add_argument(
-        "--cases", type=positive_int, default=1000, help="cases per group (as in the paper)"
+        "--cases",
+        type=positive_int,
+        default=1000,
+        help="cases per group (as in the paper); a number that plans more than MAX_STUDY_SUBSETS "
+        "subsets or MAX_STUDY_BYTES of case data over all groups is refused",
     )
     parser.add_argument("--seed", type=nonnegative_int, default=0, help="master seed")
     parser.add_argument(
@@ -147,10 +176,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from jaxpose.studies.selection import default_groups, format_report, run_study, write_outputs
+    from jaxpose.studies.selection import (
+        check_plan,
+        default_groups,
+        format_report,
+        run_study,
+        write_outputs,
+    )
 
     scenario = scenario_from_args(args)
     groups = default_groups(args.n, args.m)
+    check_plan(groups, args.cases)  # --cases that plans too much work: refused before anything
     writer = start_distributed(args)  # before any JAX computation
     t0 = time.perf_counter()
     result = run_study(

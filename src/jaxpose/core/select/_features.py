@@ -15,8 +15,15 @@ from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose
 from jaxpose.core.select._exhaustive import exhaustive
 from jaxpose.core.select._greedy import check_criterion, greedy
 from jaxpose.core.select._kernel import check_m, subset_dop
-from jaxpose.core.select._quasi import _check_points, _status, _valid, one_step, quasi_optimal
-from jaxpose.core.status import Status, raise_for_status
+from jaxpose.core.select._quasi import (
+    _check_points,
+    _status,
+    _valid,
+    one_step,
+    quasi_optimal,
+    raise_for_selection_status,
+)
+from jaxpose.core.status import Status
 
 __all__ = ["METHODS", "select_features"]
 
@@ -88,7 +95,7 @@ def select_features(
             f"them out with mask="
         )
     points_cam = pose.apply(points_body)
-    raise_for_status(_status(points_cam, valid, m), "select_features")
+    raise_for_selection_status(_status(points_cam, valid, m), valid, m, "select_features")
     if method == "quasi":
         return quasi_optimal(points_cam, m, mask=mask)
     if method == "one-step":

@@ -22,6 +22,7 @@ from jaxpose.core.select._kernel import (
     check_mask,
     pack,
     scale_packed,
+    too_few_valid,
     traces,
 )
 from jaxpose.core.status import Status, raise_for_status
@@ -52,19 +53,23 @@ def greedy(
             (:func:`jaxpose.core.line_dop.line_information_blocks`) or a stack of both.
         m: number of points to keep (static), ``4 <= m <= n``.
         criterion: ``"pdop"`` or ``"adop"``.
-        mask: ``(n,)`` bool, valid points (masked ones are removed first, never kept unless
-            fewer than ``m`` are valid).
+        mask: ``(n,)`` bool, valid points (masked ones are removed first, never kept). An
+            eager call raises ``ValueError`` when fewer than ``m`` are valid; a traced one (where
+            the mask cannot be looked at) then fills the remaining slots with masked points, as
+            :func:`jaxpose.core.select.quasi_optimal` does.
 
     Returns:
         ``(m,)`` ``int32`` indices, ascending. Ties (including "every removal is singular") go to
-        the lowest index. Eager calls raise ``ValueError`` for NaN/inf blocks; traced calls return
-        deterministic indices.
+        the lowest index. Eager calls raise ``ValueError`` for NaN/inf blocks or too few valid
+        points; traced calls return deterministic indices.
     """
     blocks = check_blocks(blocks, "greedy")
     n = blocks.shape[0]
     m = check_m(m, n, "greedy")
     which = check_criterion(criterion)
     valid = check_mask(mask, (n,), "greedy")
+    if valid is not None and not isinstance(valid, jax.core.Tracer) and int(jnp.sum(valid)) < m:
+        raise too_few_valid(valid, m, "greedy")
     valid = jnp.ones((n,), bool) if valid is None else valid
     finite = jnp.all(jnp.isfinite(blocks) | ~valid[:, None, None])
     if not isinstance(finite, jax.core.Tracer):

@@ -35,6 +35,7 @@ __all__ = [
     "block_scales",
     "check_blocks",
     "check_m",
+    "too_few_valid",
     "pack",
     "subset_dop",
     "traces",
@@ -59,6 +60,16 @@ def check_m(m, n: int, what: str = "selection") -> int:
     if m > n:
         raise ValueError(f"{what}: cannot select m = {m} of only n = {n} points")
     return m
+
+
+def too_few_valid(valid, m: int, what: str) -> ValueError:
+    """The ``ValueError`` of an eager selection whose ``mask`` leaves fewer than ``m`` valid
+    points (``valid`` concrete): it names ``mask`` and ``m`` and gives the counts."""
+    valid = np.asarray(valid)
+    return ValueError(
+        f"{what}: too few valid points: mask leaves {int(valid.sum())} of the n = {valid.size} "
+        f"points valid, fewer than m = {m} (unmask more points or lower m)"
+    )
 
 
 def check_blocks(blocks, what: str, *, batched: bool = False) -> Array:
@@ -199,22 +210,40 @@ def subset_dop(blocks: Float[ArrayLike, "n 6 6"], idx) -> tuple[Array, Array]:
         :func:`jaxpose.core.dilution.dop_from_information` (metres and radians per pixel of noise).
 
     Raises:
-        ValueError: ``idx`` not 1-D integers, or (eager) an index outside ``[0, n)``; under
-        ``jit`` such an index gives ``inf``.
+        ValueError: ``idx`` not 1-D integers or of fewer than 4 indices (a DOP needs at least 4
+        points, as :func:`jaxpose.core.dilution.dop`, whose status is ``TOO_FEW_POINTS`` then;
+        ``subset_dop`` has no status, and the length is known when it is traced, so this holds
+        under ``jit`` too), or (eager) an index outside ``[0, n)`` or repeated (a repeated point
+        would count twice); under ``jit`` such indices give ``inf``.
     """
     blocks = check_blocks(blocks, "subset_dop")
     idx = jnp.asarray(idx)
     if idx.ndim != 1 or not jnp.issubdtype(idx.dtype, jnp.integer):
         raise ValueError(f"subset_dop: idx must be a 1-D integer array; got {idx.dtype}{idx.shape}")
+    if idx.shape[0] < MIN_POINTS:
+        raise ValueError(
+            f"subset_dop: idx must hold at least {MIN_POINTS} indices (a DOP needs at least "
+            f"{MIN_POINTS} points); got {idx.shape[0]}"
+        )
     n = blocks.shape[0]
     inside = (idx >= 0) & (idx < n)
-    if not isinstance(idx, jax.core.Tracer) and not bool(jnp.all(inside)):
-        raise ValueError(
-            f"subset_dop: idx must hold indices in [0, {n}); got {np.asarray(idx).tolist()}"
-        )
-    # Traced: an index out of range makes the subset's figures inf (never a clamped index).
+    ordered = jnp.sort(idx)
+    distinct = jnp.all(ordered[1:] != ordered[:-1])
+    if not isinstance(idx, jax.core.Tracer):
+        if not bool(jnp.all(inside)):
+            raise ValueError(
+                f"subset_dop: idx must hold indices in [0, {n}); got {np.asarray(idx).tolist()}"
+            )
+        if not bool(distinct):
+            values, counts = np.unique(np.asarray(idx), return_counts=True)
+            raise ValueError(
+                "subset_dop: idx must hold distinct indices (a repeated point would count "
+                f"twice); got {np.asarray(idx).tolist()}, repeating {values[counts > 1].tolist()}"
+            )
+    # Traced: an index out of range or repeated makes the subset's figures inf (never a clamped
+    # index, never a point counted twice).
     res = dop_from_information(jnp.sum(blocks[jnp.where(inside, idx, 0)], axis=0))
-    ok = jnp.all(inside)
+    ok = jnp.all(inside) & distinct
     inf = jnp.asarray(jnp.inf, res.pdop.dtype)
     return jnp.where(ok, res.pdop, inf), jnp.where(ok, res.adop, inf)
 

@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from jaxpose.core.select._kernel import check_m, check_mask
+from jaxpose.core.select._kernel import check_m, check_mask, too_few_valid
 from jaxpose.core.status import Status, raise_for_status
 
 __all__ = ["one_step", "quasi_optimal", "redundancies", "selection_status"]
@@ -57,7 +57,15 @@ def _eager_check(points_cam, valid, m: int, what: str) -> None:
     """Raise ``ValueError`` for bad values when called eagerly (no-op under tracing)."""
     if isinstance(points_cam, jax.core.Tracer) or isinstance(valid, jax.core.Tracer):
         return
-    raise_for_status(_status(points_cam, valid, m), what)
+    raise_for_selection_status(_status(points_cam, valid, m), valid, m, what)
+
+
+def raise_for_selection_status(status, valid, m: int, what: str) -> None:
+    """:func:`~jaxpose.core.status.raise_for_status`, with a message naming ``mask`` and ``m``
+    (and the counts) for ``TOO_FEW_POINTS``."""
+    if int(status) == Status.TOO_FEW_POINTS:
+        raise too_few_valid(valid, m, what)
+    raise_for_status(status, what)
 
 
 def _status(points_cam, valid, m: int) -> Array:

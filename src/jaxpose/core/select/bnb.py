@@ -402,6 +402,47 @@ def _search(blocks, m, sel, rtol, relax_iters, max_nodes, bound, use_heuristic):
     return mask, heuristic_val, nodes, iters, k < 0, finite
 
 
+_INT32_MAX = int(np.iinfo(np.int32).max)
+
+
+def _check_count(value, name: str) -> int:
+    """``relax_iters`` and ``max_nodes``: an integer (not a bool) in ``[1, 2^31 - 1]`` (they are
+    ``int32`` counters; a float would be truncated, a bool taken as 1)."""
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
+        raise ValueError(
+            f"branch_and_bound: {name} must be an integer >= 1; got {type(value).__name__} "
+            f"{value!r}"
+        )
+    if not 1 <= value <= _INT32_MAX:
+        raise ValueError(
+            f"branch_and_bound: {name} must be an integer in [1, {_INT32_MAX}]; got {value}"
+        )
+    return int(value)
+
+
+def _check_rtol(rtol):
+    """``rtol``: a finite number ``>= 0``. A negative margin prunes subtrees whose bound is below
+    the incumbent, so the answer is no longer the optimum; a traced value is passed through."""
+    if isinstance(rtol, jax.core.Tracer):
+        return rtol
+    bad = isinstance(rtol, bool | np.bool_ | str | bytes)
+    if not bad:
+        arr = np.asarray(rtol)
+        bad = arr.ndim != 0 or arr.dtype.kind not in "iuf"
+    if bad:
+        raise ValueError(
+            f"branch_and_bound: rtol must be one finite number >= 0; got {type(rtol).__name__} "
+            f"{rtol!r}"
+        )
+    value = float(arr)
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(
+            "branch_and_bound: rtol must be a finite number >= 0 (a pruning margin for rounding; "
+            f"a negative one can prune the optimum); got {value}"
+        )
+    return value
+
+
 def branch_and_bound(
     blocks: Float[ArrayLike, "n 6 6"],
     m: int,
@@ -425,10 +466,15 @@ def branch_and_bound(
         bound: ``"relaxation"`` (default; Frank-Wolfe on the continuous relaxation),
             ``"linear"`` (one tangent-plane bound at the node's full set) or ``"monotone"`` (the
             classical ``DOP(C + R)``); see the module docstring for the proofs.
-        relax_iters: Frank-Wolfe iterations per node at most (``"relaxation"``).
-        max_nodes: node budget; when it runs out the status is ``NOT_CONVERGED``.
-        rtol: pruning margin for rounding (default ``sqrt(eps)`` of the dtype).
-        heuristic: start from greedy elimination + 1-swap (otherwise from no incumbent).
+        relax_iters: Frank-Wolfe iterations per node at most (``"relaxation"``), an integer
+            ``>= 1``.
+        max_nodes: node budget, an integer ``>= 1``; when it runs out the status is
+            ``NOT_CONVERGED``.
+        rtol: pruning margin for rounding (default ``sqrt(eps)`` of the dtype), a finite number
+            ``>= 0``; a negative or NaN one is refused (``ValueError``): it would prune subtrees
+            that hold the optimum. A larger one only prunes less (slower, still exact).
+        heuristic: start from greedy elimination + 1-swap (otherwise from no incumbent); ``True``
+            or ``False``.
         throw: raise ``ValueError`` (eager) or an Equinox runtime error (under jit) for a bad
             status; pass ``False`` under ``vmap`` to get ``inf`` and a status per problem.
 
@@ -452,10 +498,17 @@ def branch_and_bound(
     if bound not in _BOUNDS:
         raise ValueError(f"bound must be one of {_BOUNDS}; got {bound!r}")
     m = check_m(m, n, "branch_and_bound")
-    if relax_iters < 1 or max_nodes < 1:
-        raise ValueError("relax_iters and max_nodes must be positive")
+    relax_iters = _check_count(relax_iters, "relax_iters")
+    max_nodes = _check_count(max_nodes, "max_nodes")
+    if not isinstance(heuristic, bool | np.bool_):
+        raise ValueError(
+            f"branch_and_bound: heuristic must be True or False; got {type(heuristic).__name__} "
+            f"{heuristic!r}"
+        )
     if rtol is None:
         rtol = math.sqrt(float(jnp.finfo(blocks.dtype).eps))
+    else:
+        rtol = _check_rtol(rtol)
     sel = np.zeros(6, dtype=bool)
     sel[_CRITERIA[criterion]] = True
     mask, heuristic_phi, nodes, iters, converged, finite = _search(
