@@ -157,10 +157,25 @@ def default_out(command: str) -> Path:
     return DEFAULT_OUT_ROOT / command
 
 
+def out_folder(text: str) -> Path:
+    """``--out``'s type: a path that is a folder or can become one (no file on it or on the way
+    to it, its nearest existing folder writable), checked before any work starts."""
+    path = Path(text)
+    for part in (path, *path.parents):
+        if part.exists():
+            if not part.is_dir():
+                what = "is a file" if part == path else f"lies below the file {part}"
+                raise argparse.ArgumentTypeError(f"{text}: cannot be a folder ({what})")
+            if not os.access(part, os.W_OK | os.X_OK):
+                raise argparse.ArgumentTypeError(f"{text}: the folder {part} is not writable")
+            break
+    return path
+
+
 def add_out_argument(parser: argparse.ArgumentParser, command: str, what: str = "outputs") -> None:
-    """``--out DIR`` with the shared default ``./jaxpose-out/<command>``."""
+    """``--out DIR`` with the shared default ``./jaxpose-out/<command>`` (:func:`out_folder`)."""
     parser.add_argument(
-        "--out", type=Path, default=default_out(command), help=f"folder for the {what}"
+        "--out", type=out_folder, default=default_out(command), help=f"folder for the {what}"
     )
 
 

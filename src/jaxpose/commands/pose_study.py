@@ -104,6 +104,9 @@ def run(args: argparse.Namespace) -> int:
         write_figures(out, results, raw)
     print(f"{'geometry':<16} {'noise':>6} " + " ".join(f"{a:>7}" for a in AXES) + "   NEES")
     for g in results["groups"]:
+        if g["ratio"] is None:  # fewer than two trials converged
+            print(f"{g['geometry']:<16} {g['noise_px']:>6.2f} {g['message']}")
+            continue
         print(
             f"{g['geometry']:<16} {g['noise_px']:>6.2f} "
             + " ".join(f"{x:>7.3f}" for x in g["ratio"])

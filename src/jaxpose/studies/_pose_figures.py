@@ -28,7 +28,7 @@ def plot_std(path: Path, groups: list[dict], names: list[str]) -> None:
         gs = sorted((g for g in groups if g["geometry"] == name), key=lambda g: g["noise_px"])
         s = np.array([g["noise_px"] for g in gs])
         pred = np.array([g["pred_std"] for g in gs])
-        emp = np.array([g["emp_std"] for g in gs])
+        emp = np.array([g["emp_std"] or [np.nan] * len(AXES) for g in gs])  # None: no trial
         for col, (sl, scale, unit, what) in enumerate(_PANELS):
             ax = axes[row, col]
             for k, i in enumerate(range(sl.start, sl.stop)):

@@ -184,7 +184,12 @@ def evaluate_speedplus(
                 _record(log, lab, rows[-1])
                 continue
             t0 = time.perf_counter()
-            res = initialise_pose(image, camera, mdl, opts)
+            try:  # bad input only (an image of another size than the camera's): an error row
+                res = initialise_pose(image, camera, mdl, opts)
+            except ValueError as err:
+                rows.append(row | {"confidence": "error", "message": str(err), "success": False})
+                _record(log, lab, rows[-1])
+                continue
             runtime = time.perf_counter() - t0
             R, t = np.asarray(lab.pose.R), np.asarray(lab.pose.t)
             row |= evaluate_image(res, Pose(jnp.asarray(R), jnp.asarray(t)))

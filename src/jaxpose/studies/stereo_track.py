@@ -452,7 +452,11 @@ def run(args: argparse.Namespace) -> int:
         from jaxpose.studies._stereo_folder import open_stereo_folder
 
         folder = open_stereo_folder(args.images)
-        rig, n = folder.rig, len(folder) if args.frames is None else min(args.frames, len(folder))
+        if args.frames is not None and args.frames > len(folder):
+            raise ValueError(
+                f"--frames {args.frames}: {args.images} holds {len(folder)} stereo pairs"
+            )
+        rig, n = folder.rig, len(folder) if args.frames is None else args.frames
         frames = folder.frames(n)
         initial, range_m = Pose.identity(), 2.0
     else:

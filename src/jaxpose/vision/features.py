@@ -536,6 +536,11 @@ def detect(
     gray = to_gray(image)
     if min(gray.shape) < 16:
         raise ValueError(f"image too small: {gray.shape[1]}x{gray.shape[0]} pixels")
+    if camera.width > 0 and camera.height > 0 and gray.shape != (camera.height, camera.width):
+        raise ValueError(  # a transposed or resized image would give a confident wrong pose
+            f"image is {gray.shape[1]}x{gray.shape[0]} pixels but the camera is "
+            f"{camera.width}x{camera.height} (width x height); give the camera of that image"
+        )
     und, ideal = undistort_image(gray, camera)
     given = None if roi is None else undistort_box(roi, camera, und.shape)
     if given is not None and roi_diagonal(given) < options.min_roi_px:

@@ -20,6 +20,7 @@ from jaxpose.core.pnp._problem import (
     _EPnPOut,
     _problem,
     _solution_status,
+    check_planar_tol,
 )
 from jaxpose.core.pnp._result import PnPResult
 from jaxpose.core.status import throw_for_status
@@ -75,7 +76,7 @@ def dlt(
     points ``TOO_FEW_POINTS``. ``throw=True`` (the default) raises for a status other than
     ``OK``; pass ``throw=False`` under ``vmap`` and read ``status``.
     """
-    res = _dlt_eager(points_body, pixels, as_camera(camera), mask, float(planar_tol))
+    res = _dlt_eager(points_body, pixels, as_camera(camera), mask, check_planar_tol(planar_tol))
     if throw:
         res = throw_for_status(res, "dlt", "reprojection_error", min_points=DLT_MIN_POINTS)
     return res

@@ -57,6 +57,7 @@ from jaxpose.core.pnp._problem import (
     _EPnPOut,
     _problem,
     _solution_status,
+    check_planar_tol,
 )
 from jaxpose.core.pnp._result import PnPResult
 from jaxpose.core.status import throw_for_status
@@ -248,7 +249,7 @@ def epnp(
     a pose come from :func:`jaxpose.core.refine.refine_pose` / :func:`jaxpose.solve_pnp` with
     refinement, by implicit differentiation at the optimum.
     """
-    res = _epnp_eager(points_body, pixels, as_camera(camera), mask, float(planar_tol))
+    res = _epnp_eager(points_body, pixels, as_camera(camera), mask, check_planar_tol(planar_tol))
     if throw:
         res = throw_for_status(res, "epnp", "reprojection_error", min_points=MIN_POINTS)
     return res

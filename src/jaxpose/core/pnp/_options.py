@@ -7,10 +7,13 @@ import dataclasses
 import math
 
 from jaxpose.core.pnp._batch import CHUNK
-from jaxpose.core.pnp._problem import MIN_POINTS, PLANAR_TOL
+from jaxpose.core.pnp._problem import MIN_POINTS, PLANAR_TOL, check_planar_tol
 from jaxpose.core.refine import RefineOptions
 
 METHODS = ("epnp", "dlt", "ransac")
+#: the most RANSAC hypotheses a problem may plan: they are drawn and solved at once, about 6 kB
+#: each for ten points (0.9 outliers with 6-point samples and p = 0.999 plan 6.9 million, 42 GB).
+MAX_HYPOTHESES = 100_000
 
 
 def ransac_iterations(confidence: float, inlier_fraction: float, sample_size: int = 6) -> int:
@@ -47,7 +50,8 @@ class RansacOptions:
         sample_size: points per minimal sample (at least 4; 6 in Sharma et al. 2018).
         num_hypotheses: hypotheses drawn; ``None`` (default) fixes it by Sharma et al. eq. 35
             (:func:`ransac_iterations`) from ``confidence`` and ``1 - max_outlier_fraction``:
-            439 for 50% outliers, ``p = 0.999`` and 6-point samples.
+            439 for 50% outliers, ``p = 0.999`` and 6-point samples. At most
+            :data:`MAX_HYPOTHESES` either way (``ValueError`` naming the fields otherwise).
     """
 
     threshold_px: float = 8.0
@@ -82,6 +86,14 @@ class RansacOptions:
             )
         object.__setattr__(self, "threshold_px", float(self.threshold_px))
         object.__setattr__(self, "sample_size", int(self.sample_size))
+        if self.hypotheses > MAX_HYPOTHESES:
+            raise ValueError(
+                f"RansacOptions plan {self.hypotheses} hypotheses (num_hypotheses, or eq. 35 from "
+                f"confidence={self.confidence}, max_outlier_fraction="
+                f"{self.max_outlier_fraction}, sample_size={self.sample_size}), more than "
+                f"{MAX_HYPOTHESES}, which are drawn at once; lower max_outlier_fraction or "
+                "confidence, take sample_size=4, or give num_hypotheses"
+            )
 
     @property
     def hypotheses(self) -> int:
@@ -140,8 +152,7 @@ class PnPOptions:
             )
         if not isinstance(self.ransac, RansacOptions):
             raise ValueError(f"PnPOptions.ransac must be a RansacOptions; got {self.ransac!r}")
-        if not 0.0 < float(self.planar_tol) < 1.0:
-            raise ValueError(f"PnPOptions.planar_tol must be in (0, 1); got {self.planar_tol}")
+        check_planar_tol(self.planar_tol, "PnPOptions.planar_tol")
         if not _is_int(self.chunk) or int(self.chunk) < 1:
             raise ValueError(f"PnPOptions.chunk must be a positive integer; got {self.chunk!r}")
         if self.workers is not None and (not _is_int(self.workers) or int(self.workers) < 1):

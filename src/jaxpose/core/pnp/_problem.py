@@ -98,6 +98,16 @@ class _EPnPOut(eqx.Module):
     normal: Array  # (3,) body frame, least-spread direction
 
 
+def check_planar_tol(value, name: str = "planar_tol") -> float:
+    """``value`` as a float in ``(0, 1)`` (EPnP's planarity threshold on ``sqrt(l3 / l1)``), or
+    a ``ValueError`` naming ``name``: a number outside it made EPnP take a general scene for a
+    plane (or the reverse) and answer OK with a pose off."""
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not ok or not 0.0 < float(value) < 1.0:
+        raise ValueError(f"{name} must be a number in (0, 1); got {value!r}")
+    return float(value)
+
+
 def _control_frame(points_body, weights, planar_tol):
     """Centroid, principal axes (columns, by decreasing spread), spreads and flags (OpenCV's
     ``choose_control_points``: ``c_k = c_0 + sqrt(l_k / n) e_k``)."""

@@ -19,9 +19,30 @@ from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.pnp._epnp import _epnp_core
 from jaxpose.core.pnp._linalg import _mm, _rms_px
 from jaxpose.core.pnp._options import RansacOptions
-from jaxpose.core.pnp._problem import PLANAR_TOL, _conclude, _Problem, _problem
+from jaxpose.core.pnp._problem import (
+    PLANAR_TOL,
+    _conclude,
+    _Problem,
+    _problem,
+    check_planar_tol,
+)
 from jaxpose.core.pnp._result import PnPResult
 from jaxpose.core.status import Status, throw_for_status
+
+
+def check_key(key) -> None:
+    """``ValueError`` naming ``key`` unless it is a JAX PRNG key (typed, or the raw ``uint32``
+    pair of ``jax.random.PRNGKey``; batched under ``vmap``): JAX's own error for ``None`` or an
+    integer names no argument."""
+    ok = isinstance(key, jax.Array) and (
+        jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key)
+        or (key.dtype == jnp.uint32 and key.shape[-1:] == (2,))
+    )
+    if not ok:
+        raise ValueError(
+            "key must be a JAX PRNG key (jax.random.key(seed) or jax.random.PRNGKey(seed)); "
+            f"got {type(key).__name__}"
+        )
 
 
 def _ransac_core(prob: _Problem, key, *, threshold_px, sample_size, num_hypotheses, planar_tol):
@@ -102,7 +123,9 @@ def ransac_pnp(
     """
     if not isinstance(options, RansacOptions):
         raise ValueError(f"options must be a RansacOptions; got {type(options).__name__}")
-    res = _ransac_eager(points_body, pixels, as_camera(camera), key, mask, options, planar_tol)
+    check_key(key)
+    tol = check_planar_tol(planar_tol)
+    res = _ransac_eager(points_body, pixels, as_camera(camera), key, mask, options, tol)
     if throw:
         res = throw_for_status(
             res, "ransac_pnp", "reprojection_error", min_points=options.sample_size

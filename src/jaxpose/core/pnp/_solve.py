@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from jaxpose.core._checks import as_bool_mask, float_dtype
+from jaxpose.core._checks import as_bool_mask, float_dtype, intrinsic_matrix_problem
 from jaxpose.core._compile import known_cpu_options
 from jaxpose.core._threads import in_threads
 from jaxpose.core.camera import PinholeCamera
@@ -55,7 +55,7 @@ from jaxpose.core.pnp._problem import (
     _Problem,
     _problem,
 )
-from jaxpose.core.pnp._ransac import _ransac_core
+from jaxpose.core.pnp._ransac import _ransac_core, check_key
 from jaxpose.core.pnp._result import PnPResult
 from jaxpose.core.refine import RefineOptions, refine_pose
 from jaxpose.core.refine._implicit import _with_implicit_grad
@@ -431,6 +431,7 @@ def solve_pnp(
     keys = None
     if method == "ransac":
         key = jax.random.key(0) if key is None else key
+        check_key(key)
         keys = key if batch == () else jax.random.split(key, size)
     two = options.refine is not None
     if traced:  # under the caller's transformation (jit, grad, vmap): one compiled unit
@@ -503,4 +504,6 @@ def _intrinsics(camera) -> tuple[Float[Array, "9"] | Float[np.ndarray, "9"], boo
         )
     if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise ValueError(f"K must be finite with positive fx, fy; got {K.tolist()}")
+    if (problem := intrinsic_matrix_problem(K)) is not None:
+        raise ValueError(f"K has {problem}")
     return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], 0, 0, 0, 0, 0], dtype=float), False

@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from jaxpose.core._checks import as_float
+from jaxpose.core._checks import as_float, check_pose
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.dilution import dop_from_information, point_jacobians
 from jaxpose.core.geometry import (
@@ -63,6 +63,11 @@ def pose_covariance(
         segments_body = as_float(segments_body)
         lines = as_float(lines_img, segments_body.dtype)
         k = segments_body.shape[0]
+        if segments_body.shape[1:] != (2, 3) or lines.shape != (k, 3):
+            raise ValueError(
+                f"segments_body must be (k, 2, 3) and lines_img (k, 3) for the same k; got "
+                f"{segments_body.shape} and {lines.shape}"
+            )
         J_e = point_jacobians(
             segments_body.reshape(-1, 3), pose, camera, parameterization="tangent"
         )
@@ -145,6 +150,7 @@ def sensitivity(
     cfg = RefineOptions(robust=options.robust, robust_scale=options.robust_scale)
     camera = as_camera(camera)
     # Validate shapes eagerly (ValueError), then compute everything in one compiled call.
+    check_pose(pose, "pose")  # named as sensitivity names it (_prepare says pose0)
     _prepare(
         pose,
         points_body,

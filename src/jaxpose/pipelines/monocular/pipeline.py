@@ -10,7 +10,7 @@ import numpy as np
 
 from jaxpose.core._checks import check_fields
 from jaxpose.core._compile import in_float64
-from jaxpose.core.camera import PinholeCamera
+from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.pipelines.monocular.classify import check_thresholds, classify
 from jaxpose.pipelines.monocular.hypothesise import _ransac_candidates, _svd_candidates
 from jaxpose.pipelines.monocular.options import ROI_LENGTH_FACTOR, InitOptions, InitResult
@@ -35,13 +35,17 @@ __all__ = ["initialise_pose"]
 @in_float64
 def initialise_pose(
     image: np.ndarray,
-    camera: PinholeCamera,
+    camera: PinholeCamera | np.ndarray,
     model: WireframeModel | None = None,
     options: InitOptions | None = None,
     *,
     roi=None,
 ) -> InitResult:
     """Pose of the target from one image with no prior (see the module docstring).
+
+    ``camera``: the camera of ``image`` (a :class:`PinholeCamera`, or a ``3x3`` ``K`` without
+    distortion); when it has an image size, ``image`` must be that size (``ValueError``
+    otherwise: a transposed or resized image would give a confident wrong pose).
 
     ``roi``: optional ``[u0, v0, u1, v1]`` (pixels of ``image``), the target's box from elsewhere
     (an object detector, as two-stage SPEED+ methods use, or a previous frame):
@@ -60,6 +64,11 @@ def initialise_pose(
     """
     model = tango() if model is None else model
     options = InitOptions() if options is None else options
+    camera = as_camera(camera)
+    if not isinstance(model, WireframeModel):
+        raise ValueError(f"model must be a WireframeModel or None; got {type(model).__name__}")
+    if not isinstance(options, InitOptions):
+        raise ValueError(f"options must be an InitOptions or None; got {type(options).__name__}")
     if options.method not in ("svd", "ransac"):
         raise ValueError(f"method must be 'svd' or 'ransac'; got {options.method!r}")
     if options.rank_by not in ("chamfer", "e2d"):
