@@ -321,6 +321,30 @@ row(
 )
 
 
+# ------------------------------------------------------------------------ throw= not a bool
+# None was taken as False (no raise where one was asked for) and "no" as True.
+
+for value in (None, "no", 0):
+    row(
+        "throw-not-a-bool",
+        f"dop-{value}",
+        lambda ctx, v=value: jp.dop(P, Pose(POSE.R, jnp.array([0.0, 0.0, -5.0])), CAM, throw=v),
+        Raises("throw"),
+    )
+row(
+    "throw-not-a-bool",
+    "solve-pnp-none",
+    lambda ctx: jp.solve_pnp(P, U, CAM, throw=None),
+    Raises("throw"),
+)
+row(
+    "throw-not-a-bool",
+    "refine-none",
+    lambda ctx: jp.refine_pose(P, U, POSE, CAM, throw=None),
+    Raises("throw"),
+)
+
+
 @pytest.mark.parametrize("cls, variant, fn, expect", TABLE)
 def test_bad_input_third_audit(cls, variant, fn, expect, tmp_path, capsys):
     previous = signal.signal(signal.SIGALRM, _alarm)

@@ -46,7 +46,7 @@ from jaxpose.core.geometry import (
     parse_euler_sequence,
     so3_exp,
 )
-from jaxpose.core.status import Status, throw_for_status
+from jaxpose.core.status import Status, check_throw, throw_for_status
 
 __all__ = [
     "DOPResult",
@@ -267,7 +267,7 @@ def dop(
     valid = check_mask(mask, n)
     sigma = _check_sigma(sigma, n, points_body.dtype)
     res = _dop(points_body, pose, camera, sigma, valid, sequence, parameterization)
-    if throw:
+    if check_throw(throw):
         res = throw_for_status(res, "dop", "pdop", min_points=MIN_POINTS)
     return res
 

@@ -93,6 +93,14 @@ def raise_for_status(status, what: str = "problem", *, min_points: int | None = 
     raise ValueError(f"{what}: " + "; ".join(parts))
 
 
+def check_throw(throw) -> bool:
+    """``throw`` as a bool, or a ``ValueError`` naming it: ``None`` had been taken as ``False``
+    and the string ``"no"`` as ``True``."""
+    if not isinstance(throw, bool | np.bool_):
+        raise ValueError(f"throw must be True or False; got {throw!r}")
+    return bool(throw)
+
+
 def throw_for_status(result, what: str, field: str, *, min_points: int | None = None):
     """The ``throw=True`` path of every solver: fail loudly on a bad ``result.status``.
 

@@ -23,7 +23,7 @@ from jaxpose.core.pnp._problem import (
     check_planar_tol,
 )
 from jaxpose.core.pnp._result import PnPResult
-from jaxpose.core.status import throw_for_status
+from jaxpose.core.status import check_throw, throw_for_status
 
 
 def _dlt_core(points_body, xy, weights, fxy, planar_tol) -> _EPnPOut:
@@ -77,7 +77,7 @@ def dlt(
     ``OK``; pass ``throw=False`` under ``vmap`` and read ``status``.
     """
     res = _dlt_eager(points_body, pixels, as_camera(camera), mask, check_planar_tol(planar_tol))
-    if throw:
+    if check_throw(throw):
         res = throw_for_status(res, "dlt", "reprojection_error", min_points=DLT_MIN_POINTS)
     return res
 

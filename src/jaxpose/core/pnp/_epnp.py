@@ -60,7 +60,7 @@ from jaxpose.core.pnp._problem import (
     check_planar_tol,
 )
 from jaxpose.core.pnp._result import PnPResult
-from jaxpose.core.status import throw_for_status
+from jaxpose.core.status import check_throw, throw_for_status
 
 _GAUSS_NEWTON_STEPS = 5  # OpenCV epnp.cpp
 _PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))  # control-point pairs, OpenCV order
@@ -250,7 +250,7 @@ def epnp(
     refinement, by implicit differentiation at the optimum.
     """
     res = _epnp_eager(points_body, pixels, as_camera(camera), mask, check_planar_tol(planar_tol))
-    if throw:
+    if check_throw(throw):
         res = throw_for_status(res, "epnp", "reprojection_error", min_points=MIN_POINTS)
     return res
 

@@ -27,7 +27,7 @@ from jaxpose.core.pnp._problem import (
     check_planar_tol,
 )
 from jaxpose.core.pnp._result import PnPResult
-from jaxpose.core.status import Status, throw_for_status
+from jaxpose.core.status import Status, check_throw, throw_for_status
 
 
 def check_key(key) -> None:
@@ -126,7 +126,7 @@ def ransac_pnp(
     check_key(key)
     tol = check_planar_tol(planar_tol)
     res = _ransac_eager(points_body, pixels, as_camera(camera), key, mask, options, tol)
-    if throw:
+    if check_throw(throw):
         res = throw_for_status(
             res, "ransac_pnp", "reprojection_error", min_points=options.sample_size
         )

@@ -60,7 +60,7 @@ from jaxpose.core.pnp._result import PnPResult
 from jaxpose.core.refine import RefineOptions, refine_pose
 from jaxpose.core.refine._implicit import _with_implicit_grad
 from jaxpose.core.refine._problem import _prepare as _refine_problem
-from jaxpose.core.status import Status, throw_for_status
+from jaxpose.core.status import Status, check_throw, throw_for_status
 
 
 def _solve(prob: _Problem, method: str, planar_tol: float, key=None, ransac=None):
@@ -454,7 +454,7 @@ def solve_pnp(
             res = jax.tree.map(lambda *a: jnp.concatenate(a)[:size], *res)
     if len(batch) > 1:
         res = jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), res)
-    if throw:
+    if check_throw(throw):
         res = throw_for_status(
             res,
             f"solve_pnp(method={method!r})",

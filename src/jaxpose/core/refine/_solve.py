@@ -22,7 +22,7 @@ from jaxpose.core.refine._optimistix import _optimistix_solve
 from jaxpose.core.refine._options import MIN_FEATURES, RefineOptions
 from jaxpose.core.refine._problem import _prepare
 from jaxpose.core.refine._result import RefineResult
-from jaxpose.core.status import Status, throw_for_status
+from jaxpose.core.status import Status, check_throw, throw_for_status
 
 
 @eqx.filter_jit
@@ -144,6 +144,6 @@ def refine_pose(
         line_sigma,
     )
     res = _refine(pose0, prob, valid, lvalid, finite_input, options)
-    if throw:
+    if check_throw(throw):
         res = throw_for_status(res, "refine_pose", "cost", min_points=MIN_FEATURES)
     return res

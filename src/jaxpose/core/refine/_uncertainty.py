@@ -20,7 +20,7 @@ from jaxpose.core.refine._model import (
 from jaxpose.core.refine._options import MIN_FEATURES, RefineOptions
 from jaxpose.core.refine._problem import _prepare
 from jaxpose.core.refine._result import RefineResult
-from jaxpose.core.status import Status, throw_for_status
+from jaxpose.core.status import Status, check_throw, throw_for_status
 
 
 def pose_covariance(
@@ -176,7 +176,7 @@ def sensitivity(
         line_sigma,
         cfg,
     )
-    if throw:
+    if check_throw(throw):
         res = throw_for_status(res, "sensitivity", "d_pixels", min_points=MIN_FEATURES)
     return res
 

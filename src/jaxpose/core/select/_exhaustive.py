@@ -51,7 +51,7 @@ from jaxpose.core.select._kernel import (
     subset_dop,
     traces,
 )
-from jaxpose.core.status import Status, throw_for_status
+from jaxpose.core.status import Status, check_throw, throw_for_status
 
 __all__ = [
     "ExhaustiveResult",
@@ -315,7 +315,7 @@ def exhaustive_batch(
     else:
         mask = jnp.ones((C, n), bool)
     res = _batch_fn(m, use_mask, chunk_size, _dtype_name(kernel_dtype))(blocks, mask)
-    if throw:
+    if check_throw(throw):
         res = throw_for_status(res, "exhaustive selection", "pdop")
     return res
 
@@ -433,6 +433,6 @@ def exhaustive(
     if mask_arr is None:
         mask_arr = jnp.ones((n,), bool)
     res = _single(m, mask is not None, chunk_size, _dtype_name(kernel_dtype))(blocks, mask_arr)
-    if throw:
+    if check_throw(throw):
         res = throw_for_status(res, "exhaustive selection", "pdop")
     return res

@@ -126,7 +126,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from jaxpose.core.dilution import dop_from_information
 from jaxpose.core.select._kernel import check_m
-from jaxpose.core.status import Status, throw_for_status
+from jaxpose.core.status import Status, check_throw, throw_for_status
 
 __all__ = ["BnBResult", "branch_and_bound"]
 
@@ -532,7 +532,7 @@ def branch_and_bound(
         heuristic_value=heuristic_value,
         status=status,
     )
-    if throw:
+    if check_throw(throw):
         out = throw_for_status(out, "branch and bound", "value")
     return out
 
