@@ -6,8 +6,6 @@ PnP solvers' direct arguments and the commands' shared options, in the contract 
 from __future__ import annotations
 
 import json
-import signal
-import warnings
 
 import cv2
 import jax
@@ -16,22 +14,18 @@ import numpy as np
 import pytest
 from test_bad_inputs import (
     CAM,
-    LIMIT_S,
     MONO_CAM,
     POSE,
     Answer,
     Cli,
     CliOk,
-    Ctx,
     P,
     Raises,
     U,
-    _alarm,
-    _check,
     _rendered,
     _stereo_argv,
     _stereo_pairs,
-    _Timeout,
+    check_row,
 )
 
 import jaxpose as jp
@@ -347,17 +341,7 @@ row(
 
 @pytest.mark.parametrize("cls, variant, fn, expect", TABLE)
 def test_bad_input_third_audit(cls, variant, fn, expect, tmp_path, capsys):
-    previous = signal.signal(signal.SIGALRM, _alarm)
-    signal.alarm(LIMIT_S)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            _check(fn, expect, Ctx(tmp_path), capsys)
-    except _Timeout:
-        pytest.fail(f"{cls}[{variant}] did not answer within {LIMIT_S} s")
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, previous)
+    check_row(cls, variant, fn, expect, tmp_path, capsys)
 
 
 def test_a_start_in_front_of_the_camera_still_tracks():

@@ -4,13 +4,13 @@ and the valid calls next to them give what they gave before."""
 
 from __future__ import annotations
 
-import re
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_bad_inputs import _named, _run_cli
 
 import jaxpose as jp
 from jaxpose import PinholeCamera, Pose
@@ -32,10 +32,6 @@ def _blocks(points=P):
     return jp.information_blocks(points, POSE, CAM)
 
 
-def _named(name: str, message: str) -> bool:
-    return re.search(rf"(?<![\w-]){re.escape(name)}(?!\w)", message) is not None
-
-
 def _raises(fn, *names):
     with pytest.raises(ValueError) as err:
         fn()
@@ -44,19 +40,8 @@ def _raises(fn, *names):
     return str(err.value)
 
 
-def _cli(argv, capsys):
-    from jaxpose.cli import main
-
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as done:
-        code = done.code
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
-
-
 def _refused(argv, capsys, *options):
-    code, _, err = _cli(argv, capsys)
+    code, _, err = _run_cli(argv, capsys)
     lines = [ln for ln in err.strip().splitlines() if ln.strip()]
     assert code == 2, f"exit {code}; stderr: {err[-2000:]}"
     assert "Traceback" not in err, err
@@ -205,14 +190,14 @@ def test_run_study_refuses_features_outside_the_image(scenario):
 
 def test_study_with_part_of_the_square_outside_warns(tmp_path, capsys):
     # docs/selection.md's 5 m row: about 2.4 % of the square is off the 2048 x 2048 sensor.
-    code, _, err = _cli(_study(tmp_path, "--range-m", "5"), capsys)
+    code, _, err = _run_cli(_study(tmp_path, "--range-m", "5"), capsys)
     assert code == 0, err[-2000:]
     warnings = [ln for ln in err.splitlines() if ": warning: " in ln]
     assert len(warnings) == 1 and "--image-size" in warnings[0], err
 
 
 def test_default_study_is_unchanged_and_quiet(tmp_path, capsys):
-    code, out, err = _cli(_study(tmp_path), capsys)
+    code, out, err = _run_cli(_study(tmp_path), capsys)
     assert code == 0, err[-2000:]
     assert "warning" not in err and "Table 4" in out
     res = study.run_study(study.Scenario(), [(8, 5)], cases=2, progress=False)
