@@ -339,6 +339,41 @@ row(
 )
 
 
+# --------------------------------------------------- arrays of complex numbers, objects, strings
+# Complex points or pixels lost their imaginary part silently; objects or strings met JAX's
+# "Error interpreting argument", which names no argument.
+
+for kind, convert in [
+    ("complex", lambda a: np.asarray(a) + 1j),
+    ("object", lambda a: np.asarray(a).astype(object)),
+    ("strings", lambda a: np.asarray(a).astype(str)),
+]:
+    row(
+        "arrays-not-real",
+        f"dop-points-{kind}",
+        lambda ctx, c=convert: jp.dop(c(P), POSE, CAM),
+        Raises("points_body"),
+    )
+    row(
+        "arrays-not-real",
+        f"solve-pnp-pixels-{kind}",
+        lambda ctx, c=convert: jp.solve_pnp(P, c(U), CAM),
+        Raises("pixels"),
+    )
+row(
+    "arrays-not-real",
+    "epnp-points-complex",
+    lambda ctx: jp.epnp(np.asarray(P) + 1j, U, CAM),
+    Raises("points_body"),
+)
+row(
+    "arrays-not-real",
+    "refine-pixels-complex",
+    lambda ctx: jp.refine_pose(P, np.asarray(U) + 1j, POSE, CAM),
+    Raises("pixels"),
+)
+
+
 @pytest.mark.parametrize("cls, variant, fn, expect", TABLE)
 def test_bad_input_third_audit(cls, variant, fn, expect, tmp_path, capsys):
     check_row(cls, variant, fn, expect, tmp_path, capsys)

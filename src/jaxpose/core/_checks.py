@@ -11,9 +11,20 @@ from jaxtyping import Array
 ONE_PROBLEM = "one problem; use jax.vmap for batches"
 
 
-def as_float(x, dtype=None) -> Array:
-    """``x`` as a JAX array of ``dtype``, or of the default float dtype when it is not floating."""
-    x = jnp.asarray(x)
+def real_array(x, name: str = "the array"):
+    """``x`` unchanged, or a ``ValueError`` naming ``name`` when it holds something other than
+    real numbers: complex values (a cast would drop the imaginary part silently), objects or
+    strings (JAX's own error names no argument)."""
+    dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
+    if np.dtype(dtype).kind not in "biuf":
+        raise ValueError(f"{name} must hold real numbers; got dtype {dtype}")
+    return x
+
+
+def as_float(x, dtype=None, name: str = "the array") -> Array:
+    """``x`` as a JAX array of ``dtype``, or of the default float dtype when it is not floating;
+    ``ValueError`` naming ``name`` for complex, object or string values (:func:`real_array`)."""
+    x = jnp.asarray(real_array(x, name))
     if dtype is not None:
         return x.astype(dtype)
     if not jnp.issubdtype(x.dtype, jnp.floating):
@@ -29,7 +40,7 @@ def float_dtype(x) -> jnp.dtype:
 
 def check_last(x, size: int, name: str) -> Array:
     """A float array of shape ``(..., size)``."""
-    x = as_float(x)
+    x = as_float(x, name=name)
     if x.ndim < 1 or x.shape[-1] != size:
         raise ValueError(f"{name} must have shape (..., {size}); got {x.shape}")
     return x
@@ -45,7 +56,7 @@ def check_matrix(R, name: str = "R") -> Array:
 
 def check_rows(x, tail: tuple[int, ...], name: str, dtype=None, *, prefix: str = "") -> Array:
     """A float array of shape ``(n, *tail)`` (one problem)."""
-    x = as_float(x, dtype)
+    x = as_float(x, dtype, name=f"{prefix}{name}")
     if x.ndim != len(tail) + 1 or x.shape[1:] != tail:
         want = ", ".join(["n", *map(str, tail)])
         raise ValueError(f"{prefix}{name} must have shape ({want}) ({ONE_PROBLEM}); got {x.shape}")

@@ -9,7 +9,7 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array
 
-from jaxpose.core._checks import check_mask, float_dtype
+from jaxpose.core._checks import check_mask, float_dtype, real_array
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.pnp._linalg import _eigh_small, _mv
@@ -34,8 +34,8 @@ collinear (or coincident): :attr:`Status.DEGENERATE`."""
 def _prepare(points_body, pixels, camera, mask, name: str):
     """Check shapes (trace time) and return arrays of one float dtype, the valid mask and camera."""
     camera = as_camera(camera)
-    points_body = jnp.asarray(points_body)
-    pixels = jnp.asarray(pixels)
+    points_body = jnp.asarray(real_array(points_body, f"{name}: points_body"))
+    pixels = jnp.asarray(real_array(pixels, f"{name}: pixels"))
     if points_body.ndim != 2 or points_body.shape[-1] != 3:
         raise ValueError(
             f"{name}: points_body must have shape (n, 3) (one problem; use jax.vmap or "

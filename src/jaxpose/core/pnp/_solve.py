@@ -30,7 +30,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from jaxpose.core._checks import as_bool_mask, float_dtype, intrinsic_matrix_problem
+from jaxpose.core._checks import (
+    as_bool_mask,
+    float_dtype,
+    intrinsic_matrix_problem,
+    real_array,
+)
 from jaxpose.core._compile import known_cpu_options
 from jaxpose.core._threads import in_threads
 from jaxpose.core.camera import PinholeCamera
@@ -405,6 +410,8 @@ def solve_pnp(
     if not isinstance(options, PnPOptions):
         raise ValueError(f"options must be a PnPOptions; got {type(options).__name__}")
     method = options.method
+    real_array(points_body, "points_body")
+    real_array(pixels, "pixels")
     batch, n = _batch_shape(points_body, pixels, mask)
     if n < options.min_points:
         raise ValueError(

@@ -43,9 +43,9 @@ def _prepare(
     """
     check_pose(pose0, "pose0")
     camera = as_camera(camera)
-    points_body = as_float(points_body)
+    points_body = as_float(points_body, name="points_body")
     dtype = points_body.dtype
-    pixels = as_float(pixels, dtype)
+    pixels = as_float(pixels, dtype, name="pixels")
     if points_body.ndim != 2 or points_body.shape[1] != 3:
         raise _shape_error("points_body", "(n, 3)", points_body.shape)
     n = points_body.shape[0]
