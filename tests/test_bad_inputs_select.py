@@ -15,6 +15,7 @@ from test_bad_inputs import _named, _run_cli
 import jaxpose as jp
 from jaxpose import PinholeCamera, Pose
 from jaxpose.studies import selection as study
+from jaxpose.studies._selection_plan import _case_bytes
 
 jax.config.update("jax_enable_x64", True)
 
@@ -231,7 +232,7 @@ def test_study_refuses_an_unreasonable_number_of_cases_at_once(argv, limit, tmp_
 
 def test_check_plan_limits():
     study.check_plan(study.PAPER_GROUPS, 1000)  # the paper's study
-    study.check_plan([(8, 5)], study.MAX_STUDY_BYTES // study._case_bytes(8, 5))
+    study.check_plan([(8, 5)], study.MAX_STUDY_BYTES // _case_bytes(8, 5))
     for groups, cases in [([(8, 5)], 10**9), (study.PAPER_GROUPS, 10**5), ([(25, 12)], 10**5)]:
         _raises(lambda g=groups, c=cases: study.check_plan(g, c), "--cases")
     _raises(lambda: study.run_study(study.Scenario(), [(8, 5)], cases=10**9), "--cases")
