@@ -11,11 +11,23 @@ from jaxtyping import Array
 ONE_PROBLEM = "one problem; use jax.vmap for batches"
 
 
+def _dtype_of(x) -> np.dtype:
+    """The dtype of an array, a tracer or a NumPy scalar, else of ``np.asarray(x)``; ``object``
+    for what NumPy cannot read as one array (a ragged list)."""
+    dtype = getattr(x, "dtype", None)
+    if dtype is not None:
+        return dtype
+    try:
+        return np.asarray(x).dtype
+    except (TypeError, ValueError):
+        return np.dtype(object)
+
+
 def real_array(x, name: str = "the array"):
     """``x`` unchanged, or a ``ValueError`` naming ``name`` when it holds something other than
     real numbers: complex values (a cast would drop the imaginary part silently), objects or
     strings (JAX's own error names no argument)."""
-    dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
+    dtype = _dtype_of(x)
     if np.dtype(dtype).kind not in "biuf":
         raise ValueError(f"{name} must hold real numbers; got dtype {dtype}")
     return x
@@ -223,12 +235,7 @@ def check_real(x, name: str, *, prefix: str = "") -> None:
     judged by its dtype; values are not looked at here."""
     if isinstance(x, bool | np.bool_ | str | bytes):
         raise ValueError(f"{prefix}{name} must be a real number or an array of them; got {x!r}")
-    dtype = getattr(x, "dtype", None)  # arrays, tracers, NumPy scalars
-    if dtype is None:
-        try:
-            dtype = np.asarray(x).dtype
-        except (TypeError, ValueError):  # a ragged list, an object NumPy cannot read
-            dtype = np.dtype(object)
+    dtype = _dtype_of(x)
     if not (jnp.issubdtype(dtype, jnp.integer) or jnp.issubdtype(dtype, jnp.floating)):
         raise ValueError(
             f"{prefix}{name} must be a real number or an array of them; got {_described(x)} "

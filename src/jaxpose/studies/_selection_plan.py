@@ -72,6 +72,15 @@ def _behind_camera(z_min: float) -> ValueError:
     )
 
 
+def _fixed_pose(scenario) -> Pose:
+    """The target's pose of a scenario with a fixed attitude (``attitude_deg``)."""
+    return Pose.from_euler(
+        jnp.deg2rad(jnp.asarray(scenario.attitude_deg, dtype=float)),
+        jnp.asarray(_translation(scenario)),
+        scenario.sequence,
+    )
+
+
 def _check_in_front(scenario) -> None:
     """Refuse before any work a fixed attitude that puts a corner of the feature square (the
     square's deepest and shallowest points are corners) at or behind the camera's z = 0."""
@@ -80,11 +89,7 @@ def _check_in_front(scenario) -> None:
     half = scenario.plane_size_m / 2.0
     cx, cy = scenario.plane_centre_m
     corners = np.array([[cx + a, cy + b, 0.0] for a in (-half, half) for b in (-half, half)])
-    pose = Pose.from_euler(
-        jnp.deg2rad(jnp.asarray(scenario.attitude_deg, dtype=float)),
-        jnp.asarray(_translation(scenario)),
-        scenario.sequence,
-    )
+    pose = _fixed_pose(scenario)
     z_min = float(np.min(np.asarray(pose.apply(jnp.asarray(corners)))[:, 2]))
     if not z_min > 0:
         raise _behind_camera(z_min)
@@ -139,11 +144,7 @@ def _check_in_image(scenario) -> None:
     g = (np.arange(k) + 0.5) / k * 2 * half - half
     x, y = np.meshgrid(g + scenario.plane_centre_m[0], g + scenario.plane_centre_m[1])
     grid = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
-    pose = Pose.from_euler(
-        jnp.deg2rad(jnp.asarray(scenario.attitude_deg, dtype=float)),
-        jnp.asarray(_translation(scenario)),
-        scenario.sequence,
-    )
+    pose = _fixed_pose(scenario)
     share = _outside_image(scenario, pose.apply(jnp.asarray(grid))) / len(grid)
     what = "the features (a grid over the feature square)"
     if share > MAX_OUTSIDE_FRACTION:

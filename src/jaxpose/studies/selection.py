@@ -388,8 +388,6 @@ def run_study(
             "the selection study needs float64: jax.config.update('jax_enable_x64', True)"
         )
     groups = list(groups or PAPER_GROUPS)
-    if not (isinstance(cases, int | np.integer) and cases >= 1):
-        raise ValueError(f"cases (--cases) must be an integer >= 1; got {cases!r}")
     if not (isinstance(chunk_size, int | np.integer) and chunk_size >= 1):
         raise ValueError(f"chunk_size (--chunk-size) must be an integer >= 1; got {chunk_size!r}")
     for n, m in groups:

@@ -45,6 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
 
+from jaxpose.core._checks import check_pose, check_rotation
 from jaxpose.core._compile import in_float64
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
@@ -147,18 +148,11 @@ class StereoTracker:
         self.rig = rig
         self.options = options
         pose = Pose.identity() if initial_pose is None else initial_pose
-        if not isinstance(pose, Pose):
-            raise ValueError(
-                f"initial_pose must be a jaxpose.Pose or None; got {type(pose).__name__}"
-            )
+        check_pose(pose, "initial_pose")
         pose = Pose(jnp.asarray(pose.R), jnp.asarray(pose.t))
-        if pose.R.shape != (3, 3) or pose.t.shape != (3,):
-            raise ValueError(f"initial_pose must be one pose; got R of shape {pose.R.shape}")
         if not _finite(pose):
             raise ValueError("initial_pose must be finite")
-        R0 = np.asarray(pose.R, float)
-        if np.abs(R0 @ R0.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R0) <= 0:
-            raise ValueError("initial_pose.R must be a rotation matrix (orthonormal, det +1)")
+        check_rotation(pose.R, "initial_pose.R")
         if float(pose.t[2]) < 0:
             raise ValueError(
                 f"initial_pose puts the target behind the left camera (t_z = "
