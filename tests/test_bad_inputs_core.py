@@ -1,6 +1,7 @@
-"""Bad inputs to the core's cameras and poses (audit rows S2, S2b, S3, S9, S12, S13, S14, U2-U4):
-a clear ``ValueError`` naming the argument, while good inputs, and rigs or cameras built under
-``jit``, ``vmap`` and ``grad``, still work.
+"""Bad inputs to the core's cameras, poses, options, information blocks and lines (audit rows S2,
+S2b, S3, S8, S9, S12-S15, S19, U2-U4, U16): a clear ``ValueError`` naming the argument (or a
+status saying what is wrong), while good inputs, and rigs or cameras built under ``jit``, ``vmap``
+and ``grad``, still work.
 
 Tests that pass a value against its annotation are marked ``typecheck_off``: they check the
 package's own ``ValueError``, which jaxtyping's test hook would pre-empt."""
@@ -12,9 +13,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import jaxpose as jp
 from jaxpose import PinholeCamera, Pose, StereoCamera
 from jaxpose.core._checks import is_rotation
 from jaxpose.core.geometry import so3_exp
+from jaxpose.core.residuals import line_from_segment
 from jaxpose.io import load_camera
 
 K = np.array([[1000.0, 0.0, 320.0], [0.0, 1000.0, 240.0], [0.0, 0.0, 1.0]])
@@ -358,3 +361,257 @@ def test_quat_and_euler_good_nan_and_traced():
     near = jax.jit(lambda p: Pose.from_quat(p.quat, p.t))(Pose(pose.R * 1.01, pose.t))
     assert bool(is_rotation(near.R))
     np.testing.assert_allclose(np.asarray(near.R), np.asarray(pose.R), atol=1e-2)
+
+
+# ------------------------------------------------------------------ S8: blocks at a non-rotation
+
+POSE = Pose.from_euler(jnp.array([0.1, 0.2, 0.3]), jnp.array([0.1, -0.1, 5.0]))
+P = jnp.asarray(np.random.default_rng(0).uniform(-1.0, 1.0, (10, 3)))
+U = CAM.project(POSE.apply(P))
+SEG = jnp.stack([P[:4], P[4:8] + 0.1], axis=1)  # (4, 2, 3)
+LINES = jax.vmap(line_from_segment)(
+    CAM.project(POSE.apply(SEG[:, 0])), CAM.project(POSE.apply(SEG[:, 1]))
+)
+NOT_ROTATIONS = [2.0 * np.eye(3), np.diag([1.0, 1.0, -1.0]), np.asarray(POSE.R) + 1e-3]
+NOT_ROTATION_IDS = ["2I", "reflection", "off-by-1e-3"]
+
+
+@pytest.mark.parametrize("R", NOT_ROTATIONS, ids=NOT_ROTATION_IDS)
+def test_blocks_and_covariance_need_a_rotation(R):
+    bad = Pose(jnp.asarray(R), POSE.t)
+    for call in (
+        lambda: jp.information_blocks(P, bad, CAM),
+        lambda: jp.line_information_blocks(SEG, bad, CAM),
+        lambda: jp.pose_covariance(P, bad, CAM),
+    ):
+        with pytest.raises(ValueError, match=r"pose\.R must be a rotation"):
+            call()
+
+
+def test_blocks_at_traced_or_nan_poses_are_not_looked_at():
+    bad = Pose(2.0 * POSE.R, POSE.t)
+    # traced: computed as before (jit, vmap), so the batched selection paths keep working
+    A = jax.jit(lambda p: jp.information_blocks(P, p, CAM))(bad)
+    assert A.shape == (10, 6, 6) and np.all(np.isfinite(np.asarray(A)))
+    poses = Pose(jnp.stack([POSE.R, 2.0 * POSE.R]), jnp.stack([POSE.t, POSE.t]))
+    assert jax.vmap(lambda p: jp.information_blocks(P, p, CAM))(poses).shape == (2, 10, 6, 6)
+    # a NaN pose is a failed estimate: NaN blocks, whose DOP says NONFINITE_INPUT
+    nan = Pose(jnp.full((3, 3), jnp.nan), POSE.t)
+    status = jp.dop_from_information(jp.information_blocks(P, nan, CAM).sum(0)).status
+    assert int(status) == jp.Status.NONFINITE_INPUT
+    assert int(jp.dop(P, bad, CAM, throw=False).status) == jp.Status.NOT_A_ROTATION
+    cov = jp.pose_covariance(P, POSE, CAM, sigma=0.5)
+    np.testing.assert_allclose(cov, jp.dop(P, POSE, CAM, sigma=0.5, parameterization="tangent").Q)
+
+
+# ------------------------------------------------------------------ S19d: dop_from_information
+
+
+def test_dop_from_information_refuses_an_asymmetric_A():
+    A = np.asarray(jp.information_blocks(P, POSE, CAM).sum(0))
+    for bad in (_with(A, (0, 1), A[0, 1] + 1.0), np.triu(A)):
+        with pytest.raises(ValueError, match=_named("A")):
+            jp.dop_from_information(bad)
+    # rounding-level asymmetry passes; a traced A is not looked at (its lower triangle is used)
+    assert int(jp.dop_from_information(_with(A, (0, 1), A[0, 1] * (1 + 1e-12))).status) == 0
+    res = jax.jit(jp.dop_from_information)(jnp.asarray(np.tril(A)))
+    assert int(res.status) == jp.Status.OK
+    assert int(jp.dop_from_information(_with(A, (2, 3), np.nan)).status) == 4  # NONFINITE_INPUT
+
+
+def test_summed_blocks_cannot_tell_points_behind_the_camera():
+    # (U16) the blocks of points behind the camera hold no depth information: their sum is
+    # SINGULAR; only jp.dop, which sees the points, can say BEHIND_CAMERA
+    behind = Pose(POSE.R, POSE.t.at[2].set(-5.0))
+    A = jp.information_blocks(P, behind, CAM).sum(0)
+    assert int(jp.dop_from_information(A).status) == jp.Status.SINGULAR
+    assert int(jp.dop(P, behind, CAM, throw=False).status) == jp.Status.BEHIND_CAMERA
+
+
+# ------------------------------------------------------------------ S19c: zero-length segments
+
+
+def test_line_blocks_refuse_a_zero_length_segment():
+    zero = SEG.at[2, 1].set(SEG[2, 0])
+    with pytest.raises(ValueError, match=r"segments_body\[2\] has zero length"):
+        jp.line_information_blocks(zero, POSE, CAM)
+    # masked out it is not used; traced it is not looked at (a zero block)
+    off = np.array([True, True, False, True])
+    A = jp.line_information_blocks(zero, POSE, CAM, mask=off)
+    np.testing.assert_array_equal(np.asarray(A[2]), 0.0)
+    A = jax.jit(lambda s: jp.line_information_blocks(s, POSE, CAM))(zero)
+    np.testing.assert_array_equal(np.asarray(A[2]), 0.0)
+    np.testing.assert_allclose(A[:2], jp.line_information_blocks(SEG[:2], POSE, CAM), atol=1e-9)
+
+
+# ------------------------------------------------------------------ S19b, U16: line options
+
+
+@pytest.mark.parametrize("name", ["line_mask", "line_sigma"])
+def test_line_options_need_lines(name):
+    value = {"line_mask": jnp.ones(4, bool), "line_sigma": 2.0}[name]
+    with pytest.raises(ValueError, match=_named(name)):
+        jp.refine_pose(P, U, POSE, CAM, **{name: value})
+    with pytest.raises(ValueError, match=_named(name)):
+        jp.sensitivity(P, U, POSE, CAM, **{name: value})
+    with pytest.raises(ValueError, match=_named(name)):
+        jp.pose_covariance(P, POSE, CAM, **{name: value})
+    with pytest.raises(ValueError, match=_named("segments_body")):
+        jp.pose_covariance(P, POSE, CAM, lines_img=LINES)
+
+
+@pytest.mark.parametrize("line", [[0.0, 0.0, 0.0], [0.0, 0.0, 5.0]], ids=["zeros", "at-infinity"])
+def test_a_line_without_direction_is_said_so(line):
+    lines = LINES.at[1].set(jnp.asarray(line))
+    kw = dict(segments_body=SEG, lines_img=lines)
+    res = jp.refine_pose(P, U, POSE, CAM, throw=False, **kw)
+    assert int(res.status) == jp.Status.DEGENERATE_LINE
+    assert np.all(np.isfinite(np.asarray(res.pose.R)))
+    with pytest.raises(ValueError, match=_named("lines_img")):
+        jp.refine_pose(P, U, POSE, CAM, **kw)
+    assert (
+        int(jp.sensitivity(P, U, POSE, CAM, throw=False, **kw).status) == jp.Status.DEGENERATE_LINE
+    )
+    with pytest.raises(ValueError, match=r"lines_img\[1\]"):
+        jp.pose_covariance(P, POSE, CAM, **kw)
+    # masked out, the line is not used (nor a NaN one): the covariance of the other lines
+    keep = np.array([True, False, True, True])
+    assert int(jp.refine_pose(P, U, POSE, CAM, line_mask=keep, **kw).status) == 0
+    cov = jp.pose_covariance(P, POSE, CAM, line_mask=keep, **kw)
+    ref = jp.pose_covariance(P, POSE, CAM, segments_body=SEG[keep], lines_img=LINES[keep])
+    np.testing.assert_allclose(cov, ref, rtol=1e-9)
+    nan = lines.at[1].set(np.nan)
+    nan = jp.pose_covariance(P, POSE, CAM, segments_body=SEG, lines_img=nan, line_mask=keep)
+    np.testing.assert_allclose(nan, ref, rtol=1e-9)
+    # traced: a status per lane under vmap, an inf covariance under jit
+    lanes = jax.vmap(
+        lambda l: jp.refine_pose(P, U, POSE, CAM, segments_body=SEG, lines_img=l, throw=False)
+    )(jnp.stack([LINES, lines]))
+    assert np.asarray(lanes.status).tolist() == [0, int(jp.Status.DEGENERATE_LINE)]
+    cov = jax.jit(lambda l: jp.pose_covariance(P, POSE, CAM, segments_body=SEG, lines_img=l))
+    assert np.all(np.isinf(np.asarray(cov(lines))))
+    assert np.all(np.isfinite(np.asarray(cov(LINES))))
+
+
+# ------------------------------------------------------------------ S15: option fields
+
+
+@pytest.mark.typecheck_off
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("rtol", "1e-3"),
+        ("atol", "0"),
+        ("robust_scale", "3"),
+        ("max_steps", "10"),
+        ("max_steps", True),
+        ("rtol", False),
+        ("robust_scale", np.bool_(True)),
+        ("max_steps", np.inf),
+    ],
+    ids=repr,
+)
+def test_refine_options_numbers_are_numbers(field, value):
+    with pytest.raises(ValueError, match=rf"RefineOptions\.{field}(?!\w)"):
+        jp.RefineOptions(**{field: value})
+
+
+@pytest.mark.typecheck_off
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("threshold_px", "10"),
+        ("confidence", "0.99"),
+        ("max_outlier_fraction", "0.5"),
+        ("threshold_px", True),
+        ("max_outlier_fraction", False),
+        ("sample_size", "6"),
+        ("num_hypotheses", np.inf),
+    ],
+    ids=repr,
+)
+def test_ransac_options_numbers_are_numbers(field, value):
+    with pytest.raises(ValueError, match=rf"RansacOptions\.{field}(?!\w)"):
+        jp.RansacOptions(**{field: value})
+
+
+@pytest.mark.typecheck_off
+def test_options_good_numbers():
+    opt = jp.RefineOptions(rtol=np.float64(1e-6), atol=0, max_steps=10.0, robust_scale=np.int64(2))
+    assert (opt.rtol, opt.atol, opt.max_steps, opt.robust_scale) == (1e-6, 0.0, 10, 2.0)
+    assert jp.RefineOptions(robust_scale=None).robust_scale is None
+    opt = jp.RansacOptions(threshold_px=np.float32(3.0), confidence=0.99, sample_size=np.int64(6))
+    assert (opt.threshold_px, opt.sample_size) == (3.0, 6)
+
+
+# ------------------------------------------------------------------ S15, S19a: camera.json
+
+
+@pytest.mark.parametrize(
+    "data, field",
+    [
+        ({"cameraMatrix": [["1000", 0, 320], [0, 1000, 240], [0, 0, 1]]}, "cameraMatrix"),
+        ({"cameraMatrix": [[1000, 0, 320], [0, 1000, 240], [0, 0, True]]}, "cameraMatrix"),
+        ({"cameraMatrix": K.tolist(), "distCoeffs": ["0.1", 0, 0, 0, 0]}, "distCoeffs"),
+        ({"fx": "1000", "fy": 1000, "cx": 320, "cy": 240}, "fx"),
+        ({"cameraMatrix": K.tolist(), "Nu": "640"}, "Nu"),
+        ({"cameraMatrix": K.tolist(), "Nv": 1e999}, "Nv"),  # Infinity in the file
+    ],
+    ids=["K-string", "K-bool", "dist-string", "fx-string", "Nu-string", "Nv-inf"],
+)
+def test_load_camera_numbers_are_numbers(tmp_path, data, field):
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps({"Nu": 640, "Nv": 480} | data))
+    with pytest.raises(ValueError, match=_named(field)):
+        load_camera(path)
+
+
+@pytest.mark.parametrize(
+    "cx, cy, name",
+    [(-1.0, 240.0, "cx"), (641.0, 240.0, "cx"), (320.0, 480.5, "cy"), (320.0, -0.1, "cy")]
+    + [(240.0, 640.0, "cy")],
+    ids=["cx-negative", "cx-beyond", "cy-beyond", "cy-negative", "transposed"],
+)
+def test_load_camera_principal_point_in_the_image(tmp_path, cx, cy, name):
+    path = _camera_file(tmp_path, [[1000, 0, cx], [0, 1000, cy], [0, 0, 1]])
+    with pytest.raises(ValueError, match=_named(name)):
+        load_camera(path)
+    path.write_text(json.dumps({"fx": 1e3, "fy": 1e3, "cx": cx, "cy": cy, "Nu": 640, "Nv": 480}))
+    with pytest.raises(ValueError, match=_named(name)):
+        load_camera(path)
+
+
+def test_load_camera_principal_point_edges_and_unknown_size(tmp_path):
+    for cx, cy in [(0.0, 0.0), (640.0, 480.0), (319.5, 239.5)]:
+        cam = load_camera(_camera_file(tmp_path, [[1e3, 0, cx], [0, 1e3, cy], [0, 0, 1]]))
+        assert (float(cam.cx), float(cam.cy)) == (cx, cy)
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps({"cameraMatrix": [[1e3, 0, 2000], [0, 1e3, -5], [0, 0, 1]]}))
+    assert float(load_camera(path).cx) == 2000.0  # no image size: nothing to compare with
+    # a camera of a crop may have its principal point outside the crop: PinholeCamera takes it
+    assert PinholeCamera(1e3, 1e3, -40.0, 700.0, width=64, height=48).width == 64
+
+
+# ------------------------------------------------------------------ from_focal_length
+
+
+@pytest.mark.typecheck_off
+@pytest.mark.parametrize(
+    "args, name",
+    [
+        (("0.05", 1e-5), "focal_length_m"),
+        ((True, 1e-5), "focal_length_m"),
+        ((np.array([0.05, 0.06]), 1e-5), "focal_length_m"),
+        ((0.05, "1e-5"), "pixel_size_m"),
+        ((0.05, ("1e-5", 1e-5)), "pixel_size_m"),
+        ((0.05, (1e-5, 1e-5, 1e-5)), "pixel_size_m"),
+    ],
+    ids=["str", "bool", "array", "pixel-str", "pixel-pair-str", "pixel-triple"],
+)
+def test_from_focal_length_numbers(args, name):
+    with pytest.raises(ValueError, match=_named(name)):
+        PinholeCamera.from_focal_length(*args, (640, 480))
+    with pytest.raises(ValueError, match=_named("focal_length_m")):
+        PinholeCamera.from_focal_length(-0.05, 1e-5, (640, 480))
+    cam = PinholeCamera.from_focal_length(np.float64(0.05), (1e-5, 2e-5), (640, 480))
+    assert (float(cam.fx), float(cam.fy)) == pytest.approx((5000.0, 2500.0))

@@ -130,13 +130,28 @@ class PinholeCamera(eqx.Module):
         """From a lens focal length (m), a pixel pitch (m, or ``(px, py)``) and ``(width, height)``.
 
         ``fx = focal_length / px`` and the principal point at the image centre
-        ``((width - 1) / 2, (height - 1) / 2)`` (pixel-centre convention).
+        ``((width - 1) / 2, (height - 1) / 2)`` (pixel-centre convention). ``ValueError`` naming
+        the argument for a focal length or pixel size that is not a number (a string, a bool).
         """
-        px, py = (pixel_size_m, pixel_size_m) if np.isscalar(pixel_size_m) else pixel_size_m
+        check_real(focal_length_m, "focal_length_m", prefix="from_focal_length: ")
+        check_real(pixel_size_m, "pixel_size_m", prefix="from_focal_length: ")
+        if np.ndim(focal_length_m) != 0:
+            raise ValueError(
+                f"from_focal_length: focal_length_m must be one number; got {focal_length_m!r}"
+            )
+        if np.ndim(pixel_size_m) == 0:
+            px = py = pixel_size_m
+        elif np.shape(pixel_size_m) == (2,):
+            px, py = pixel_size_m
+        else:
+            raise ValueError(
+                "from_focal_length: pixel_size_m must be one number or (px, py); got "
+                f"{pixel_size_m!r}"
+            )
         if focal_length_m <= 0 or px <= 0 or py <= 0:
             raise ValueError(
-                "focal length and pixel size must be positive; "
-                f"got {focal_length_m}, {pixel_size_m}"
+                "from_focal_length: focal_length_m and pixel_size_m (the focal length and pixel "
+                f"size) must be positive; got {focal_length_m}, {pixel_size_m}"
             )
         if isinstance(image_size, str) or np.shape(image_size) != (2,):
             raise ValueError(f"image_size must be (width, height) in pixels; got {image_size!r}")

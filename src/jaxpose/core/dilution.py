@@ -33,9 +33,17 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from jaxpose.core._checks import check_mask, check_pose, check_positive, check_rows, is_rotation
+from jaxpose.core._checks import (
+    check_mask,
+    check_pose,
+    check_positive,
+    check_rotation,
+    check_rows,
+    is_rotation,
+)
 from jaxpose.core._compile import eager_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import (
@@ -154,8 +162,12 @@ def information_blocks(
     """Per-point information ``A_i = H_i^T H_i / sigma_i^2`` (zero for masked-out points).
 
     ``sigma`` is the pixel noise per axis, one per point or shared; ``None`` means unit weights
-    (the plain DOP). ``mask`` (``(n,)`` bool) marks valid points of a padded set.
+    (the plain DOP). ``mask`` (``(n,)`` bool) marks valid points of a padded set. A known (not
+    traced) ``pose.R`` that is not a rotation raises ``ValueError`` (:func:`dop` reports it as
+    ``Status.NOT_A_ROTATION``); a traced one is not looked at.
     """
+    check_pose(pose)
+    check_rotation(pose.R, "pose.R", nonfinite_ok=True, prefix="information_blocks: ")
     check_positive(sigma, "sigma (pixel noise)")
     H = point_jacobians(
         points_body, pose, camera, sequence=sequence, parameterization=parameterization
@@ -191,16 +203,43 @@ def _singular_tolerance(dtype) -> float:
     return 1e3 * float(jnp.finfo(dtype).eps)
 
 
+def _check_symmetric(A) -> None:
+    """``ValueError`` naming ``A`` when a concrete ``A`` is not symmetric beyond rounding (NaN and
+    inf entries are left to the status)."""
+    if isinstance(A, jax.core.Tracer):
+        return
+    a = np.asarray(A, dtype=float)
+    finite = np.isfinite(a)
+    if not finite.any():
+        return
+    scale = float(np.max(np.abs(a[finite])))
+    with np.errstate(invalid="ignore"):
+        gap = np.abs(a - np.swapaxes(a, -1, -2))
+    worst = float(np.max(np.where(np.isfinite(gap), gap, 0.0)))
+    if worst > 1e-6 * scale:
+        raise ValueError(
+            "dop_from_information: A (the information matrix H^T W H) must be symmetric; got "
+            f"|A - A^T| up to {worst:.3g} for max |A| = {scale:.3g}"
+        )
+
+
 def dop_from_information(A: Float[ArrayLike, "6 6"]) -> DOPResult:
     """PDOP, ADOP and ``Q`` of an information matrix ``A = H^T W H`` (Ning et al. eqs. 14-15).
 
     Singularity is judged on the Jacobi-scaled matrix ``D^-1/2 A D^-1/2`` (metres and radians have
     different scales): the smallest eigenvalue below ``1e3 * eps(dtype)`` times the largest gives
-    ``Status.SINGULAR`` and ``inf``.
+    ``Status.SINGULAR`` and ``inf``. The status cannot tell why a sum of blocks is singular: points
+    behind the camera (whose blocks hold no depth information) give ``SINGULAR`` here, while
+    :func:`dop`, which sees the points, reports ``BEHIND_CAMERA``.
+
+    A known (not traced) ``A`` that is not symmetric (``|A - A^T|`` above ``1e-6 max |A|``: not
+    an information matrix) raises ``ValueError``; a traced one is not looked at (its lower
+    triangle is used).
     """
     A = jnp.asarray(A)
     if A.shape[-2:] != (6, 6):
         raise ValueError(f"information matrix must be (6, 6); got {A.shape}")
+    _check_symmetric(A)
     diag = jnp.diagonal(A)
     positive = jnp.all(diag > 0)
     d = jnp.sqrt(jnp.where(diag > 0, diag, 1.0))

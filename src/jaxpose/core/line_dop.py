@@ -26,7 +26,9 @@ annihilates every motion that keeps the 3-D line on itself: a slide along the li
 for a body-frame direction ``u``) and a rotation about it.
 
 A segment seen end-on (both endpoints on one pixel) has no line; its block is zero (NaN-free, also
-in gradients). As for the point blocks, nothing here checks that the endpoints are in front of
+in gradients). A valid segment of zero length (both endpoints equal) is not a segment:
+:func:`line_information_blocks` refuses it when its values are known (a traced one gives a zero
+block). As for the point blocks, nothing here checks that the endpoints are in front of
 the camera.
 """
 
@@ -35,9 +37,10 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from jaxpose.core._checks import check_mask, check_pose, check_rows
+from jaxpose.core._checks import check_mask, check_pose, check_rotation, check_rows
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.dilution import PARAMETERIZATIONS, _check_sigma, _state_to_pixels
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, Pose, parse_euler_sequence
@@ -136,14 +139,38 @@ def line_information_blocks(
     Returns:
         ``(n, 6, 6)`` symmetric positive semi-definite blocks of rank at most 2, state order
         ``(T, eps)``.
+
+    Raises:
+        ValueError: wrong shapes or options; when known (not traced), a ``pose.R`` that is not a
+            rotation or a valid segment of zero length (both endpoints equal: no line).
     """
     check_pose(pose)
+    check_rotation(pose.R, "pose.R", nonfinite_ok=True, prefix="line_information_blocks: ")
     segments_body = check_rows(segments_body, (2, 3), "segments_body")
     _check_options(sequence, parameterization)
     n = segments_body.shape[0]
     valid = None if mask is None else check_mask(mask, n)
+    _check_lengths(segments_body, valid)
     sigma = _check_sigma(sigma, n, segments_body.dtype)  # (n,) or None
     return _blocks(segments_body, pose, as_camera(camera), sigma, valid, sequence, parameterization)
+
+
+def _check_lengths(segments_body, valid) -> None:
+    """``ValueError`` naming ``segments_body`` and the index of the first valid segment whose two
+    endpoints are equal, when both are known (a zero-length segment has no image line)."""
+    if isinstance(segments_body, jax.core.Tracer) or isinstance(valid, jax.core.Tracer):
+        return
+    s = np.asarray(segments_body)
+    zero = np.all(s[:, 0] == s[:, 1], axis=-1)
+    if valid is not None:
+        zero &= np.asarray(valid)
+    if zero.any():
+        i = int(np.flatnonzero(zero)[0])
+        raise ValueError(
+            f"line_information_blocks: segments_body[{i}] has zero length (both endpoints at "
+            f"{s[i, 0].tolist()}; {int(zero.sum())} such segment(s)): a segment needs two "
+            "distinct endpoints (mask it out with mask=)"
+        )
 
 
 @eqx.filter_jit

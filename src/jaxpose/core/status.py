@@ -48,6 +48,11 @@ class Status(enum.IntEnum):
         "the Euler sequence of the attitude state is at gimbal lock: the attitude DOP in Euler "
         "angles is infinite (the PDOP is not; use parameterization='tangent' or another sequence)",
     )
+    DEGENERATE_LINE = (
+        11,
+        "an image line in lines_img has no direction (l1 = l2 = 0: not a line); mask it out "
+        "with line_mask",
+    )
 
     @property
     def message(self) -> str:

@@ -21,10 +21,12 @@ def load_camera(path: str | Path) -> PinholeCamera:
     ``distCoeffs``, ``width``/``height`` for ``Nu``/``Nv``.
 
     Raises ``ValueError`` naming the file and the missing or malformed field: a matrix that is
-    not 3x3 numbers, a non-positive or non-finite focal length, a non-finite principal point,
-    a ``cameraMatrix`` with a skew or a last row other than ``(0, 0, 1)`` (not supported),
-    distortion coefficients that are not 4 or 5 finite numbers, an image size that is not a
-    non-negative integer, or a ``path`` that is not a path.
+    not 3x3 numbers (a number given as a string or a bool included), a non-positive or non-finite
+    focal length, a non-finite principal point or, with a known image size, one outside the image
+    (``cx`` not in ``[0, Nu]``, ``cy`` not in ``[0, Nv]``), a ``cameraMatrix`` with a skew or a
+    last row other than ``(0, 0, 1)`` (not supported), distortion coefficients that are not 4 or
+    5 finite numbers, an image size that is not a non-negative integer, or a ``path`` that is not
+    a path.
     """
     if not isinstance(path, str | os.PathLike):
         raise ValueError(
@@ -83,22 +85,40 @@ def load_camera(path: str | Path) -> PinholeCamera:
             )
         if not np.all(np.isfinite(dist)):
             raise ValueError(f"camera file {path}: {key} is not finite: {dist.tolist()}")
-    size = []
+    size, sides = [], []
     for keys in (("Nu", "width"), ("Nv", "height")):
         k = next((k for k in keys if k in data), keys[0])
+        sides.append(k)
         v = data.get(k, 0)
-        if isinstance(v, bool) or not isinstance(v, int | float) or v < 0 or v != int(v):
+        bad = isinstance(v, bool) or not isinstance(v, int | float)
+        if bad or not np.isfinite(v) or v < 0 or v != int(v):
             raise ValueError(
                 f"camera file {path}: {k} must be the image size in pixels, an integer >= 0; "
                 f"got {v!r}"
             )
         size.append(int(v))
+    for i, name in enumerate(("cx", "cy")):
+        value, extent = K[i, 2], size[i]
+        if extent > 0 and not 0 <= value <= extent:
+            where = f" (cameraMatrix[{i}][2])" if "cameraMatrix" in data else ""
+            raise ValueError(
+                f"camera file {path}: the principal point {name}{where} = {value:g} lies outside "
+                f"the image [0, {sides[i]} = {extent}] pixels (a matrix for another image size?)"
+            )
     return PinholeCamera.from_K(K, dist, width=size[0], height=size[1])
+
+
+def _json_numbers(value) -> bool:
+    """Whether ``value`` is a JSON number or (nested) list of them: no string (``"10"`` would be
+    parsed), no bool (taken as 1 or 0), no null, no object."""
+    if isinstance(value, list):
+        return all(_json_numbers(v) for v in value)
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def _numbers(value, path: Path, field: str, expected: str) -> np.ndarray:
     """``value`` as a float array; ``ValueError`` naming the file and field otherwise."""
-    if isinstance(value, str | bool | dict) or value is None:
+    if not _json_numbers(value):
         raise ValueError(f"camera file {path}: {field} must be {expected}; got {value!r}")
     try:
         return np.asarray(value, dtype=float)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from jaxpose.core._checks import _is_real
 from jaxpose.core.pnp._batch import CHUNK
 from jaxpose.core.pnp._problem import MIN_POINTS, PLANAR_TOL, check_planar_tol
 from jaxpose.core.refine import RefineOptions
@@ -36,7 +37,8 @@ def ransac_iterations(confidence: float, inlier_fraction: float, sample_size: in
 
 
 def _is_int(x) -> bool:
-    return not isinstance(x, bool) and isinstance(x, int | float) and int(x) == x
+    """An integer value given as a Python or NumPy integer or float (not a bool, not inf)."""
+    return _is_real(x) and math.isfinite(x) and int(x) == x
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,6 +63,11 @@ class RansacOptions:
     num_hypotheses: int | None = None
 
     def __post_init__(self):
+        # a string ("10") was parsed by float() and a bool taken as 1 or 0: refused by name
+        for name in ("threshold_px", "confidence", "max_outlier_fraction"):
+            value = getattr(self, name)
+            if not _is_real(value):
+                raise ValueError(f"RansacOptions.{name} must be a number; got {value!r}")
         if not float(self.threshold_px) > 0:
             raise ValueError(
                 f"RansacOptions.threshold_px must be positive; got {self.threshold_px}"

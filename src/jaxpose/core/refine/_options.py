@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from jaxpose.core import residuals as _res
+from jaxpose.core._checks import _is_real
 from jaxpose.core.geometry import DEFAULT_EULER_SEQUENCE, parse_euler_sequence
 
 METHODS = ("lm", "gauss-newton", "newton-raphson")
@@ -36,7 +38,7 @@ class RefineOptions:
 
     Raises:
         ValueError: an unknown method, kernel, back-end or sequence; a non-positive scale,
-            budget or tolerance.
+            budget or tolerance; a number field given as a string or a bool.
     """
 
     method: str = "lm"
@@ -59,13 +61,21 @@ class RefineOptions:
             raise ValueError(
                 f"RefineOptions.backend must be one of {BACKENDS}; got {self.backend!r}"
             )
+        # a string ("1e-3") was parsed by float() and a bool taken as 1 or 0: refused by name
+        for name in ("robust_scale", "max_steps", "rtol", "atol"):
+            value = getattr(self, name)
+            if not (_is_real(value) or (name == "robust_scale" and value is None)):
+                what = "an integer" if name == "max_steps" else "a number"
+                if name == "robust_scale":
+                    what += " or None"
+                raise ValueError(f"RefineOptions.{name} must be {what}; got {value!r}")
         if self.robust_scale is not None:
             if not float(self.robust_scale) > 0:
                 raise ValueError(
                     f"RefineOptions.robust_scale must be positive; got {self.robust_scale}"
                 )
             object.__setattr__(self, "robust_scale", float(self.robust_scale))
-        if isinstance(self.max_steps, bool) or int(self.max_steps) != self.max_steps:
+        if not math.isfinite(self.max_steps) or int(self.max_steps) != self.max_steps:
             raise ValueError(f"RefineOptions.max_steps must be an integer; got {self.max_steps!r}")
         if int(self.max_steps) < 1:
             raise ValueError(f"RefineOptions.max_steps must be at least 1; got {self.max_steps}")

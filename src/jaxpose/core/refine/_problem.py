@@ -39,7 +39,9 @@ def _prepare(
 ):
     """Validate shapes (``ValueError`` at trace time) and build a finite :class:`_Problem`.
 
-    Returns ``(pose0, problem, valid_points, valid_lines, finite_input)``.
+    Returns ``(pose0, problem, valid_points, valid_lines, finite_input, lines_ok)``;
+    ``lines_ok`` is false when a valid line of ``lines_img`` has no direction (``l1 = l2 = 0``,
+    :attr:`Status.DEGENERATE_LINE`), and the problem is then empty, as for non-finite input.
     """
     check_pose(pose0, "pose0")
     camera = as_camera(camera)
@@ -69,6 +71,12 @@ def _prepare(
     if (segments_body is None) != (lines_img is None):
         raise ValueError("segments_body and lines_img go together (both or neither)")
     if segments_body is None:
+        for name, value in (("line_mask", line_mask), ("line_sigma", line_sigma)):
+            if value is not None:
+                raise ValueError(
+                    f"{name} was given without lines: it applies to segments_body and lines_img, "
+                    "which are None (pass the lines, or leave out the line options)"
+                )
         segments = jnp.zeros((0, 2, 3), dtype)
         lines = jnp.zeros((0, 3), dtype)
         lvalid = jnp.zeros((0,), bool)
@@ -95,15 +103,15 @@ def _prepare(
         & jnp.all(jnp.isfinite(lines), -1)
         & jnp.isfinite(lsig)
         & (lsig > 0)
-        & (l12 > 0)
     )
+    lines_ok = jnp.all((l12 > 0) | ~lvalid | ~finite_lines)  # a non-finite line is said so
     finite_pose = jnp.all(jnp.isfinite(R0)) & jnp.all(jnp.isfinite(t0))
     finite_cam = jnp.all(jnp.isfinite(jnp.stack([camera.fx, camera.fy, camera.cx, camera.cy])))
     finite_input = (
         finite_pose & finite_cam & jnp.all(finite_pts | ~valid) & jnp.all(finite_lines | ~lvalid)
     )
-    use = valid & finite_pts & finite_input
-    luse = lvalid & finite_lines & finite_input
+    use = valid & finite_pts & finite_input & lines_ok
+    luse = lvalid & finite_lines & (l12 > 0) & finite_input & lines_ok
     l12_safe = jnp.where(luse, l12, 1.0)
     lines_n = jnp.where(
         luse[:, None], lines / jnp.sqrt(l12_safe)[:, None], jnp.array([1.0, 0, 0], dtype)
@@ -121,4 +129,4 @@ def _prepare(
         jnp.where(finite_pose, R0, jnp.eye(3, dtype=dtype)),
         jnp.where(finite_pose, t0, jnp.array([0.0, 0.0, 1.0], dtype)),
     )
-    return pose0, problem, valid, lvalid, finite_input
+    return pose0, problem, valid, lvalid, finite_input, lines_ok

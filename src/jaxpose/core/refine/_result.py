@@ -19,7 +19,8 @@ class RefineResult(eqx.Module):
             (iteration budget spent), ``SINGULAR`` (normal equations not invertible),
             ``BEHIND_CAMERA`` (a valid point at ``z <= 0`` at the result), ``NOT_A_ROTATION``
             (``pose0.R`` is not a rotation), ``TOO_FEW_POINTS`` (fewer than :data:`MIN_FEATURES`
-            valid features), ``NONFINITE_INPUT``.
+            valid features), ``NONFINITE_INPUT``, ``DEGENERATE_LINE`` (a valid line of
+            ``lines_img`` with ``l1 = l2 = 0``).
         rms_px: RMS reprojection error in pixels at the result, ``sqrt(mean |e|^2)`` over the
             valid points' 2-D errors (and the lines' 2-vectors of endpoint distances), unweighted;
             ``inf`` for bad input.

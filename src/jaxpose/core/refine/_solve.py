@@ -26,7 +26,7 @@ from jaxpose.core.status import Status, check_throw, throw_for_status
 
 
 @eqx.filter_jit
-def _refine(pose0, prob, valid, lvalid, finite_input, cfg: RefineOptions):
+def _refine(pose0, prob, valid, lvalid, finite_input, lines_ok, cfg: RefineOptions):
     dtype = prob.points.dtype
     if cfg.backend == "native":
         pose, steps, converged, singular = _native_solve(
@@ -53,6 +53,7 @@ def _refine(pose0, prob, valid, lvalid, finite_input, cfg: RefineOptions):
     status = jnp.select(
         [
             ~finite_input,
+            ~lines_ok,
             ~rotation,
             n_valid < MIN_FEATURES,
             behind,
@@ -61,6 +62,7 @@ def _refine(pose0, prob, valid, lvalid, finite_input, cfg: RefineOptions):
         ],
         [
             Status.NONFINITE_INPUT,
+            Status.DEGENERATE_LINE,
             Status.NOT_A_ROTATION,
             Status.TOO_FEW_POINTS,
             Status.BEHIND_CAMERA,
@@ -69,7 +71,7 @@ def _refine(pose0, prob, valid, lvalid, finite_input, cfg: RefineOptions):
         ],
         Status.OK,
     ).astype(jnp.int32)
-    bad_input = (~finite_input) | ~rotation | (n_valid < MIN_FEATURES) | ~finite_out
+    bad_input = (~finite_input) | ~lines_ok | ~rotation | (n_valid < MIN_FEATURES) | ~finite_out
     inf = jnp.asarray(jnp.inf, dtype)
     pose = jax.tree.map(lambda a, b: jnp.where(bad_input, a, b), pose0, pose)
     return RefineResult(
@@ -115,8 +117,10 @@ def refine_pose(
         segments_body: ``(k, 2, 3)`` 3-D segment endpoints (body frame) for line features.
         lines_img: ``(k, 3)`` observed homogeneous lines
             (:func:`~jaxpose.core.residuals.line_from_segment` of the observed segment endpoints).
-        line_mask: ``(k,)`` bool, valid lines.
-        line_sigma: pixel noise of the line distances; defaults to a scalar ``sigma``, else 1.
+        line_mask: ``(k,)`` bool, valid lines (only with lines: ``ValueError`` without them).
+        line_sigma: pixel noise of the line distances; defaults to a scalar ``sigma``, else 1
+            (only with lines, like ``line_mask``). A valid line with ``l1 = l2 = 0`` has no
+            direction: status ``DEGENERATE_LINE``.
         options: :class:`RefineOptions` (method, robust kernel, budget, tolerances, back-end).
         throw: raise for a non-``OK`` status (``ValueError`` eagerly, an Equinox runtime error
             under ``jit``); pass ``False`` under ``vmap`` and read ``status``.
@@ -131,7 +135,7 @@ def refine_pose(
         raise ValueError(f"options must be a RefineOptions; got {type(options).__name__}")
     check_positive(sigma, "sigma (pixel noise)")
     check_positive(line_sigma, "line_sigma (pixel noise of the lines)")
-    pose0, prob, valid, lvalid, finite_input = _prepare(
+    pose0, prob, valid, lvalid, finite_input, lines_ok = _prepare(
         pose0,
         points_body,
         pixels,
@@ -143,7 +147,7 @@ def refine_pose(
         line_mask,
         line_sigma,
     )
-    res = _refine(pose0, prob, valid, lvalid, finite_input, options)
+    res = _refine(pose0, prob, valid, lvalid, finite_input, lines_ok, options)
     if check_throw(throw):
         res = throw_for_status(res, "refine_pose", "cost", min_points=MIN_FEATURES)
     return res

@@ -5,9 +5,10 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from jaxpose.core._checks import as_float, check_pose
+from jaxpose.core._checks import as_float, check_mask, check_pose, check_rotation
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.dilution import dop_from_information, point_jacobians
 from jaxpose.core.geometry import (
@@ -47,9 +48,15 @@ def pose_covariance(
 
     Returns a ``(6, 6)`` matrix, all ``inf`` when the information matrix is singular (fewer
     than three points, collinear points, ...).
+
+    Raises ``ValueError`` for wrong shapes, a ``line_mask`` or ``line_sigma`` without lines and,
+    when they are known (not traced), a ``pose.R`` that is not a rotation or a valid line of
+    ``lines_img`` without direction (``l1 = l2 = 0``); traced, such a line gives ``inf``.
     """
     from jaxpose.core.dilution import information_blocks
 
+    check_pose(pose, "pose")
+    check_rotation(pose.R, "pose.R", nonfinite_ok=True, prefix="pose_covariance: ")
     camera = as_camera(camera)
     A = jnp.sum(
         information_blocks(
@@ -57,31 +64,61 @@ def pose_covariance(
         ),
         axis=0,
     )
-    if segments_body is not None:
+    if segments_body is None:
+        if lines_img is not None:
+            raise ValueError("segments_body and lines_img go together (both or neither)")
+        for name, value in (("line_mask", line_mask), ("line_sigma", line_sigma)):
+            if value is not None:
+                raise ValueError(
+                    f"pose_covariance: {name} was given without lines: it applies to "
+                    "segments_body and lines_img, which are None"
+                )
+    else:
         if lines_img is None:
             raise ValueError("segments_body and lines_img go together (both or neither)")
-        segments_body = as_float(segments_body)
-        lines = as_float(lines_img, segments_body.dtype)
+        segments_body = as_float(segments_body, name="segments_body")
+        lines = as_float(lines_img, segments_body.dtype, name="lines_img")
         k = segments_body.shape[0]
         if segments_body.shape[1:] != (2, 3) or lines.shape != (k, 3):
             raise ValueError(
                 f"segments_body must be (k, 2, 3) and lines_img (k, 3) for the same k; got "
                 f"{segments_body.shape} and {lines.shape}"
             )
+        valid = check_mask(line_mask, k, "line_mask")
+        l12 = jnp.sum(lines[:, :2] ** 2, axis=-1)
+        _check_line_directions(l12, valid)
         J_e = point_jacobians(
             segments_body.reshape(-1, 3), pose, camera, parameterization="tangent"
+        ).reshape(k, 2, 2, 6)
+        # Masked-out lines add nothing whatever they hold (0 * NaN would be NaN); a valid line
+        # that is not finite, or traced without direction, gives NaN, hence an inf covariance.
+        J_e = jnp.where(valid[:, None, None, None], J_e, 0.0)
+        l_hat = (
+            jnp.where(valid[:, None], lines[:, :2], 0.0)
+            / jnp.sqrt(jnp.where(valid, l12, 1.0))[:, None]
         )
-        l12 = lines[:, :2] / jnp.linalg.norm(lines[:, :2], axis=-1, keepdims=True)
-        J_l = jnp.einsum("ka,kmab->kmb", l12, J_e.reshape(k, 2, 2, 6))
+        J_l = jnp.einsum("ka,kmab->kmb", l_hat, J_e)
         ls = sigma if line_sigma is None and jnp.ndim(sigma) == 0 else line_sigma
         ls = (
             jnp.ones((k,), A.dtype) if ls is None else jnp.broadcast_to(as_float(ls, A.dtype), (k,))
         )
-        w = 1.0 / ls**2
-        if line_mask is not None:
-            w = jnp.where(jnp.asarray(line_mask, bool), w, 0.0)
+        w = jnp.where(valid, 1.0 / ls**2, 0.0)
         A = A + jnp.einsum("k,kmi,kmj->ij", w, J_l, J_l)
     return dop_from_information(A).Q
+
+
+def _check_line_directions(l12, valid) -> None:
+    """``ValueError`` naming ``lines_img`` and the index of the first valid line with ``l1 = l2 =
+    0`` (no direction), when both are known."""
+    if isinstance(l12, jax.core.Tracer) or isinstance(valid, jax.core.Tracer):
+        return
+    bad = np.asarray(valid) & (np.asarray(l12) == 0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"pose_covariance: lines_img[{i}] has no direction (l1 = l2 = 0: not a line; "
+            f"{int(bad.sum())} such line(s)); mask it out with line_mask"
+        )
 
 
 class PoseSensitivity(eqx.Module):
@@ -98,8 +135,9 @@ class PoseSensitivity(eqx.Module):
         d_segments_body: ``(6, k, 2, 3)`` (zeros ``(6, 0, 2, 3)`` without lines).
         d_lines_img: ``(6, k, 3)`` per unit of the homogeneous line coefficients as given.
         status: ``int32`` :class:`~jaxpose.core.status.Status`: ``OK``, ``NONFINITE_INPUT``,
-            ``TOO_FEW_POINTS`` (fewer than three valid features) or ``SINGULAR`` (the Hessian of
-            the cost is not invertible: collinear points, ...). Every Jacobian is ``inf`` when
+            ``TOO_FEW_POINTS`` (fewer than three valid features), ``DEGENERATE_LINE`` (a valid
+            line of ``lines_img`` with ``l1 = l2 = 0``) or ``SINGULAR`` (the Hessian of the cost
+            is not invertible: collinear points, ...). Every Jacobian is ``inf`` when
             the status is not ``OK``.
     """
 
@@ -196,7 +234,7 @@ def _sensitivity(
     cfg,
 ) -> PoseSensitivity:
     has_lines = segments_body is not None
-    pose_, prob, valid, lvalid, finite_input = _prepare(
+    pose_, prob, valid, lvalid, finite_input, lines_ok = _prepare(
         pose,
         points_body,
         pixels,
@@ -229,8 +267,8 @@ def _sensitivity(
     singular = _hessian_singular(H)
     count = jnp.sum(valid) + jnp.sum(lvalid)
     status = jnp.select(
-        [~finite_input, count < MIN_FEATURES, singular],
-        [Status.NONFINITE_INPUT, Status.TOO_FEW_POINTS, Status.SINGULAR],
+        [~finite_input, ~lines_ok, count < MIN_FEATURES, singular],
+        [Status.NONFINITE_INPUT, Status.DEGENERATE_LINE, Status.TOO_FEW_POINTS, Status.SINGULAR],
         Status.OK,
     ).astype(jnp.int32)
     bad = status != Status.OK
