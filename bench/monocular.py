@@ -30,6 +30,7 @@ from tqdm import tqdm  # noqa: E402
 from jaxpose import PinholeCamera  # noqa: E402
 from jaxpose.commands import enable_compilation_cache  # noqa: E402
 from jaxpose.core.metrics import esa_score, rotation_error, success  # noqa: E402
+from jaxpose.io.software import software_versions  # noqa: E402
 from jaxpose.pipelines.monocular import (  # noqa: E402
     ANTENNA_WEIGHT,
     ATTITUDE_GRID,
@@ -180,6 +181,7 @@ def _roi_summary(rows, args) -> None:
         },
         "median_detect_s": float(np.median([r["detect_s"] for r in rows])),
     }
+    summary["software"] = software_versions()
     print(json.dumps(summary))  # the last line: one JSON line
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -503,6 +505,7 @@ def main() -> None:
             s: float(np.median([r["timings"].get(s, 0.0) for r in rows])) for s in stages
         },
     }
+    summary["software"] = software_versions()
     print(json.dumps(summary))  # the last line: one JSON line
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -72,6 +72,7 @@ import numpy as np  # noqa: E402
 import jaxpose  # noqa: E402
 from jaxpose import PnPOptions, RefineOptions  # noqa: E402
 from jaxpose.core.geometry import so3_exp  # noqa: E402
+from jaxpose.io.software import software_versions  # noqa: E402
 
 try:  # bench-only dependency
     import poselib
@@ -551,6 +552,7 @@ def main(argv=None):
                 "planar": planar_rows,
                 "profile": profile,
                 "targets": targets,
+                "software": software_versions(),
             }
         )
     )

@@ -50,6 +50,7 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
+from jaxpose.io.software import software_versions  # noqa: E402
 from jaxpose.pipelines.stereo import (  # noqa: E402
     STAGES,
     StereoTracker,
@@ -622,6 +623,7 @@ def report(results, modes, out: Path, frames, load0, *, timing: bool = False) ->
         "load_average": None
         if load0 is None
         else [round(x, 2) for x in (*load0, *os.getloadavg())],
+        "software": software_versions(),
     }
     print(json.dumps(summary))
 

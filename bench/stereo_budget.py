@@ -48,6 +48,7 @@ import numpy as np  # noqa: E402
 import jaxpose.pipelines.stereo.budget as budget_mod  # noqa: E402
 import jaxpose.pipelines.stereo.frames as frames_mod  # noqa: E402
 import jaxpose.pipelines.stereo.tracker as tracker_mod  # noqa: E402
+from jaxpose.io.software import software_versions  # noqa: E402
 from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions  # noqa: E402
 from jaxpose.pipelines.stereo.options import BUDGET_NOISE, BUDGET_WEIGHTS  # noqa: E402
 from jaxpose.studies.stereo_track import summarize  # noqa: E402
@@ -355,6 +356,7 @@ def report(results: list[dict], out: Path, frames, load0) -> dict:
         "load_average": None
         if load0 is None
         else [round(x, 2) for x in (*load0, *os.getloadavg())],
+        "software": software_versions(),
     }
     print(json.dumps(summary))
     return summary

@@ -35,6 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import stereo  # noqa: E402  (bench/stereo.py: the suite's runner, table and figure)
 
+from jaxpose.io.software import software_versions  # noqa: E402
+
 #: The default draw: how many scenes and the seed of their parameters.
 N_SCENES, DRAW_SEED = 12, 2026
 
@@ -162,6 +164,7 @@ def main(argv=None) -> int:
         summary["lines_lower_every_axis"] = sum(bool(r.get("lines_help")) for r in asked)
     summary.update(stereo._yardstick_summary(results))
     summary.update(stereo._smoothed_summary(results))
+    summary["software"] = software_versions()
     print(json.dumps(summary))
     return 0
 

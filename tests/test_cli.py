@@ -1,6 +1,8 @@
 """The jaxpose command: help for every sub-command, --version, one-line errors with exit 2."""
 
 import argparse
+import platform
+from importlib import metadata
 
 import pytest
 
@@ -21,7 +23,15 @@ def test_top_level_help_lists_commands(capsys):
 
 def test_version(capsys):
     assert main(["--version"]) == 0
-    assert capsys.readouterr().out.strip() == f"jaxpose {__version__}"
+    out = capsys.readouterr().out.strip()
+    assert out.startswith(f"jaxpose {__version__} (python {platform.python_version()}, ")
+    # the numerical stack a figure depends on, read here from the installed distributions
+    for dist, name in [
+        ("jax", "jax"),
+        ("numpy", "numpy"),
+        ("opencv-contrib-python-headless", "opencv"),
+    ]:
+        assert f"{name} {metadata.version(dist)}" in out
 
 
 @pytest.mark.parametrize("command", sorted(COMMANDS))

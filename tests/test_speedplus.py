@@ -2,6 +2,7 @@
 errors that name the file and the line or field, the 2021 competition score, and image depths."""
 
 import json
+from importlib import metadata
 
 import cv2
 import jax.numpy as jnp
@@ -312,7 +313,8 @@ def test_records_resume_where_an_interrupted_run_stopped(tmp_path, capsys, monke
     """With --out (records), each image's record is kept as it is scored: a rerun with the same
     settings runs no image again and gives the same per-image records; a record cut short by an
     interruption is run again, alone; other options, or another label, run their images anew.
-    The command writes summary.json (its --json object) and errors.png."""
+    The command writes summary.json (its --json object and the software versions) and
+    errors.png."""
     from jaxpose.cli import main
     from jaxpose.pipelines.monocular import InitOptions
     from jaxpose.studies.speedplus import evaluate_speedplus
@@ -324,7 +326,11 @@ def test_records_resume_where_an_interrupted_run_stopped(tmp_path, capsys, monke
     argv = ["eval-speedplus", str(root), "--out", str(out), "--json", "--no-progress"]
     assert main(argv) == 0
     first = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert json.loads((out / "summary.json").read_text()) == first
+    summary = json.loads((out / "summary.json").read_text())
+    software = summary.pop("software")  # the versions the run used, beside its --json object
+    assert summary == first
+    assert software["opencv"] == metadata.version("opencv-contrib-python-headless")
+    assert software["jax"] == metadata.version("jax")
     assert cv2.imread(str(out / "errors.png")) is not None
     records = out / "records.jsonl"
     assert len(records.read_text().splitlines()) == 1 + first["images"] == 7

@@ -3,6 +3,7 @@ small synthetic problems against brute force, option checks, and short tracking 
 
 import itertools
 import json
+from importlib import metadata
 from types import SimpleNamespace
 
 import numpy as np
@@ -253,8 +254,11 @@ def test_cli_tracks_with_a_budget(capsys, tmp_path):
     assert code == 0
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["frames"] == 3 and summary["lost_frames"] == 0
-    stages = json.loads((tmp_path / "summary.json").read_text())["mean_stage_s"]
-    assert stages["budget"] > 0
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert written["mean_stage_s"]["budget"] > 0
+    # the numerical stack the figures were made on, as the installed distributions say
+    assert written["software"]["jaxlib"] == metadata.version("jaxlib")
+    assert written["software"]["numpy"] == metadata.version("numpy")
 
 
 def test_greedy_keeps_its_picks_apart_in_the_image(monkeypatch):

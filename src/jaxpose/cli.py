@@ -49,9 +49,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def _version() -> str:
-    from jaxpose import __version__
+    """``jaxpose X (python A, jax B, ...)``: the versions a bug report or a figure needs."""
+    from jaxpose.io.software import software_versions
 
-    return __version__
+    v = software_versions()
+    rest = ", ".join(f"{k} {v[k]}" for k in v if k != "jaxpose" and v[k] is not None)
+    return f"jaxpose {v['jaxpose'] or '0+unknown'} ({rest})"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Vision-based relative navigation of non-cooperative spacecraft in JAX.",
         formatter_class=HelpFormatter,
     )
-    parser.add_argument("--version", action="version", version=f"jaxpose {_version()}")
+    parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)

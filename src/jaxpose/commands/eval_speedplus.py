@@ -124,9 +124,11 @@ def run(args) -> int:
         records=None if out_dir is None else out_dir / "records.jsonl",
     )
     if out_dir is not None:
+        from jaxpose.io.software import software_versions
         from jaxpose.studies._speedplus_figures import plot_errors
 
-        (out_dir / "summary.json").write_text(json.dumps(out, indent=1))
+        summary = {**out, "software": software_versions()}
+        (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
         plot_errors(out_dir / "errors.png", out)
     row = "{:28s} {:9s} {:13s} {:>7s} {:>8s} {:>6s} {:>6s} {:>6s} {:>6s} {}"
     print(

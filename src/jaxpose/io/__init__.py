@@ -3,6 +3,7 @@
 from jaxpose.io.camera_file import load_camera as load_camera
 from jaxpose.io.camera_file import save_camera as save_camera
 from jaxpose.io.image import load_image as load_image
+from jaxpose.io.software import software_versions as software_versions
 from jaxpose.io.speedplus import SpeedLabel as SpeedLabel
 from jaxpose.io.speedplus import load_speed_labels as load_speed_labels
 from jaxpose.io.speedplus import speed_label_pose as speed_label_pose
@@ -13,5 +14,6 @@ __all__ = [
     "load_image",
     "load_speed_labels",
     "save_camera",
+    "software_versions",
     "speed_label_pose",
 ]

@@ -46,6 +46,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxpose.io.software import software_versions
+
 __all__ = [
     "MAX_FRAMES",
     "add_arguments",
@@ -496,7 +498,13 @@ def run(args: argparse.Namespace) -> int:
     s = report["summary"]
     (out / "summary.json").write_text(
         json.dumps(
-            {**s, "mean_stage_s": stage, "mode": mode.replace(" ", "-"), "start": start_info},
+            {
+                **s,
+                "mean_stage_s": stage,
+                "mode": mode.replace(" ", "-"),
+                "start": start_info,
+                "software": software_versions(),
+            },
             indent=1,
         )
     )
