@@ -413,10 +413,14 @@ def test_dop_from_information_refuses_an_asymmetric_A():
         with pytest.raises(ValueError, match=_named("A")):
             jp.dop_from_information(bad)
     # rounding-level asymmetry passes; a traced A is not looked at (its lower triangle is used)
-    assert int(jp.dop_from_information(_with(A, (0, 1), A[0, 1] * (1 + 1e-12))).status) == 0
+    assert (
+        int(jp.dop_from_information(_with(A, (0, 1), A[0, 1] * (1 + 1e-12))).status) == jp.Status.OK
+    )
     res = jax.jit(jp.dop_from_information)(jnp.asarray(np.tril(A)))
     assert int(res.status) == jp.Status.OK
-    assert int(jp.dop_from_information(_with(A, (2, 3), np.nan)).status) == 4  # NONFINITE_INPUT
+    assert (
+        int(jp.dop_from_information(_with(A, (2, 3), np.nan)).status) == jp.Status.NONFINITE_INPUT
+    )
 
 
 def test_summed_blocks_cannot_tell_points_behind_the_camera():
@@ -476,7 +480,7 @@ def test_a_line_without_direction_is_said_so(line):
         jp.pose_covariance(P, POSE, CAM, **kw)
     # masked out, the line is not used (nor a NaN one): the covariance of the other lines
     keep = np.array([True, False, True, True])
-    assert int(jp.refine_pose(P, U, POSE, CAM, line_mask=keep, **kw).status) == 0
+    assert int(jp.refine_pose(P, U, POSE, CAM, line_mask=keep, **kw).status) == jp.Status.OK
     cov = jp.pose_covariance(P, POSE, CAM, line_mask=keep, **kw)
     ref = jp.pose_covariance(P, POSE, CAM, segments_body=SEG[keep], lines_img=LINES[keep])
     np.testing.assert_allclose(cov, ref, rtol=1e-9)
