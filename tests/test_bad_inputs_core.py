@@ -17,7 +17,7 @@ import jaxpose as jp
 from jaxpose import PinholeCamera, Pose, StereoCamera
 from jaxpose.core._checks import is_rotation
 from jaxpose.core.geometry import so3_exp
-from jaxpose.core.residuals import line_from_segment
+from jaxpose.core.residuals import joint_cost, line_from_segment
 from jaxpose.io import load_camera
 
 K = np.array([[1000.0, 0.0, 320.0], [0.0, 1000.0, 240.0], [0.0, 0.0, 1.0]])
@@ -462,6 +462,18 @@ def test_line_options_need_lines(name):
         jp.pose_covariance(P, POSE, CAM, **{name: value})
     with pytest.raises(ValueError, match=_named("segments_body")):
         jp.pose_covariance(P, POSE, CAM, lines_img=LINES)
+
+
+@pytest.mark.parametrize("name", ["line_mask", "line_information"])
+def test_joint_cost_line_options_need_lines(name):
+    value = {"line_mask": jnp.ones(4, bool), "line_information": jnp.tile(jnp.eye(2), (4, 1, 1))}
+    with pytest.raises(ValueError, match=_named(name)):
+        joint_cost(P, U, POSE, CAM, **{name: value[name]})
+    # with the lines they are used: a line masked out changes the cost
+    kw = dict(segments_body=SEG, lines_img=LINES + jnp.array([0.0, 0.0, 3.0]))
+    full = joint_cost(P, U, POSE, CAM, **kw)
+    part = joint_cost(P, U, POSE, CAM, line_mask=jnp.array([True, False, True, True]), **kw)
+    assert float(full) > float(part) > 0.0
 
 
 @pytest.mark.parametrize("line", [[0.0, 0.0, 0.0], [0.0, 0.0, 5.0]], ids=["zeros", "at-infinity"])

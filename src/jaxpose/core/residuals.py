@@ -257,7 +257,8 @@ def joint_cost(
 
     Information matrices default to the identity (1-pixel noise); use
     :func:`isotropic_information` for ``I / sigma^2``. Masked-out points and lines add nothing
-    (their inputs may hold anything finite or not).
+    (their inputs may hold anything finite or not). ``line_mask`` or ``line_information``
+    without lines raises ``ValueError`` (it would otherwise be ignored).
     """
     _check_kind(robust)
     points_body = check_rows(points_body, (3,), "points_body")
@@ -277,4 +278,11 @@ def joint_cost(
         lin = jnp.where(lm[:, None], lines_img, jnp.array([1.0, 0.0, 0.0], lines_img.dtype))
         sl = _mahalanobis2(line_residuals(seg, lin, pose, camera), line_information)
         cost = cost + jnp.sum(jnp.where(lm, robust_rho(robust, sl, robust_scale), 0.0))
+    else:
+        for name, value in (("line_mask", line_mask), ("line_information", line_information)):
+            if value is not None:
+                raise ValueError(
+                    f"joint_cost: {name} was given without lines: it applies to segments_body "
+                    "and lines_img, which are None (pass the lines, or leave out the line options)"
+                )
     return cost
