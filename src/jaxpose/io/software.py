@@ -2,9 +2,9 @@
 
 The stereo tracker's figures move with the numerical stack: its matches are decisions taken on
 floating-point scores, so a different XLA or OpenCV release changes a few of them and, through
-the map, every later pose by a little (on the suite, up to a third of a scene's RMS). A figure
-is reproducible only with the versions it was measured on, so the commands' summaries and the
-benches' JSON lines carry them.
+the map, every later pose (on the suite, by about as much as another noise seed: a scene's
+RMS by up to a half). A figure is reproducible only with the versions it was measured on, so
+the commands' summaries and the benches' JSON lines carry them.
 """
 
 from __future__ import annotations
