@@ -95,6 +95,22 @@ def check_pose(pose, name: str = "pose") -> None:
         )
 
 
+def check_line_inputs(segments_body, lines_img, *, prefix: str = "", **line_options) -> bool:
+    """Whether lines are given. ``ValueError`` when only one of ``segments_body`` and
+    ``lines_img`` is, or when an option of the lines (``line_mask=``, ``line_sigma=``,
+    ``line_information=``, passed by name) is given without them: it would be ignored."""
+    if (segments_body is None) != (lines_img is None):
+        raise ValueError(f"{prefix}segments_body and lines_img go together (both or neither)")
+    if segments_body is None:
+        for name, value in line_options.items():
+            if value is not None:
+                raise ValueError(
+                    f"{prefix}{name} was given without lines: it applies to segments_body and "
+                    "lines_img, which are None (pass the lines, or leave out the line options)"
+                )
+    return segments_body is not None
+
+
 def as_bool_mask(mask, name: str = "mask") -> Array:
     """``mask`` as a JAX bool array. Booleans pass; numbers only when every value is 0 or 1 (a
     0/1 mask), since other numbers are most likely indices or weights, which a cast to bool would

@@ -41,7 +41,14 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from jaxpose.core._checks import as_float, check_mask, check_pose, check_rows, check_same_length
+from jaxpose.core._checks import (
+    as_float,
+    check_line_inputs,
+    check_mask,
+    check_pose,
+    check_rows,
+    check_same_length,
+)
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import Pose
 
@@ -261,6 +268,13 @@ def joint_cost(
     without lines raises ``ValueError`` (it would otherwise be ignored).
     """
     _check_kind(robust)
+    has_lines = check_line_inputs(
+        segments_body,
+        lines_img,
+        prefix="joint_cost: ",
+        line_mask=line_mask,
+        line_information=line_information,
+    )
     points_body = check_rows(points_body, (3,), "points_body")
     pixels = check_rows(pixels, (2,), "pixels")
     m = check_mask(mask, points_body.shape[0])
@@ -268,9 +282,7 @@ def joint_cost(
     pix = jnp.where(m[:, None], pixels, 0.0)
     s = _mahalanobis2(point_residuals(pts, pix, pose, camera), point_information)
     cost = jnp.sum(jnp.where(m, robust_rho(robust, s, robust_scale), 0.0))
-    if segments_body is not None or lines_img is not None:
-        if segments_body is None or lines_img is None:
-            raise ValueError("segments_body and lines_img go together")
+    if has_lines:
         segments_body = check_rows(segments_body, (2, 3), "segments_body")
         lines_img = check_rows(lines_img, (3,), "lines_img")
         lm = check_mask(line_mask, segments_body.shape[0], "line_mask")
@@ -278,11 +290,4 @@ def joint_cost(
         lin = jnp.where(lm[:, None], lines_img, jnp.array([1.0, 0.0, 0.0], lines_img.dtype))
         sl = _mahalanobis2(line_residuals(seg, lin, pose, camera), line_information)
         cost = cost + jnp.sum(jnp.where(lm, robust_rho(robust, sl, robust_scale), 0.0))
-    else:
-        for name, value in (("line_mask", line_mask), ("line_information", line_information)):
-            if value is not None:
-                raise ValueError(
-                    f"joint_cost: {name} was given without lines: it applies to segments_body "
-                    "and lines_img, which are None (pass the lines, or leave out the line options)"
-                )
     return cost

@@ -6,7 +6,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from jaxpose.core._checks import as_float, check_mask, check_pose
+from jaxpose.core._checks import as_float, check_line_inputs, check_mask, check_pose
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import (
     Pose,
@@ -68,15 +68,7 @@ def _prepare(
     finite_pts = jnp.all(jnp.isfinite(points_body), -1) & jnp.all(jnp.isfinite(pixels), -1)
     finite_pts = finite_pts & jnp.isfinite(sig) & (sig > 0)
 
-    if (segments_body is None) != (lines_img is None):
-        raise ValueError("segments_body and lines_img go together (both or neither)")
-    if segments_body is None:
-        for name, value in (("line_mask", line_mask), ("line_sigma", line_sigma)):
-            if value is not None:
-                raise ValueError(
-                    f"{name} was given without lines: it applies to segments_body and lines_img, "
-                    "which are None (pass the lines, or leave out the line options)"
-                )
+    if not check_line_inputs(segments_body, lines_img, line_mask=line_mask, line_sigma=line_sigma):
         segments = jnp.zeros((0, 2, 3), dtype)
         lines = jnp.zeros((0, 3), dtype)
         lvalid = jnp.zeros((0,), bool)

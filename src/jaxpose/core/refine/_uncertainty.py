@@ -8,7 +8,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from jaxpose.core._checks import as_float, check_mask, check_pose, check_rotation
+from jaxpose.core._checks import (
+    as_float,
+    check_line_inputs,
+    check_mask,
+    check_pose,
+    check_rotation,
+)
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.dilution import dop_from_information, point_jacobians
 from jaxpose.core.geometry import (
@@ -57,6 +63,13 @@ def pose_covariance(
 
     check_pose(pose, "pose")
     check_rotation(pose.R, "pose.R", nonfinite_ok=True, prefix="pose_covariance: ")
+    has_lines = check_line_inputs(
+        segments_body,
+        lines_img,
+        prefix="pose_covariance: ",
+        line_mask=line_mask,
+        line_sigma=line_sigma,
+    )
     camera = as_camera(camera)
     A = jnp.sum(
         information_blocks(
@@ -64,18 +77,7 @@ def pose_covariance(
         ),
         axis=0,
     )
-    if segments_body is None:
-        if lines_img is not None:
-            raise ValueError("segments_body and lines_img go together (both or neither)")
-        for name, value in (("line_mask", line_mask), ("line_sigma", line_sigma)):
-            if value is not None:
-                raise ValueError(
-                    f"pose_covariance: {name} was given without lines: it applies to "
-                    "segments_body and lines_img, which are None"
-                )
-    else:
-        if lines_img is None:
-            raise ValueError("segments_body and lines_img go together (both or neither)")
+    if has_lines:
         segments_body = as_float(segments_body, name="segments_body")
         lines = as_float(lines_img, segments_body.dtype, name="lines_img")
         k = segments_body.shape[0]
