@@ -34,6 +34,25 @@ def test_version(capsys):
         assert f"{name} {metadata.version(dist)}" in out
 
 
+def test_python_dash_m_runs_the_same_command(capsys):
+    """``python -m jaxpose`` (no script on PATH, a cluster's srun) is the jaxpose command."""
+    import subprocess
+    import sys
+
+    assert main(["--version"]) == 0
+    expected = capsys.readouterr().out
+    run = subprocess.run(
+        [sys.executable, "-m", "jaxpose", "--version"], capture_output=True, text=True, timeout=300
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout == expected
+    bad = subprocess.run(
+        [sys.executable, "-m", "jaxpose", "no-such-command"], capture_output=True, text=True,
+        timeout=300,
+    )
+    assert bad.returncode == 2 and "no-such-command" in bad.stderr
+
+
 @pytest.mark.parametrize("command", sorted(COMMANDS))
 def test_each_command_has_help_with_its_options(command, capsys):
     assert main([command, "--help"]) == 0
