@@ -91,7 +91,7 @@ something: `high` answers should be right, and wrong answers should be `low`. (T
 evaluation, 200 renders and real photographs, is in the documentation; this is a quick look.)""")
 
 code("""rng = np.random.default_rng(2018)
-n = 6 if SMALL else 40
+n = 2 if SMALL else 40
 rows = []
 for i in range(n):
     pose = random_pose(rng, camera, range_m=(4.0, 9.0))

@@ -45,6 +45,10 @@ _CACHE = Path(__file__).resolve().parents[1] / ".pytest_cache" / "jax-compilatio
 os.environ.setdefault("JAXPOSE_CACHE_DIR", str(_CACHE))
 jax.config.update("jax_compilation_cache_dir", os.environ["JAXPOSE_CACHE_DIR"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+# The processes the tests start that do not go through the CLI (notebook kernels, bench scripts)
+# read JAX's own variables: they share the run's cache too.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.environ["JAXPOSE_CACHE_DIR"])
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
