@@ -33,7 +33,7 @@ from jaxpose.studies.stereo_track import summarize, track_sequence
 from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
 
 SMALL = os.environ.get("JAXPOSE_NB_SMALL") == "1"
-frames = 10 if SMALL else 40""")
+frames = 6 if SMALL else 40""")
 
 md("""## A rendered scene
 A 1 m target 2.5 m away spinning at 12 degrees a second about an axis off its principal axes,
