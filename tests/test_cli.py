@@ -47,7 +47,9 @@ def test_python_dash_m_runs_the_same_command(capsys):
     assert run.returncode == 0, run.stderr
     assert run.stdout == expected
     bad = subprocess.run(
-        [sys.executable, "-m", "jaxpose", "no-such-command"], capture_output=True, text=True,
+        [sys.executable, "-m", "jaxpose", "no-such-command"],
+        capture_output=True,
+        text=True,
         timeout=300,
     )
     assert bad.returncode == 2 and "no-such-command" in bad.stderr
