@@ -138,10 +138,11 @@ def test_stereo_turnover_bench_measures_matches_against_the_truth(tmp_path):
 def test_stereo_paired_bench_tells_same_tracking_from_changed(tmp_path):
     """The features in one thread or two are the same features (a speed option), so the two
     trackers' poses agree to the bit; a different search radius changes the tracking."""
-    common = [str(REPO / "bench" / "stereo_paired.py"), "d1-clean-2m", "--frames", "4", "--reps"]
-    out = _last_json_line([*common, "1", "--option", "threads=False"], tmp_path)
+    bench = REPO / "bench" / "stereo_paired.py"
+    common = [str(bench), "d1-clean-2m", "--frames", "4", "--reps", "1"]
+    out = _last_json_line([*common, "--option", "threads=False"], tmp_path)
     (scene,) = out["scenes"]
     assert scene["same_poses"] is True
     assert scene["A"]["wall_ms"]["frame"] > 0 and "stereo" in scene["ratio_B_over_A"]["cpu_ms"]
-    out = _last_json_line([*common, "1", "--option", "search_radius_px=3.0"], tmp_path)
+    out = _last_json_line([*common, "--option", "search_radius_px=3.0"], tmp_path)
     assert out["scenes"][0]["same_poses"] is False
