@@ -121,8 +121,8 @@ def test_option_objects_validate_and_are_hashable():
 def test_status_members_carry_exact_messages(rng):
     assert Status.TOO_FEW_POINTS.describe(3) == "too few valid points (at least 3 are needed)"
     assert "ok" == Status.OK.message
-    points, pixels, pose = scene(rng, n=8)
-    few = np.zeros(8, bool)
+    points, pixels, pose = scene(rng)  # the shape of the other tests: their compiled solvers
+    few = np.zeros(len(points), bool)
     few[:2] = True
     calls = {
         "at least 3": lambda: jp.refine_pose(points, pixels, pose, CAM, mask=few),
@@ -243,9 +243,5 @@ def test_gradients_are_nan_free_at_singular_points(rng):
         assert np.all(np.isfinite(np.asarray(g))), parameterization
     g = jax.jit(jax.grad(lambda R: jp.geometry.dcm_to_euler(R).sum()))(gimbal)
     assert np.all(np.isfinite(np.asarray(g)))
-    line = np.stack([np.linspace(-1, 1, 10), np.linspace(-0.5, 0.5, 10), np.zeros(10)], -1)
-    line_pix = np.asarray(CAM.project(pose.apply(jnp.asarray(line))))
-    g = jax.jit(jax.grad(lambda u: jp.solve_pnp(line, u, CAM, throw=False).t.sum()))(
-        jnp.asarray(line_pix)
-    )
-    assert np.all(np.isfinite(np.asarray(g)))
+    # the gradient of solve_pnp at collinear, coincident and NaN input: the "pnp-grad-degenerate"
+    # rows of test_bad_inputs.py
