@@ -232,11 +232,11 @@ class TrackerOptions:
             ``sigma`` the robust scale of the measured minus predicted disparities of the
             matched points); an unmatched feature with matched points within ``neighbour_px``
             around the range of their predicted disparities; the others over the map's depth
-            window. Off by default: since the coarse-to-fine search and the twins searched once
-            it saves about a fifth of the stereo stage and 5-7% of a frame's CPU at 1.5-2 m,
-            nothing at 2.5 m (paired on the same frames, ``bench/stereo_paired.py``), the
-            development scenes' errors unchanged within their scatter
-            (``docs/stereo-evaluation.md``).
+            window. On by default since the anchored observations: at 1.5-2 m the stereo stage
+            takes a fifth to a third less (the wide window's coarse search is most of it there),
+            nothing at 2.5 m and beyond; the development scenes' errors within their scatter
+            (summed over seeds 0-2, 3% lower; ``docs/stereo-evaluation.md``, *Per-feature
+            disparity windows by default*).
         predicted_disparity_after: with ``predicted_disparity``, the frames tracked in a row (since
             the first or since a lost frame) before the windows narrow; until then every feature
             is searched over the map's depth window and the margin is measured all the same.
@@ -404,7 +404,7 @@ class TrackerOptions:
     measured_line_sigma: bool = True
     line_scale_memory: float = 0.9
     mature_obs: int = 3
-    predicted_disparity: bool = False
+    predicted_disparity: bool = True
     predicted_disparity_after: int = 3
     disparity_margin_px: float = 6.0
     neighbour_px: float = 40.0
