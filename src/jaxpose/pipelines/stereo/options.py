@@ -235,7 +235,7 @@ class TrackerOptions:
             window. On by default since the anchored observations: at 1.5-2 m the stereo stage
             takes a fifth to a third less (the wide window's coarse search is most of it there),
             nothing at 2.5 m and beyond; the development scenes' errors within their scatter
-            (summed over seeds 0-2, 3% lower; ``docs/stereo-evaluation.md``, *Per-feature
+            (summed over seeds 0-2, 2% lower; ``docs/stereo-evaluation.md``, *Per-feature
             disparity windows by default*).
         predicted_disparity_after: with ``predicted_disparity``, the frames tracked in a row (since
             the first or since a lost frame) before the windows narrow; until then every feature
