@@ -232,9 +232,10 @@ class TrackerOptions:
             ``sigma`` the robust scale of the measured minus predicted disparities of the
             matched points); an unmatched feature with matched points within ``neighbour_px``
             around the range of their predicted disparities; the others over the map's depth
-            window. On by default since the anchored observations: at 1.5-2 m the stereo stage
-            takes a fifth to a third less (the wide window's coarse search is most of it there),
-            nothing at 2.5 m and beyond; the development scenes' errors within their scatter
+            window. On by default since the anchored observations: at 1.5-2.2 m the stereo stage
+            takes 12-24% less wall time (the depth window sends every feature through the coarse
+            search there) and the frame 0-3% less, paired on the same frames; nothing at 2.5 m
+            and beyond; the development scenes' errors within their scatter
             (summed over seeds 0-2, 2% lower; ``docs/stereo-evaluation.md``, *Per-feature
             disparity windows by default*).
         predicted_disparity_after: with ``predicted_disparity``, the frames tracked in a row (since
