@@ -146,3 +146,49 @@ def test_stereo_paired_bench_tells_same_tracking_from_changed(tmp_path):
     assert scene["A"]["wall_ms"]["frame"] > 0 and "stereo" in scene["ratio_B_over_A"]["cpu_ms"]
     out = _last_json_line([*common, "--option", "search_radius_px=3.0"], tmp_path)
     assert out["scenes"][0]["same_poses"] is False
+
+
+def _scene_run(name, seed, lines, points, **scene):
+    """A ``bench/stereo.py`` record of one scene in both modes (RMS x, y, z mm; roll, pitch,
+    yaw deg)."""
+
+    def mode(v):
+        return {"rms_position_mm": v[:3], "rms_attitude_deg": v[3:]}
+
+    return {
+        "scene": {"name": name, "seed": seed, **scene},
+        "points+lines": mode(lines),
+        "points-only": mode(points),
+    }
+
+
+def test_lines_gain_bench_reads_runs_of_both_modes(tmp_path):
+    """Per axis the geometric mean of the ratios (here 0.5 and 2 on x give 1; 0.5 twice on yaw
+    gives 0.5), the scene-runs lower on every axis, only scenes with blur or glints."""
+    one = [1.0] * 6
+    runs = {
+        "a": [
+            _scene_run("b", 0, [0.5, 0.9, 0.9, 0.9, 0.9, 0.5], one, blur=1.0),
+            _scene_run("clean", 0, [9.0] * 6, one),  # no blur or glints: left out
+        ],
+        "b": [_scene_run("b", 1, [2.0, 0.9, 1.1, 0.9, 0.9, 0.5], one, glints=1.0)],
+    }
+    for d, rows in runs.items():
+        (tmp_path / d).mkdir()
+        (tmp_path / d / "results.json").write_text(json.dumps(rows))
+    bench = str(REPO / "bench" / "stereo_lines_gain.py")
+    out = _last_json_line([bench, "a", "b", "--out", "fig"], tmp_path)
+    assert out["scene_runs"] == 2 and out["every_axis_lower"] == "1/2"
+    assert out["every_axis_lower_runs"] == ["b s0"]
+    assert out["per_axis"]["x"]["geometric_mean_ratio"] == pytest.approx(1.0)
+    assert out["per_axis"]["yaw"]["geometric_mean_ratio"] == pytest.approx(0.5)
+    assert out["per_axis"]["z"]["lower"] == 1 and out["per_axis"]["y"]["lower"] == 2
+    assert (tmp_path / "fig" / "lines_gain.png").stat().st_size > 0
+    # a run of points + lines only cannot be read: the error names the file
+    (tmp_path / "c").mkdir()
+    rows = [{"scene": {"name": "b", "blur": 1.0}, "points+lines": {}}]
+    (tmp_path / "c" / "results.json").write_text(json.dumps(rows))
+    proc = subprocess.run(
+        [sys.executable, bench, "c"], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode != 0 and "results.json" in proc.stderr and "both modes" in proc.stderr
