@@ -13,6 +13,7 @@ are left out of the timings.
     python bench/stereo_budget.py --split dev --frames 30          # choosing anything: dev only
     python bench/stereo_budget.py --frames 40                      # the suite
     python bench/stereo.py --budget-sweep --frames 40              # the same, from bench/stereo.py
+    python bench/stereo_budget.py --from-results s0/results.json s1/results.json  # seeds together
 
 Measured per scene and tracker: per-axis RMS position (mm) and attitude (deg) after aligning the
 first frame, lost frames, the CPU seconds a frame of the map stage (the keyframes' landmarks and
@@ -28,6 +29,9 @@ prints a Markdown table and, last, one JSON line.
 Target (issue 17.3), checked per scene at ``N = 30``: the ``dop`` rule's per-axis RMS within 1.5x
 of all features (position and attitude, every axis), and its sum over axes lower than
 ``random``'s and ``response``'s (position and attitude).
+The JSON line's ``dop_against`` reads the runs together: per other rule, the geometric mean of
+``dop``'s sums over its, their scatter and the runs where ``dop`` is lower (with the results of
+several noise seeds, how far one run's verdict is from chance).
 """
 
 from __future__ import annotations
@@ -337,10 +341,48 @@ def _medians(results: list[dict], key: str) -> dict:
     }
 
 
+def _key(scene_result: dict, several_seeds: bool) -> str:
+    """A scene run's name in the summary: with its noise seed when the results hold several."""
+    sc = scene_result["scene"]
+    return f"{sc['name']} s{sc.get('seed', 0)}" if several_seeds else sc["name"]
+
+
+def dop_against(results: list[dict], n: int = TARGET_N) -> dict:
+    """The ``dop`` rule against each other rule at ``N = n`` over the scene runs (several noise
+    seeds read together with ``--from-results``): per rule, the geometric mean of the ratio of
+    ``dop``'s sum over the axes to the rule's (position, attitude), the standard deviation of
+    the log ratios (a fraction: the scatter that a single run's verdict is drawn from) and the
+    runs where ``dop`` is lower. Issue 17.3's "lower than random and response" is that ratio
+    below 1 on each run. A run without an RMS (its track lost) leaves its pair out."""
+    out = {}
+    for rule in RULES:
+        if rule == "dop":
+            continue
+        pairs = [
+            (_run(s, "dop", n), _run(s, rule, n))
+            for s in results
+            if _run(s, "dop", n) and _run(s, rule, n)
+        ]
+        pairs = [(d, r) for d, r in pairs if d["rms_position_mm"] and r["rms_position_mm"]]
+        if not pairs:
+            continue
+        fig = {}
+        for key, field in (("position", "rms_position_mm"), ("attitude", "rms_attitude_deg")):
+            lr = np.log([sum(d[field]) / sum(r[field]) for d, r in pairs])
+            fig[key] = {
+                "geometric_mean_ratio": round(float(np.exp(lr.mean())), 3),
+                "sd_log": round(float(lr.std(ddof=1)), 3) if len(lr) > 1 else 0.0,
+                "dop_lower": f"{int((lr < 0).sum())}/{len(lr)}",
+            }
+        out[rule] = fig
+    return out
+
+
 def report(results: list[dict], out: Path, frames, load0) -> dict:
     print("\n".join(table(results)))
     figure(results, out / "budget.png")
-    per_scene = {s["scene"]["name"]: s["target"] for s in results}
+    several = len({s["scene"].get("seed", 0) for s in results}) > 1
+    per_scene = {_key(s, several): s["target"] for s in results}
     cpu, map_cpu = _medians(results, "pose_cpu_ms"), _medians(results, "map_cpu_ms")
     summary = {
         "bench": "stereo-budget",
@@ -351,6 +393,7 @@ def report(results: list[dict], out: Path, frames, load0) -> dict:
         "within_1.5x": f"{sum(bool(t and t['within_1.5x']) for t in per_scene.values())}"
         f"/{len(results)}",
         "per_scene": {k: (v and v["met"]) for k, v in per_scene.items()},
+        "dop_against": dop_against(results),
         "median_pose_cpu_ms": cpu,
         "median_map_cpu_ms": map_cpu,
         "load_average": None

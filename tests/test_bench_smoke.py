@@ -192,3 +192,45 @@ def test_lines_gain_bench_reads_runs_of_both_modes(tmp_path):
         [sys.executable, bench, "c"], cwd=tmp_path, capture_output=True, text=True, timeout=120
     )
     assert proc.returncode != 0 and "results.json" in proc.stderr and "both modes" in proc.stderr
+
+
+def _budget_run(rule, n, position, attitude):
+    return {
+        "rule": rule,
+        "N": n,
+        "rms_position_mm": position,
+        "rms_attitude_deg": attitude,
+        "lost_frames": 0,
+        "pose_cpu_ms": 10.0,
+        "select_cpu_ms": 1.0,
+        "map_cpu_ms": 20.0,
+        "dop_rms_ratio": 2.0,
+    }
+
+
+def test_budget_bench_reads_several_seeds_together(tmp_path):
+    """``--from-results`` of two noise seeds: the scene runs keep their seeds apart, and
+    ``dop_against`` gives the geometric mean of dop's sums over random's and the runs where dop
+    is lower."""
+    files = []
+    for seed, dop_x in enumerate([1.0, 4.0]):
+        runs = [
+            _budget_run("all", None, [1.0, 1.0, 1.0], [0.1, 0.1, 0.1]),
+            _budget_run("dop", 30, [dop_x, 1.0, 1.0], [0.1, 0.1, 0.1]),
+            _budget_run("random", 30, [4.0, 0.0, 0.0], [0.2, 0.2, 0.2]),
+        ]
+        scene = {"scene": {"name": "d1-clean-2m", "frames": 3, "seed": seed}, "runs": runs}
+        scene["target"] = None
+        f = tmp_path / f"s{seed}.json"
+        f.write_text(json.dumps([scene]))
+        files.append(str(f))
+    bench = str(REPO / "bench" / "stereo_budget.py")
+    out = _last_json_line([bench, "--from-results", *files, "--out", "b"], tmp_path)
+    assert set(out["per_scene"]) == {"d1-clean-2m s0", "d1-clean-2m s1"}
+    vs = out["dop_against"]["random"]
+    # position sums: dop 3 and 6 against random 4 and 4 -> ratios 0.75 and 1.5
+    assert vs["position"]["geometric_mean_ratio"] == pytest.approx((0.75 * 1.5) ** 0.5, abs=1e-3)
+    assert vs["position"]["dop_lower"] == "1/2"
+    assert vs["attitude"]["geometric_mean_ratio"] == pytest.approx(0.5, abs=1e-3)
+    assert vs["attitude"]["dop_lower"] == "2/2"
+    assert "response" not in out["dop_against"]  # no response runs: nothing compared
