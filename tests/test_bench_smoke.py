@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from bench_module import load_bench
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -162,7 +163,14 @@ def _scene_run(name, seed, lines, points, **scene):
     }
 
 
-def test_lines_gain_bench_reads_runs_of_both_modes(tmp_path):
+def _main_json(bench: str, argv, capsys) -> dict:
+    """Run ``bench/<bench>.py``'s ``main`` in this process; its last printed line, as JSON."""
+    assert load_bench(bench).main([str(a) for a in argv]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.strip()]
+    return json.loads(lines[-1])
+
+
+def test_lines_gain_bench_reads_runs_of_both_modes(tmp_path, capsys):
     """Per axis the geometric mean of the ratios (here 0.5 and 2 on x give 1; 0.5 twice on yaw
     gives 0.5), the scene-runs lower on every axis, only scenes with blur or glints."""
     one = [1.0] * 6
@@ -176,8 +184,9 @@ def test_lines_gain_bench_reads_runs_of_both_modes(tmp_path):
     for d, rows in runs.items():
         (tmp_path / d).mkdir()
         (tmp_path / d / "results.json").write_text(json.dumps(rows))
-    bench = str(REPO / "bench" / "stereo_lines_gain.py")
-    out = _last_json_line([bench, "a", "b", "--out", "fig"], tmp_path)
+    out = _main_json(
+        "stereo_lines_gain", [tmp_path / "a", tmp_path / "b", "--out", tmp_path / "fig"], capsys
+    )
     assert out["scene_runs"] == 2 and out["every_axis_lower"] == "1/2"
     assert out["every_axis_lower_runs"] == ["b s0"]
     assert out["per_axis"]["x"]["geometric_mean_ratio"] == pytest.approx(1.0)
@@ -188,10 +197,8 @@ def test_lines_gain_bench_reads_runs_of_both_modes(tmp_path):
     (tmp_path / "c").mkdir()
     rows = [{"scene": {"name": "b", "blur": 1.0}, "points+lines": {}}]
     (tmp_path / "c" / "results.json").write_text(json.dumps(rows))
-    proc = subprocess.run(
-        [sys.executable, bench, "c"], cwd=tmp_path, capture_output=True, text=True, timeout=120
-    )
-    assert proc.returncode != 0 and "results.json" in proc.stderr and "both modes" in proc.stderr
+    with pytest.raises(SystemExit, match=r"results\.json has no scene run in both modes"):
+        load_bench("stereo_lines_gain").main([str(tmp_path / "c")])
 
 
 def _budget_run(rule, n, position, attitude):
@@ -208,7 +215,7 @@ def _budget_run(rule, n, position, attitude):
     }
 
 
-def test_budget_bench_reads_several_seeds_together(tmp_path):
+def test_budget_bench_reads_several_seeds_together(tmp_path, capsys):
     """``--from-results`` of two noise seeds: the scene runs keep their seeds apart, and
     ``dop_against`` gives the geometric mean of dop's sums over random's and the runs where dop
     is lower."""
@@ -224,8 +231,7 @@ def test_budget_bench_reads_several_seeds_together(tmp_path):
         f = tmp_path / f"s{seed}.json"
         f.write_text(json.dumps([scene]))
         files.append(str(f))
-    bench = str(REPO / "bench" / "stereo_budget.py")
-    out = _last_json_line([bench, "--from-results", *files, "--out", "b"], tmp_path)
+    out = _main_json("stereo_budget", ["--from-results", *files, "--out", tmp_path / "b"], capsys)
     assert set(out["per_scene"]) == {"d1-clean-2m s0", "d1-clean-2m s1"}
     vs = out["dop_against"]["random"]
     # position sums: dop 3 and 6 against random 4 and 4 -> ratios 0.75 and 1.5
