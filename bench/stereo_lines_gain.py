@@ -58,8 +58,13 @@ def log_ratios(record: dict) -> np.ndarray:
 def summarise(records: list[dict], every_scene: bool = False) -> dict:
     """Per-axis figures over the scene-runs with blur or glints (all with ``every_scene``)."""
     rows = [r for r in records if every_scene or r["scene"].get("blur") or r["scene"].get("glints")]
+    # a mode that lost its track has no RMS: such scene-runs are named, not compared
+    lost = [
+        _label(r) for r in rows if not (_has_rms(r["points+lines"]) and _has_rms(r["points-only"]))
+    ]
+    rows = [r for r in rows if _label(r) not in lost]
     if not rows:
-        raise SystemExit("stereo_lines_gain: no scene with blur or glints in these results")
+        raise SystemExit("stereo_lines_gain: no scene with blur or glints and an RMS in both modes")
     L = np.array([log_ratios(r) for r in rows])
     lower = L < 0
     per_axis = {
@@ -70,12 +75,18 @@ def summarise(records: list[dict], every_scene: bool = False) -> dict:
         }
         for i, ax in enumerate(AXES)
     }
-    every = [
-        f"{r['scene']['name']} s{r['scene'].get('seed', 0)}"
-        for r, ok in zip(rows, lower.all(axis=1), strict=True)
-        if ok
-    ]
-    return {"rows": rows, "log_ratios": L, "per_axis": per_axis, "every_axis": every}
+    every = [_label(r) for r, ok in zip(rows, lower.all(axis=1), strict=True) if ok]
+    return {"rows": rows, "log_ratios": L, "per_axis": per_axis, "every_axis": every, "lost": lost}
+
+
+def _label(record: dict) -> str:
+    return f"{record['scene']['name']} s{record['scene'].get('seed', 0)}"
+
+
+def _has_rms(mode: dict) -> bool:
+    """Three positive position RMS and three attitude RMS (none where the track was lost)."""
+    v = list(mode.get("rms_position_mm") or []) + list(mode.get("rms_attitude_deg") or [])
+    return len(v) == 6 and all(x is not None and x > 0 for x in v)
 
 
 def figure(s: dict, path: Path) -> None:
@@ -135,6 +146,7 @@ def main(argv=None) -> int:
                 "scene_runs": n,
                 "every_axis_lower": f"{len(s['every_axis'])}/{n}",
                 "every_axis_lower_runs": s["every_axis"],
+                "left_out_lost_track": s["lost"],
                 "per_axis": s["per_axis"],
             }
         )

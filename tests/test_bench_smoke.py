@@ -178,6 +178,7 @@ def test_lines_gain_bench_reads_runs_of_both_modes(tmp_path, capsys):
         "a": [
             _scene_run("b", 0, [0.5, 0.9, 0.9, 0.9, 0.9, 0.5], one, blur=1.0),
             _scene_run("clean", 0, [9.0] * 6, one),  # no blur or glints: left out
+            _scene_run("lost", 0, [], one, blur=1.0),  # a mode without RMS: named, not compared
         ],
         "b": [_scene_run("b", 1, [2.0, 0.9, 1.1, 0.9, 0.9, 0.5], one, glints=1.0)],
     }
@@ -189,6 +190,7 @@ def test_lines_gain_bench_reads_runs_of_both_modes(tmp_path, capsys):
     )
     assert out["scene_runs"] == 2 and out["every_axis_lower"] == "1/2"
     assert out["every_axis_lower_runs"] == ["b s0"]
+    assert out["left_out_lost_track"] == ["lost s0"]
     assert out["per_axis"]["x"]["geometric_mean_ratio"] == pytest.approx(1.0)
     assert out["per_axis"]["yaw"]["geometric_mean_ratio"] == pytest.approx(0.5)
     assert out["per_axis"]["z"]["lower"] == 1 and out["per_axis"]["y"]["lower"] == 2
