@@ -83,3 +83,10 @@ def speedplus_dir():
     if not (SPEEDPLUS / "labels.csv").is_file():
         pytest.skip(f"SPEED+ sample not found at {SPEEDPLUS}")
     return SPEEDPLUS
+
+
+def pytest_collection_modifyitems(config, items):
+    """The longer tests (marked ``slow``: notebooks, benches, subprocesses) run first, so that
+    the two xdist workers end on short tests together instead of one finishing a notebook while
+    the other waits. The sort is stable: the order within each group is the collection's."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
