@@ -59,6 +59,7 @@ from jaxpose.studies.stereo_track import summarize  # noqa: E402
 from jaxpose.vision.stereo_render import default_rig, render_sequence  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from runs_together import ratio_stats, scene_label  # noqa: E402
 from stereo import SCENES, depth_range, scene_of  # noqa: E402
 
 RULES = ("dop", "random", "response")
@@ -341,12 +342,6 @@ def _medians(results: list[dict], key: str) -> dict:
     }
 
 
-def _key(scene_result: dict, several_seeds: bool) -> str:
-    """A scene run's name in the summary: with its noise seed when the results hold several."""
-    sc = scene_result["scene"]
-    return f"{sc['name']} s{sc.get('seed', 0)}" if several_seeds else sc["name"]
-
-
 def dop_against(results: list[dict], n: int = TARGET_N) -> dict:
     """The ``dop`` rule against each other rule at ``N = n`` over the scene runs (several noise
     seeds read together with ``--from-results``): per rule, the geometric mean of the ratio of
@@ -358,22 +353,17 @@ def dop_against(results: list[dict], n: int = TARGET_N) -> dict:
     for rule in RULES:
         if rule == "dop":
             continue
+        pairs = [(_run(s, "dop", n), _run(s, rule, n)) for s in results]
         pairs = [
-            (_run(s, "dop", n), _run(s, rule, n))
-            for s in results
-            if _run(s, "dop", n) and _run(s, rule, n)
+            (d, r) for d, r in pairs if d and r and d["rms_position_mm"] and r["rms_position_mm"]
         ]
-        pairs = [(d, r) for d, r in pairs if d["rms_position_mm"] and r["rms_position_mm"]]
         if not pairs:
             continue
         fig = {}
         for key, field in (("position", "rms_position_mm"), ("attitude", "rms_attitude_deg")):
-            lr = np.log([sum(d[field]) / sum(r[field]) for d, r in pairs])
-            fig[key] = {
-                "geometric_mean_ratio": round(float(np.exp(lr.mean())), 3),
-                "sd_log": round(float(lr.std(ddof=1)), 3) if len(lr) > 1 else 0.0,
-                "dop_lower": f"{int((lr < 0).sum())}/{len(lr)}",
-            }
+            st = ratio_stats(np.log([sum(d[field]) / sum(r[field]) for d, r in pairs]), digits=3)
+            lower = st.pop("lower")
+            fig[key] = {**st, "dop_lower": f"{lower}/{len(pairs)}"}
         out[rule] = fig
     return out
 
@@ -382,7 +372,9 @@ def report(results: list[dict], out: Path, frames, load0) -> dict:
     print("\n".join(table(results)))
     figure(results, out / "budget.png")
     several = len({s["scene"].get("seed", 0) for s in results}) > 1
-    per_scene = {_key(s, several): s["target"] for s in results}
+    per_scene = {
+        scene_label(s["scene"]) if several else s["scene"]["name"]: s["target"] for s in results
+    }
     cpu, map_cpu = _medians(results, "pose_cpu_ms"), _medians(results, "map_cpu_ms")
     summary = {
         "bench": "stereo-budget",

@@ -26,6 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from runs_together import ratio_stats, scene_label  # noqa: E402
+
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 
 
@@ -59,28 +62,16 @@ def summarise(records: list[dict], every_scene: bool = False) -> dict:
     """Per-axis figures over the scene-runs with blur or glints (all with ``every_scene``)."""
     rows = [r for r in records if every_scene or r["scene"].get("blur") or r["scene"].get("glints")]
     # a mode that lost its track has no RMS: such scene-runs are named, not compared
-    lost = [
-        _label(r) for r in rows if not (_has_rms(r["points+lines"]) and _has_rms(r["points-only"]))
-    ]
-    rows = [r for r in rows if _label(r) not in lost]
+    compared = [_has_rms(r["points+lines"]) and _has_rms(r["points-only"]) for r in rows]
+    lost = [scene_label(r["scene"]) for r, ok in zip(rows, compared, strict=True) if not ok]
+    rows = [r for r, ok in zip(rows, compared, strict=True) if ok]
     if not rows:
         raise SystemExit("stereo_lines_gain: no scene with blur or glints and an RMS in both modes")
     L = np.array([log_ratios(r) for r in rows])
-    lower = L < 0
-    per_axis = {
-        ax: {
-            "geometric_mean_ratio": float(np.exp(L[:, i].mean())),
-            "sd_log": float(L[:, i].std(ddof=1)) if len(L) > 1 else 0.0,
-            "lower": int(lower[:, i].sum()),
-        }
-        for i, ax in enumerate(AXES)
-    }
-    every = [_label(r) for r, ok in zip(rows, lower.all(axis=1), strict=True) if ok]
+    per_axis = {ax: ratio_stats(L[:, i]) for i, ax in enumerate(AXES)}
+    # the target's verdict as bench/stereo.py recorded it (every axis lower), not decided again
+    every = [scene_label(r["scene"]) for r in rows if r["lines_help"]]
     return {"rows": rows, "log_ratios": L, "per_axis": per_axis, "every_axis": every, "lost": lost}
-
-
-def _label(record: dict) -> str:
-    return f"{record['scene']['name']} s{record['scene'].get('seed', 0)}"
 
 
 def _has_rms(mode: dict) -> bool:
@@ -129,7 +120,7 @@ def main(argv=None) -> int:
         cells = " | ".join(f"{100 * (math.exp(v) - 1):+.1f}%" for v in lr)
         print(
             f"| {r['scene']['name']} | {r['scene'].get('seed', 0)} | {cells} | "
-            f"{'yes' if (lr < 0).all() else 'no'} |"
+            f"{'yes' if r['lines_help'] else 'no'} |"
         )
     n = len(s["rows"])
     for ax, f in s["per_axis"].items():

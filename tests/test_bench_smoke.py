@@ -156,11 +156,14 @@ def _scene_run(name, seed, lines, points, **scene):
     def mode(v):
         return {"rms_position_mm": v[:3], "rms_attitude_deg": v[3:]}
 
-    return {
+    record = {
         "scene": {"name": name, "seed": seed, **scene},
         "points+lines": mode(lines),
         "points-only": mode(points),
     }
+    if lines and points:  # bench/stereo.py's verdict, recorded where both modes have an RMS
+        record["lines_help"] = all(a < b for a, b in zip(lines, points, strict=True))
+    return record
 
 
 def _main_json(bench: str, argv, capsys) -> dict:
