@@ -339,15 +339,19 @@ def test_inside_jit_and_gradient_through_the_refinement(rng):
     P, pix, _, _ = scenes(rng, count=1, noise=0.3)
     P, pix = P[0], pix[0]
 
-    def depth(x):
-        return solve_pnp(P, x, K, throw=False).t[2]
+    def depth_and_error(x):  # the refined depth, and the reprojection error at the optimum
+        res = solve_pnp(P, x, K, throw=False)
+        return jnp.stack([res.t[2], res.reprojection_error])
 
-    grad = jax.jit(jax.grad(depth))(jnp.asarray(pix))
+    grad = jax.jit(jax.jacrev(depth_and_error))(jnp.asarray(pix))  # (2, n, 2)
     assert np.all(np.isfinite(np.asarray(grad)))
+    assert np.abs(np.asarray(grad[1])).max() > 0  # the error has its derivatives too
     eps = 1e-6
-    step = np.zeros_like(pix)
-    step[5, 1] = eps
-    fd = (float(solve_pnp(P, pix + step, K).t[2]) - float(solve_pnp(P, pix - step, K).t[2])) / (
-        2 * eps
-    )
-    np.testing.assert_allclose(float(grad[5, 1]), fd, rtol=1e-4, atol=1e-10)
+    for i, j in ((5, 1), (11, 0)):
+        step = np.zeros_like(pix)
+        step[i, j] = eps
+        up, down = solve_pnp(P, pix + step, K), solve_pnp(P, pix - step, K)
+        fd_depth = (float(up.t[2]) - float(down.t[2])) / (2 * eps)
+        fd_error = (float(up.reprojection_error) - float(down.reprojection_error)) / (2 * eps)
+        np.testing.assert_allclose(float(grad[0, i, j]), fd_depth, rtol=1e-4, atol=1e-10)
+        np.testing.assert_allclose(float(grad[1, i, j]), fd_error, rtol=1e-4, atol=1e-10)

@@ -79,6 +79,13 @@ def _squared_error(R, t, points_body, xy, wu, wv):
     return jnp.sum(wu * ru * ru + wv * rv * rv), X[2]
 
 
+def reprojection_rms(R, t, points_body, xy, weights, fxy):
+    """The RMS reprojection error (pixels) over the valid points at ``(R, t)``, and the depths
+    ``Z`` of the points; arguments as :func:`gauss_newton_pnp`'s."""
+    cost, z = _squared_error(R, t, points_body, xy, weights * fxy[0] ** 2, weights * fxy[1] ** 2)
+    return jnp.sqrt(cost / jnp.maximum(jnp.sum(weights), 1.0)), z
+
+
 def _apply(R, t, delta):
     """``R <- exp([w]_x) R``, ``t <- exp([w]_x) t + dt`` for ``delta = (dt, w)``."""
     E = so3_exp(delta[3:])
@@ -131,9 +138,7 @@ def gauss_newton_pnp(
         0, GAUSS_NEWTON_STEPS, step, (pose0.R, pose0.t, jnp.asarray(False))
     )
     # the reprojection error at the returned pose (and its depths)
-    cost, z = _squared_error(R, t, points_body, xy, wu, wv)
-    count = jnp.maximum(jnp.sum(weights), 1.0)
-    rms = jnp.sqrt(cost / count)
+    rms, z = reprojection_rms(R, t, points_body, xy, weights, fxy)
     front = jnp.all((z > 0) | (weights == 0))
     ok = converged & front & jnp.isfinite(rms) & jnp.all(jnp.isfinite(R)) & jnp.all(jnp.isfinite(t))
     return Pose(R, t), rms, ok
