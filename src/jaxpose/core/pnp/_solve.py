@@ -235,11 +235,17 @@ def _error_with_derivatives(rms, R, t, p, x, camera, use):
     return rms
 
 
+def _gn_inputs(p, x, camera, use):
+    """The arguments of :func:`~jaxpose.core.pnp._gauss_newton.gauss_newton_pnp` and
+    :func:`~jaxpose.core.pnp._gauss_newton.reprojection_rms` after ``(R, t)``: the points and the
+    normalised coordinates, zero where not used, the weights and the focal lengths."""
+    keep = use[:, None]
+    xy = jnp.where(keep, camera.normalize(x, undistort=False), 0.0)
+    return jnp.where(keep, p, 0.0), xy, use.astype(p.dtype), jnp.stack([camera.fx, camera.fy])
+
+
 def _error_at(R, t, p, x, camera, use):
-    xy = jnp.where(use[:, None], camera.normalize(x, undistort=False), 0.0)
-    p = jnp.where(use[:, None], p, 0.0)
-    fxy = jnp.stack([camera.fx, camera.fy])
-    return reprojection_rms(R, t, p, xy, use.astype(p.dtype), fxy)[0]
+    return reprojection_rms(R, t, *_gn_inputs(p, x, camera, use))[0]
 
 
 @_error_with_derivatives.defjvp
@@ -257,14 +263,9 @@ def _refined_gn(init: _Initial, p, x, camera, cfg: _Static, two: bool):
     res = init.result
     ok = res.status == Status.OK
     use = res.inliers & ok
-    weights = use.astype(p.dtype)
     # the steps carry no derivatives (they are the implicit function theorem's, below): held,
     # they are not linearised by a caller's grad
-    held_p, held_x, held_camera = jax.lax.stop_gradient((p, x, camera))
-    xy = held_camera.normalize(held_x, undistort=False)
-    p0 = jnp.where(use[:, None], held_p, 0.0)
-    xy0 = jnp.where(use[:, None], xy, 0.0)
-    fxy = jnp.stack([held_camera.fx, held_camera.fy])
+    p0, xy0, weights, fxy = _gn_inputs(*jax.lax.stop_gradient((p, x, camera)), use)
 
     def run(pose):
         return gauss_newton_pnp(
@@ -297,8 +298,7 @@ def _initial_held(points_body, pixels, mask, keys, camera, cfg: _Static) -> _Ini
     s under a profiler; an eager ``grad`` of collinear points in the test suite, cold, 28.7 ->
     18.7 s). Without refinement the closed-form pose keeps its derivatives."""
     if cfg.refine is not None:
-        points_body, pixels = jax.lax.stop_gradient((points_body, pixels))
-        camera = jax.lax.stop_gradient(camera)
+        points_body, pixels, camera = jax.lax.stop_gradient((points_body, pixels, camera))
     return _initial(points_body, pixels, mask, keys, camera, cfg)
 
 
