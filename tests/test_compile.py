@@ -29,3 +29,52 @@ def test_an_eager_entry_point_with_an_unknown_option_still_computes():
     np.testing.assert_allclose(
         np.asarray(jax.grad(lambda v: call(v, 3).sum())(x)), np.cos(x) * 3, rtol=1e-12
     )
+
+
+def _compilations(fn):
+    """The number of XLA compilations that ``fn()`` causes (JAX's own event)."""
+    seen = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            seen.append(duration)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        jax.block_until_ready(fn())
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    return len(seen)
+
+
+def test_small_functions_compile_once_per_shape_and_equal_their_traced_form():
+    from jaxpose.core.camera import PinholeCamera
+    from jaxpose.core.geometry import so3_exp
+
+    cam = PinholeCamera(800.0, 810.0, 320.0, 240.0, np.array([0.1, -0.02, 1e-3, 2e-3, 0.01]))
+    points = np.random.default_rng(1).normal(size=(13, 3)) + [0.0, 0.0, 5.0]
+    omega = np.random.default_rng(2).normal(size=(11, 3))
+    so3_exp(omega[:2])  # the first call also asks XLA which options it knows
+    # eagerly, one program for a new shape (each operation of these alone compiles more than 10)
+    assert _compilations(lambda: cam.project(points)) == 1
+    assert _compilations(lambda: so3_exp(omega)) == 1
+    assert _compilations(lambda: so3_exp(omega)) == 0
+    # the same numbers as the function traced inline into a caller's program
+    np.testing.assert_allclose(
+        cam.project(points), jax.jit(lambda c, p: c.project(p))(cam, points), rtol=1e-14
+    )
+    np.testing.assert_allclose(so3_exp(omega), jax.jit(so3_exp)(omega), rtol=1e-14, atol=1e-15)
+    # known values inside a caller's jit (constants of its program) are traced inline
+    np.testing.assert_allclose(jax.jit(lambda: so3_exp(omega))(), so3_exp(omega), atol=1e-15)
+
+
+@pytest.mark.typecheck_off  # the package's own ValueError, not jaxtyping's
+def test_small_functions_name_the_argument_that_is_not_numbers():
+    from jaxpose.core.geometry import euler_to_dcm, so3_exp
+
+    with pytest.raises(ValueError, match="omega must hold real numbers"):
+        so3_exp(["a", "b", "c"])
+    with pytest.raises(ValueError, match="omega must hold real numbers"):
+        so3_exp([[0.1, 0.2, 0.3], [0.1, 0.2]])  # ragged
+    with pytest.raises(ValueError, match="Euler sequence must be"):
+        euler_to_dcm(np.zeros(3), ["X", "Y", "Z"])  # not hashable: the function's own check

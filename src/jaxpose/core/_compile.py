@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import functools
+import inspect
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from jaxpose.core._checks import real_array
 
 EAGER_COMPILER_OPTIONS_CPU = {
     "xla_backend_optimization_level": 0,
@@ -60,6 +64,54 @@ def eager_jit(fn, static_argnums: tuple[int, ...], cpu_options: dict | None = No
         if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(args)):
             return traced(*args)  # under the caller's jit, vmap or grad
         return compiled(jax.default_backend())(*args)
+
+    return call
+
+
+def small_jit(fn=None, *, static_argnames: tuple[str, ...] = ()):
+    """One compiled program per input shape for a small function of the core (a projection, a
+    rotation formula) when it is called eagerly, instead of one dispatch and one compilation per
+    operation. Measured cold on the project's 2-core CPU: ``so3_exp`` of a new shape 0.75 ->
+    0.10 s, ``PinholeCamera.project`` 0.43 -> 0.07 s; a repeated call 5 ms -> a dispatch.
+
+    Eagerly, lists and NumPy arrays are checked first (:func:`~jaxpose.core._checks.real_array`:
+    a ``ValueError`` naming the argument, as the function's own checks would) and the function
+    is compiled with :data:`EAGER_COMPILER_OPTIONS_CPU` on a CPU. Under the caller's ``jit``,
+    ``vmap`` or ``grad`` it is traced inline as written (the caller's program is unchanged), and
+    so are a call with known values inside the caller's ``jit`` and a call whose static
+    arguments cannot be hashed (the function's own check names them).
+    Shape checks run at trace time, so they still raise; checks of values must not be inside
+    ``fn`` (under ``jit`` they would not see values)."""
+    if fn is None:
+        return functools.partial(small_jit, static_argnames=static_argnames)
+    signature = inspect.signature(fn)
+
+    @functools.cache
+    def compiled(backend: str):
+        options = known_cpu_options(EAGER_COMPILER_OPTIONS_CPU) if backend == "cpu" else None
+        return jax.jit(fn, static_argnames=static_argnames, compiler_options=options)
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
+            return fn(*args, **kwargs)
+        bound = signature.bind(*args, **kwargs)
+        for name, value in bound.arguments.items():
+            if name in static_argnames:
+                try:
+                    hash(value)
+                except TypeError:
+                    return fn(*args, **kwargs)
+            elif isinstance(value, list | tuple | np.ndarray | np.generic):
+                bound.arguments[name] = np.asarray(real_array(value, name))
+        try:
+            return compiled(jax.default_backend())(*bound.args, **bound.kwargs)
+        except ValueError as error:
+            # known values while the caller's jit is being traced (constants of its program):
+            # JAX refuses compiler options on a nested jit; traced inline, as written
+            if "top-level" not in str(error):
+                raise
+            return fn(*args, **kwargs)
 
     return call
 

@@ -20,6 +20,7 @@ from jaxpose.core._checks import (
     check_rotation,
     intrinsic_matrix_problem,
 )
+from jaxpose.core._compile import small_jit
 from jaxpose.core.geometry import Pose
 
 __all__ = ["PinholeCamera", "StereoCamera", "as_camera"]
@@ -201,6 +202,7 @@ class PinholeCamera(eqx.Module):
         )
 
     # ------------------------------------------------------------------ distortion
+    @small_jit
     def distort(self, xy: Float[ArrayLike, "... 2"]) -> Float[Array, "... 2"]:
         """Apply OpenCV distortion to normalised image coordinates ``(x, y) = (X/Z, Y/Z)``."""
         xy = _last_axis(xy, 2, "xy")
@@ -212,6 +214,7 @@ class PinholeCamera(eqx.Module):
         yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
         return jnp.stack([xd, yd], axis=-1)
 
+    @small_jit(static_argnames=("iterations",))
     def undistort(
         self, xy_distorted: Float[ArrayLike, "... 2"], iterations: int = 8
     ) -> Float[Array, "... 2"]:
@@ -231,6 +234,7 @@ class PinholeCamera(eqx.Module):
         return jax.vmap(one)(flat).reshape(xy_distorted.shape)
 
     # ------------------------------------------------------------------ projection
+    @small_jit(static_argnames=("min_depth",))
     def project(
         self, points_cam: Float[ArrayLike, "... 3"], *, min_depth: float | None = None
     ) -> Float[Array, "... 2"]:
@@ -261,6 +265,7 @@ class PinholeCamera(eqx.Module):
         NumPy array for NumPy input."""
         return points_cam[..., 2] > min_depth
 
+    @small_jit(static_argnames=("undistort",))
     def normalize(
         self, pixels: Float[ArrayLike, "... 2"], undistort: bool = True
     ) -> Float[Array, "... 2"]:
@@ -271,11 +276,13 @@ class PinholeCamera(eqx.Module):
         )
         return self.undistort(xy) if undistort else xy
 
+    @small_jit
     def undistort_pixels(self, pixels: Float[ArrayLike, "... 2"]) -> Float[Array, "... 2"]:
         """Pixels of the same rays in the ideal (distortion-free) camera with the same ``K``."""
         xy = self.normalize(pixels)
         return jnp.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], -1)
 
+    @small_jit
     def bearing(self, pixels: Float[ArrayLike, "... 2"]) -> Float[Array, "... 3"]:
         """Unit ray directions in the camera frame."""
         xy = self.normalize(pixels)
@@ -401,10 +408,12 @@ class StereoCamera(eqx.Module):
         """The right camera's pose of the left camera frame (``x_right = R_rl x_left + t_rl``)."""
         return Pose(self.R_rl, self.t_rl)
 
+    @small_jit
     def to_right(self, points_left: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3"]:
         """Left-camera-frame points expressed in the right camera frame."""
         return jnp.einsum("ij,...j->...i", self.R_rl, points_left) + self.t_rl
 
+    @small_jit
     def project(
         self, points_left: Float[ArrayLike, "... 3"]
     ) -> tuple[Float[Array, "... 2"], Float[Array, "... 2"]]:

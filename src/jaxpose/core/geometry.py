@@ -38,6 +38,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from jaxpose.core._checks import check_last, check_matrix, check_rotation
+from jaxpose.core._compile import small_jit
 
 __all__ = [
     "DEFAULT_EULER_SEQUENCE",
@@ -97,6 +98,7 @@ def parse_euler_sequence(sequence: str) -> tuple[tuple[int, int, int], bool]:
 # ----------------------------------------------------------------------------- so(3) helpers
 
 
+@small_jit
 def hat(omega: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
     """Skew-symmetric matrix ``[omega]_x`` with ``hat(a) @ b == cross(a, b)``."""
     omega = check_last(omega, 3, "omega")
@@ -112,6 +114,7 @@ def hat(omega: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
     )
 
 
+@small_jit
 def vee(omega_hat: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3"]:
     """Inverse of :func:`hat` (uses the antisymmetric part)."""
     W = check_matrix(omega_hat, "omega_hat")
@@ -121,6 +124,7 @@ def vee(omega_hat: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3"]:
     )
 
 
+@small_jit
 def so3_exp(omega: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
     """Rodrigues' formula ``exp([omega]_x)`` (rotation vector in radians to rotation matrix).
 
@@ -140,6 +144,7 @@ def so3_exp(omega: Float[ArrayLike, "... 3"]) -> Float[Array, "... 3 3"]:
     return eye + a[..., None, None] * W + b[..., None, None] * (W @ W)
 
 
+@small_jit
 def so3_log(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 3"]:
     """Rotation vector (radians) of a rotation matrix; the inverse of :func:`so3_exp`.
 
@@ -167,6 +172,7 @@ def _quat_log(q: Float[Array, "... 4"]) -> Float[Array, "... 3"]:
     return scale[..., None] * v
 
 
+@small_jit
 def se3_exp(xi: Float[ArrayLike, "... 6"]) -> tuple[Float[Array, "... 3 3"], Float[Array, "... 3"]]:
     """Exponential of a twist ``xi = (rho, omega)`` (translation part first) as ``(R, t)``.
 
@@ -226,6 +232,7 @@ def quat_to_dcm(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
     )
 
 
+@small_jit
 def dcm_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     """Scalar-first unit quaternion with ``w >= 0`` of a rotation matrix (Shepperd's method).
 
@@ -256,6 +263,7 @@ def dcm_to_quat(R: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
 
 
+@small_jit
 def quat_multiply(
     p: Float[ArrayLike, "... 4"], q: Float[ArrayLike, "... 4"]
 ) -> Float[Array, "... 4"]:
@@ -271,6 +279,7 @@ def quat_multiply(
     return jnp.concatenate([w, v], axis=-1)
 
 
+@small_jit
 def quat_conjugate(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
     """Conjugate (the inverse rotation of a unit quaternion)."""
     q = check_last(q, 4, "q")
@@ -280,6 +289,7 @@ def quat_conjugate(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
 # ----------------------------------------------------------------------------- Euler angles
 
 
+@small_jit(static_argnames=("axis",))
 def elementary_rotation(axis: int, angle: Float[ArrayLike, "..."]) -> Float[Array, "... 3 3"]:
     """Active rotation by ``angle`` (radians) about coordinate axis ``axis`` (0=x, 1=y, 2=z)."""
     angle = jnp.asarray(angle)
@@ -296,6 +306,7 @@ def elementary_rotation(axis: int, angle: Float[ArrayLike, "..."]) -> Float[Arra
     return jnp.stack([jnp.stack(r, -1) for r in rows], -2)
 
 
+@small_jit(static_argnames=("sequence",))
 def euler_to_dcm(
     angles: Float[ArrayLike, "... 3"], sequence: str = DEFAULT_EULER_SEQUENCE
 ) -> Float[Array, "... 3 3"]:
@@ -346,6 +357,7 @@ def _intrinsic_angles(R: Array, i: int, j: int, k: int) -> Array:
     return jnp.stack([a, b, c], axis=-1)
 
 
+@small_jit(static_argnames=("sequence",))
 def dcm_to_euler(
     R: Float[ArrayLike, "... 3 3"], sequence: str = DEFAULT_EULER_SEQUENCE
 ) -> Float[Array, "... 3"]:
@@ -363,6 +375,7 @@ def dcm_to_euler(
     return _intrinsic_angles(R, k, j, i)[..., ::-1]
 
 
+@small_jit
 def rotation_angle(
     R_a: Float[ArrayLike, "... 3 3"], R_b: Float[ArrayLike, "... 3 3"]
 ) -> Float[Array, "..."]:
@@ -478,6 +491,7 @@ class Pose(eqx.Module):
         check_rotation(self.R, "R", nonfinite_ok=True, prefix="Pose.euler: ")
         return dcm_to_euler(self.R, sequence)
 
+    @small_jit
     def apply(self, points_body: Float[ArrayLike, "... n 3"]) -> Float[Array, "... n 3"]:
         """Body points to camera frame: ``R @ p + t`` for each point."""
         points_body = check_last(points_body, 3, "points_body")
@@ -494,6 +508,7 @@ class Pose(eqx.Module):
     def __matmul__(self, other: Pose) -> Pose:
         return self.compose(other)
 
+    @small_jit
     def retract(self, xi: Float[ArrayLike, "... 6"]) -> Pose:
         """The library's tangent convention: ``xi = (rho, omega)`` in the camera frame acts on the
         left, ``R <- exp([omega]_x) R`` and ``t <- t + rho`` (metres, radians).

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 from jaxtyping import Array
 
 from jaxpose.core._checks import as_float, check_line_inputs, check_mask, check_pose
+from jaxpose.core._compile import small_jit
 from jaxpose.core.camera import PinholeCamera, as_camera
 from jaxpose.core.geometry import (
     Pose,
@@ -42,6 +43,8 @@ def _prepare(
     Returns ``(pose0, problem, valid_points, valid_lines, finite_input, lines_ok)``;
     ``lines_ok`` is false when a valid line of ``lines_img`` has no direction (``l1 = l2 = 0``,
     :attr:`Status.DEGENERATE_LINE`), and the problem is then empty, as for non-finite input.
+    The checks run here; the arithmetic is :func:`_assemble`, one compiled program when called
+    eagerly.
     """
     check_pose(pose0, "pose0")
     camera = as_camera(camera)
@@ -53,27 +56,20 @@ def _prepare(
     n = points_body.shape[0]
     if pixels.shape != (n, 2):
         raise _shape_error("pixels", f"({n}, 2) like points_body", pixels.shape)
-    R0, t0 = as_float(pose0.R, dtype), as_float(pose0.t, dtype)
+    pose0 = Pose(as_float(pose0.R, dtype), as_float(pose0.t, dtype))
 
-    def _sigma(s, count, name):
+    def _sigma(s, count, name):  # None (1 pixel), a scalar or one value per feature
         if s is None:
-            return jnp.ones((count,), dtype)
+            return None
         s = as_float(s, dtype)
         if s.ndim > 1 or (s.ndim == 1 and s.shape[0] != count):
             raise _shape_error(name, f"() or ({count},)", s.shape)
-        return jnp.broadcast_to(s, (count,))
+        return s
 
-    valid = check_mask(mask, n, "mask")
+    valid = None if mask is None else check_mask(mask, n, "mask")
     sig = _sigma(sigma, n, "sigma")
-    finite_pts = jnp.all(jnp.isfinite(points_body), -1) & jnp.all(jnp.isfinite(pixels), -1)
-    finite_pts = finite_pts & jnp.isfinite(sig) & (sig > 0)
-
-    if not check_line_inputs(segments_body, lines_img, line_mask=line_mask, line_sigma=line_sigma):
-        segments = jnp.zeros((0, 2, 3), dtype)
-        lines = jnp.zeros((0, 3), dtype)
-        lvalid = jnp.zeros((0,), bool)
-        lsig = jnp.ones((0,), dtype)
-    else:
+    segments = lines = lvalid = lsig = None
+    if check_line_inputs(segments_body, lines_img, line_mask=line_mask, line_sigma=line_sigma):
         segments = as_float(segments_body, dtype)
         lines = as_float(lines_img, dtype)
         if segments.ndim != 3 or segments.shape[1:] != (2, 3):
@@ -81,7 +77,7 @@ def _prepare(
         k = segments.shape[0]
         if lines.shape != (k, 3):
             raise _shape_error("lines_img", f"({k}, 3) like segments_body", lines.shape)
-        lvalid = check_mask(line_mask, k, "line_mask")
+        lvalid = None if line_mask is None else check_mask(line_mask, k, "line_mask")
         lsig = _sigma(
             sigma
             if line_sigma is None and sigma is not None and jnp.ndim(sigma) == 0
@@ -89,6 +85,26 @@ def _prepare(
             k,
             "line_sigma",
         )
+    return _assemble(pose0, points_body, pixels, camera, valid, sig, segments, lines, lvalid, lsig)
+
+
+@small_jit
+def _assemble(pose0, points_body, pixels, camera, valid, sig, segments, lines, lvalid, lsig):
+    """:func:`_prepare`'s problem from checked inputs (``None``: every feature valid, one pixel
+    of noise, no lines)."""
+    dtype = points_body.dtype
+    n = points_body.shape[0]
+    R0, t0 = pose0.R, pose0.t
+    valid = jnp.ones((n,), bool) if valid is None else valid
+    sig = jnp.ones((n,), dtype) if sig is None else jnp.broadcast_to(sig, (n,))
+    finite_pts = jnp.all(jnp.isfinite(points_body), -1) & jnp.all(jnp.isfinite(pixels), -1)
+    finite_pts = finite_pts & jnp.isfinite(sig) & (sig > 0)
+    if segments is None:
+        segments = jnp.zeros((0, 2, 3), dtype)
+        lines = jnp.zeros((0, 3), dtype)
+    k = segments.shape[0]
+    lvalid = jnp.ones((k,), bool) if lvalid is None else lvalid
+    lsig = jnp.ones((k,), dtype) if lsig is None else jnp.broadcast_to(lsig, (k,))
     l12 = jnp.sum(lines[:, :2] ** 2, -1)
     finite_lines = (
         jnp.all(jnp.isfinite(segments), (-1, -2))
