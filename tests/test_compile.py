@@ -29,6 +29,10 @@ def test_an_eager_entry_point_with_an_unknown_option_still_computes():
     np.testing.assert_allclose(
         np.asarray(jax.grad(lambda v: call(v, 3).sum())(x)), np.cos(x) * 3, rtol=1e-12
     )
+    # known values inside the caller's jit are constants of its program: traced, not refused
+    # (JAX refuses compiler options on a nested jit)
+    default = eager_jit(f, static_argnums=(1,))
+    np.testing.assert_allclose(np.asarray(jax.jit(lambda: default(x, 3))()), np.sin(x) * 3)
 
 
 def _compilations(fn):

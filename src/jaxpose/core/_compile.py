@@ -43,27 +43,48 @@ def known_cpu_options(options: dict) -> dict:
     return {k: v for k, v in options.items() if _known_option(k, v)}
 
 
-def eager_jit(fn, static_argnums: tuple[int, ...], cpu_options: dict | None = None):
-    """``jax.jit(fn)`` with ``cpu_options`` (default :data:`EAGER_COMPILER_OPTIONS_CPU`) on a
-    CPU, built on first use for the backend then in use (importing jaxpose picks no backend).
-    Called with traced arguments (inside the caller's ``jit``, ``vmap`` or ``grad``), a plain
-    ``jax.jit(fn)`` takes them: JAX refuses compiler options on a jit nested in the caller's;
-    this one is inlined into the caller's ``jit``, and one compiled program under an eager
-    ``grad`` or ``vmap`` instead of a dispatch per operation."""
-    cpu = EAGER_COMPILER_OPTIONS_CPU if cpu_options is None else cpu_options
+def _traced(tree) -> bool:
+    """Whether any leaf of ``tree`` is a tracer (the call is under the caller's ``jit``,
+    ``vmap`` or ``grad``)."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
+
+
+def _with_options(fn, cpu_options: dict, inline, **jit_kwargs):
+    """``fn`` compiled with ``cpu_options`` on a CPU (built on first use for the backend then in
+    use: importing jaxpose picks no backend). Called with known values while the caller's
+    ``jit`` is being traced (constants of its program), JAX refuses compiler options on the
+    nested jit: ``inline`` takes the call instead."""
 
     @functools.cache
     def compiled(backend: str):
-        options = known_cpu_options(cpu) if backend == "cpu" else None
-        return jax.jit(fn, static_argnums=static_argnums, compiler_options=options)
+        options = known_cpu_options(cpu_options) if backend == "cpu" else None
+        return jax.jit(fn, compiler_options=options, **jit_kwargs)
 
+    def call(*args, **kwargs):
+        try:
+            return compiled(jax.default_backend())(*args, **kwargs)
+        except ValueError as error:
+            if "top-level" not in str(error):
+                raise
+            return inline(*args, **kwargs)
+
+    return call
+
+
+def eager_jit(fn, static_argnums: tuple[int, ...], cpu_options: dict | None = None):
+    """``jax.jit(fn)`` with ``cpu_options`` (default :data:`EAGER_COMPILER_OPTIONS_CPU`) on a
+    CPU. Called with traced arguments (inside the caller's ``jit``, ``vmap`` or ``grad``), or
+    with known values inside the caller's ``jit``, a plain ``jax.jit(fn)`` takes them: JAX
+    refuses compiler options on a jit nested in the caller's; this one is inlined into the
+    caller's ``jit``, and one compiled program under an eager ``grad`` or ``vmap`` instead of a
+    dispatch per operation."""
+    cpu = EAGER_COMPILER_OPTIONS_CPU if cpu_options is None else cpu_options
     traced = jax.jit(fn, static_argnums=static_argnums)
+    eager = _with_options(fn, cpu, traced, static_argnums=static_argnums)
 
     @functools.wraps(fn)
     def call(*args):
-        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(args)):
-            return traced(*args)  # under the caller's jit, vmap or grad
-        return compiled(jax.default_backend())(*args)
+        return traced(*args) if _traced(args) else eager(*args)
 
     return call
 
@@ -86,15 +107,11 @@ def small_jit(fn=None, *, static_argnames: tuple[str, ...] = ()):
     if fn is None:
         return functools.partial(small_jit, static_argnames=static_argnames)
     signature = inspect.signature(fn)
-
-    @functools.cache
-    def compiled(backend: str):
-        options = known_cpu_options(EAGER_COMPILER_OPTIONS_CPU) if backend == "cpu" else None
-        return jax.jit(fn, static_argnames=static_argnames, compiler_options=options)
+    eager = _with_options(fn, EAGER_COMPILER_OPTIONS_CPU, fn, static_argnames=static_argnames)
 
     @functools.wraps(fn)
     def call(*args, **kwargs):
-        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
+        if _traced((args, kwargs)):
             return fn(*args, **kwargs)
         bound = signature.bind(*args, **kwargs)
         for name, value in bound.arguments.items():
@@ -105,14 +122,7 @@ def small_jit(fn=None, *, static_argnames: tuple[str, ...] = ()):
                     return fn(*args, **kwargs)
             elif isinstance(value, list | tuple | np.ndarray | np.generic):
                 bound.arguments[name] = np.asarray(real_array(value, name))
-        try:
-            return compiled(jax.default_backend())(*bound.args, **bound.kwargs)
-        except ValueError as error:
-            # known values while the caller's jit is being traced (constants of its program):
-            # JAX refuses compiler options on a nested jit; traced inline, as written
-            if "top-level" not in str(error):
-                raise
-            return fn(*args, **kwargs)
+        return eager(*bound.args, **bound.kwargs)
 
     return call
 
