@@ -43,7 +43,7 @@ def known_cpu_options(options: dict) -> dict:
     return {k: v for k, v in options.items() if _known_option(k, v)}
 
 
-def _traced(tree) -> bool:
+def any_tracer(tree) -> bool:
     """Whether any leaf of ``tree`` is a tracer (the call is under the caller's ``jit``,
     ``vmap`` or ``grad``)."""
     return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
@@ -84,7 +84,7 @@ def eager_jit(fn, static_argnums: tuple[int, ...], cpu_options: dict | None = No
 
     @functools.wraps(fn)
     def call(*args):
-        return traced(*args) if _traced(args) else eager(*args)
+        return traced(*args) if any_tracer(args) else eager(*args)
 
     return call
 
@@ -111,7 +111,7 @@ def small_jit(fn=None, *, static_argnames: tuple[str, ...] = ()):
 
     @functools.wraps(fn)
     def call(*args, **kwargs):
-        if _traced((args, kwargs)):
+        if any_tracer((args, kwargs)):
             return fn(*args, **kwargs)
         bound = signature.bind(*args, **kwargs)
         for name, value in bound.arguments.items():

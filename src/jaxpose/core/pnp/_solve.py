@@ -36,7 +36,7 @@ from jaxpose.core._checks import (
     intrinsic_matrix_problem,
     real_array,
 )
-from jaxpose.core._compile import known_cpu_options
+from jaxpose.core._compile import any_tracer, known_cpu_options
 from jaxpose.core._threads import in_threads
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.core.geometry import Pose
@@ -477,7 +477,7 @@ def solve_pnp(
     if mask is not None:
         mask = as_bool_mask(mask)  # refuses indices or weights, while the values can be seen
     mask = np.ones(flat + (n,), bool) if mask is None else _flat(mask, batch, flat, (n,))
-    traced = any(isinstance(a, jax.core.Tracer) for a in (points_body, pixels, mask, intrinsics))
+    traced = any_tracer((points_body, pixels, mask, intrinsics))
     keys = None
     if method == "ransac":
         key = jax.random.key(0) if key is None else key
@@ -536,7 +536,7 @@ def _intrinsics(camera) -> tuple[Float[Array, "9"] | Float[np.ndarray, "9"], boo
         leaves = (camera.fx, camera.fy, camera.cx, camera.cy)
         if any(np.ndim(leaf) for leaf in leaves):
             raise ValueError("solve_pnp takes one camera for the batch (scalar intrinsics)")
-        if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves + (camera.dist,)):
+        if any_tracer(leaves + (camera.dist,)):
             return jnp.concatenate([jnp.stack(leaves), camera.dist]), True
         values = np.concatenate(
             [np.asarray(leaves, dtype=float), np.asarray(camera.dist, dtype=float)]
