@@ -26,7 +26,9 @@ per split, the median wall frame rate (``median_fps``) and CPU seconds a frame
 the same frames before and after each scene's tracking, averaged (``median_opencv_yardstick_ms``:
 OpenCV's ORB and block matching of a pair, see :func:`yardstick_ms`) and the frame's wall time
 over it (``median_frame_over_yardstick``: a figure that moves with the code, not with the
-machine, to first order), the wall and CPU
+machine, to first order), the scenes whose fps the machine's own speed changed
+(``scenes_on_a_busy_machine``: their yardstick before and after differs, or lies above the
+run's median, by more than ``BUSY_FACTOR``; a note under the table names each), the wall and CPU
 milliseconds a frame by stage (``median_stage_ms``, ``median_stage_cpu_ms``; points+lines,
 medians over the scenes) and the machine's load average before and after the run.
 
@@ -577,6 +579,52 @@ def _yardstick_summary(results) -> dict:
     }
 
 
+#: A scene's frame rate is flagged as not its own when the yardstick measured around it changed
+#: by more than this factor between before and after, or lies this far above the run's median.
+BUSY_FACTOR = 1.25
+
+
+def busy_scenes(results, factor: float = BUSY_FACTOR) -> list[dict]:
+    """The scenes whose frame rate the machine's own speed changed: the yardstick
+    (:func:`yardstick_ms`) measured before and after the scene differs by more than ``factor``
+    (one over the other), or their mean lies more than ``factor`` above the median over the
+    scenes (other work shared the cores). Each: the scene's name, the two yardsticks (ms), the
+    run's median and the frame over the yardstick, which such a change leaves about as it is
+    (ratios of the same machine's speed)."""
+    timed = [r for r in results if r.get("opencv_yardstick_ms_before_after")]
+    if not timed:
+        return []
+    median = float(np.median([r["opencv_yardstick_ms"] for r in timed]))
+    out = []
+    for r in timed:
+        before, after = r["opencv_yardstick_ms_before_after"]
+        spread = max(before, after) / max(min(before, after), 1e-9)
+        if spread > factor or r["opencv_yardstick_ms"] > factor * median:
+            fps = r["points+lines"].get("fps")
+            out.append(
+                {
+                    "scene": r["scene"]["name"],
+                    "yardstick_ms_before_after": [round(before, 1), round(after, 1)],
+                    "median_yardstick_ms": round(median, 1),
+                    "frame_over_yardstick": round(1000.0 / fps / r["opencv_yardstick_ms"], 2)
+                    if fps
+                    else None,
+                }
+            )
+    return out
+
+
+def busy_notes(results) -> list[str]:
+    """One line a scene of :func:`busy_scenes`, for the printed report."""
+    return [
+        f"note: {b['scene']} ran while the machine was slower (yardstick "
+        f"{b['yardstick_ms_before_after'][0]:g} ms before it, {b['yardstick_ms_before_after'][1]:g}"
+        f" after, the run's median {b['median_yardstick_ms']:g}): its fps is not its own; its "
+        f"frame took {b['frame_over_yardstick']} yardsticks"
+        for b in busy_scenes(results)
+    ]
+
+
 _STAGE_LABELS = {
     "features": "features (waited for)",
     "features_ahead": "features extracted ahead, in the worker",
@@ -585,7 +633,7 @@ _STAGE_LABELS = {
 
 def report(results, modes, out: Path, frames, load0, *, timing: bool = False) -> None:
     """Markdown table, figure and the last JSON line of a run (or of saved results)."""
-    print("\n".join(table(results, modes)))
+    print("\n".join(table(results, modes) + busy_notes(results)))
     if timing or len(results) == 1:
         m = results[0]["points+lines"]
         cpu = m.get("mean_stage_cpu_s", {})
@@ -613,6 +661,7 @@ def report(results, modes, out: Path, frames, load0, *, timing: bool = False) ->
         ],
         "median_fps": float(np.median(fps)) if fps else None,
         **_yardstick_summary(results),
+        "scenes_on_a_busy_machine": [b["scene"] for b in busy_scenes(results)],
         **_smoothed_summary(results),
         "median_cpu_s_per_frame": float(
             np.median([r["points+lines"]["mean_frame_cpu_s"] for r in results])
