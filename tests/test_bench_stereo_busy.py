@@ -1,41 +1,55 @@
-"""``bench/stereo.py``'s check of the machine's own speed around each scene (the yardstick
-measured before and after it): a scene whose fps other work changed is named, not hidden."""
+"""``bench/stereo.py``'s check of the machine around each scene: a scene whose fps other work
+changed (its yardstick before and after apart or high, or its threads waiting for the cores) is
+named, not hidden."""
 
 import pytest
 from bench_module import load_bench
 
 
-def _scene(name, before, after, fps=10.0):
+def _scene(name, before, after, fps=10.0, cpu_s=None):
+    wall_s = 1.0 / fps
     return {
         "scene": {"name": name},
         "opencv_yardstick_ms": 0.5 * (before + after),
         "opencv_yardstick_ms_before_after": [before, after],
-        "points+lines": {"fps": fps},
+        # CPU time a frame: 1.6 cores' worth of the wall time unless given
+        "points+lines": {
+            "fps": fps,
+            "mean_frame_s": wall_s,
+            "mean_frame_cpu_s": cpu_s or 1.6 * wall_s,
+        },
     }
 
 
-def test_scenes_whose_yardstick_moved_or_stood_above_the_run_are_named():
+def test_scenes_with_the_machine_busy_around_or_during_them_are_named():
     bench = load_bench("stereo")
     results = [
         _scene("quiet-a", 25.0, 25.0),
         _scene("quiet-b", 25.0, 26.0),
         _scene("quiet-c", 24.0, 25.0),
         _scene("changed", 44.0, 29.0, fps=12.0),  # 44 / 29 = 1.52 between before and after
-        _scene("shared", 40.0, 41.0, fps=12.5),  # steady, but 40.5 against a median of 25.5
+        _scene("shared", 40.0, 41.0, fps=12.5),  # steady, but 40.5 against a median of 25.25
+        # the yardstick quiet, but the frame's wall time is its CPU time: the threads waited
+        _scene("waited", 25.0, 25.0, fps=8.0, cpu_s=0.125),
     ]
     busy = bench.busy_scenes(results)
-    assert [b["scene"] for b in busy] == ["changed", "shared"]
-    shared = busy[1]
+    assert [b["scene"] for b in busy] == ["changed", "shared", "waited"]
+    shared, waited = busy[1], busy[2]
     assert shared["yardstick_ms_before_after"] == [40.0, 41.0]
-    assert shared["median_yardstick_ms"] == pytest.approx(25.5)
+    # the median of the six means 24.5, 25, 25, 25.5, 36.5, 40.5 ms, to a tenth
+    assert shared["median_yardstick_ms"] == pytest.approx(25.25, abs=0.06)
     assert shared["frame_over_yardstick"] == pytest.approx(1000.0 / 12.5 / 40.5, abs=0.005)
+    assert waited["wall_over_cpu"] == pytest.approx(1.0)
+    assert waited["median_wall_over_cpu"] == pytest.approx(1 / 1.6, abs=0.006)  # to a hundredth
     notes = bench.busy_notes(results)
-    assert len(notes) == 2 and "changed" in notes[0] and "44 ms before" in notes[0]
+    assert len(notes) == 3 and "changed" in notes[0] and "44 ms before" in notes[0]
+    assert "wall over CPU time 1 against a median of 0.62" in notes[2]
 
 
 def test_a_steady_run_and_results_without_a_yardstick_name_none():
     bench = load_bench("stereo")
-    steady = [_scene(f"s{i}", 25.0 + i, 25.5 + i) for i in range(4)]  # within 1.25 of each other
+    # yardsticks within 1.3 of each other, wall over CPU 0.55-0.70
+    steady = [_scene(f"s{i}", 25.0 + i, 25.5 + i, cpu_s=0.1 / (0.55 + 0.05 * i)) for i in range(4)]
     assert bench.busy_scenes(steady) == []
     old = [{"scene": {"name": "x"}, "points+lines": {"fps": 9.0}}]  # saved before the yardstick
     assert bench.busy_scenes(old) == [] and bench.busy_notes(old) == []
