@@ -672,8 +672,10 @@ def report(results, modes, out: Path, frames, load0, *, timing: bool = False) ->
         )
     figure(results, out / "rms_vs_range_rate.png")
     fps = [r["points+lines"]["fps"] for r in results if r["points+lines"]["fps"]]
-    splits = ("dev", "check") + (
-        ("own",) if any(r["scene"]["split"] == "own" for r in results) else ()
+    # the suite's two splits, and the others where present (--scene, held-out draws reported
+    # with --from-results)
+    splits = ("dev", "check") + tuple(
+        k for k in ("own", "held-out") if any(r["scene"]["split"] == k for r in results)
     )
     summary = {
         "scenes": len(results),
