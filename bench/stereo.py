@@ -631,10 +631,10 @@ def busy_scenes(results, factor: float = BUSY_FACTOR) -> list[dict]:
     return out
 
 
-def busy_notes(results) -> list[str]:
-    """One line a scene of :func:`busy_scenes`, for the printed report."""
+def busy_notes(busy: list[dict]) -> list[str]:
+    """One line for each scene of ``busy`` (:func:`busy_scenes`), for the printed report."""
     notes = []
-    for b in busy_scenes(results):
+    for b in busy:
         before, after = b["yardstick_ms_before_after"]
         waited = (
             f", its frame's wall over CPU time {b['wall_over_cpu']:g} against a median of "
@@ -658,7 +658,8 @@ _STAGE_LABELS = {
 
 def report(results, modes, out: Path, frames, load0, *, timing: bool = False) -> None:
     """Markdown table, figure and the last JSON line of a run (or of saved results)."""
-    print("\n".join(table(results, modes) + busy_notes(results)))
+    busy = busy_scenes(results)
+    print("\n".join(table(results, modes) + busy_notes(busy)))
     if timing or len(results) == 1:
         m = results[0]["points+lines"]
         cpu = m.get("mean_stage_cpu_s", {})
@@ -688,7 +689,7 @@ def report(results, modes, out: Path, frames, load0, *, timing: bool = False) ->
         ],
         "median_fps": float(np.median(fps)) if fps else None,
         **_yardstick_summary(results),
-        "scenes_on_a_busy_machine": [b["scene"] for b in busy_scenes(results)],
+        "scenes_on_a_busy_machine": [b["scene"] for b in busy],
         **_smoothed_summary(results),
         "median_cpu_s_per_frame": float(
             np.median([r["points+lines"]["mean_frame_cpu_s"] for r in results])

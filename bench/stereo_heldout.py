@@ -135,7 +135,8 @@ def main(argv=None) -> int:
         rows=args.frame_rows,
         smooth=args.smooth,
     )
-    for line in stereo.table(results, modes) + stereo.busy_notes(results):
+    busy = stereo.busy_scenes(results)
+    for line in stereo.table(results, modes) + stereo.busy_notes(busy):
         print(line)
     stereo.figure(results, args.out / "rms_vs_range_rate.png")
     near = [r for r in results if r["scene"]["range_m"] <= 3.0]
@@ -156,7 +157,7 @@ def main(argv=None) -> int:
         "lost_frames": int(sum(r["points+lines"]["lost_frames"] for r in results)),
         "median_fps": float(np.median([r["points+lines"]["fps"] for r in results])),
         "min_fps": float(np.min([r["points+lines"]["fps"] for r in results])),
-        "scenes_on_a_busy_machine": [b["scene"] for b in stereo.busy_scenes(results)],
+        "scenes_on_a_busy_machine": [b["scene"] for b in busy],
         "load_average": [round(x, 1) for x in load0 + os.getloadavg()],
     }
     if args.both_modes:
