@@ -53,3 +53,51 @@ def test_a_steady_run_and_results_without_a_yardstick_name_none():
     assert bench.busy_scenes(steady) == []
     old = [{"scene": {"name": "x"}, "points+lines": {"fps": 9.0}}]  # saved before the yardstick
     assert bench.busy_scenes(old) == []
+
+
+def _tracked(name, before, after, fps, errors=(1.0, 2.0, 3.0)):
+    r = _scene(name, before, after, fps=fps)
+    r["points+lines"].update(
+        rms_position_mm=list(errors),
+        rms_attitude_deg=[0.1, 0.1, 0.1],
+        lost_frames=0,
+        meets_targets=True,
+    )
+    return r
+
+
+def test_busy_scenes_are_tracked_again_and_their_first_fps_kept():
+    bench = load_bench("stereo")
+    results = [_tracked(f"quiet-{i}", 25.0, 25.0, 10.0) for i in range(4)]
+    results.insert(2, _tracked("changed", 44.0, 29.0, 6.0))  # 44 / 29: busy
+    asked = []
+
+    def rerun(name):
+        asked.append(name)
+        return _tracked(name, 25.0, 25.5, 10.5)
+
+    out = bench.rerun_busy(results, rerun)
+    assert asked == ["changed"]
+    assert [r["scene"]["name"] for r in out] == [r["scene"]["name"] for r in results]
+    assert all(a is b for a, b in zip(out, results, strict=True) if a["scene"]["name"] != "changed")
+    again = out[2]
+    assert again["points+lines"]["fps"] == 10.5
+    assert again["rerun"] == {"first_fps": {"points+lines": 6.0}, "same_errors": True}
+    assert bench.busy_scenes(out) == []  # the second run is steady
+    assert bench._rerun_summary(out) == {
+        "scenes_rerun": {"changed": {"first_fps": 6.0, "fps": 10.5, "same_errors": True}}
+    }
+    (note,) = bench.rerun_notes(out)
+    assert "6 fps first, 10.5 now (the errors the same)" in note
+    assert bench._rerun_summary(results) == {} and bench.rerun_notes(results) == []
+
+
+def test_a_rerun_whose_errors_differ_is_said_so():
+    bench = load_bench("stereo")
+    results = [_tracked(f"quiet-{i}", 25.0, 25.0, 10.0) for i in range(3)]
+    results.append(_tracked("shared", 40.0, 41.0, 7.0))  # 40.5 ms against a median of 25
+    out = bench.rerun_busy(results, lambda name: _tracked(name, 25.0, 25.0, 10.0, (1.0, 2.0, 3.5)))
+    assert out[-1]["rerun"]["same_errors"] is False
+    assert "THE ERRORS DIFFER" in bench.rerun_notes(out)[0]
+    # a steady run: nothing tracked again
+    assert bench.rerun_busy(results[:3], lambda name: pytest.fail(f"{name} re-run")) == results[:3]
