@@ -498,19 +498,7 @@ def main(argv=None) -> int:
         smooth=args.smooth,
     )
     if args.rerun_busy:
-        results = rerun_busy(
-            results,
-            lambda name: run_scene(
-                name,
-                args.frames,
-                modes,
-                seed=args.seed,
-                options=options,
-                rows=args.frame_rows,
-                smooth=args.smooth,
-            ),
-        )
-        (args.out / "results.json").write_text(json.dumps(results, indent=1))
+        results = rerun_busy_scenes(results, args, modes, options)
     report(results, modes, args.out, args.frames, load0, timing=args.timing_only)
     return 0
 
@@ -718,6 +706,26 @@ def rerun_busy(results: list[dict], rerun, factor: float = BUSY_FACTOR) -> list[
         }
         out.append(again)
     return out
+
+
+def rerun_busy_scenes(results: list[dict], args, modes, options) -> list[dict]:
+    """``--rerun-busy`` of a bench run with the command line ``args`` (``frames``, ``seed``,
+    ``frame_rows``, ``smooth``, ``out``): :func:`rerun_busy` with a fresh :func:`run_scene` of
+    each busy scene; ``out/results.json`` rewritten."""
+    results = rerun_busy(
+        results,
+        lambda name: run_scene(
+            name,
+            args.frames,
+            modes,
+            seed=args.seed,
+            options=options,
+            rows=args.frame_rows,
+            smooth=args.smooth,
+        ),
+    )
+    (args.out / "results.json").write_text(json.dumps(results, indent=1))
+    return results
 
 
 def rerun_notes(results: list[dict]) -> list[str]:

@@ -142,19 +142,7 @@ def main(argv=None) -> int:
         smooth=args.smooth,
     )
     if args.rerun_busy:
-        results = stereo.rerun_busy(
-            results,
-            lambda name: stereo.run_scene(
-                name,
-                args.frames,
-                modes,
-                seed=args.seed,
-                options=options,
-                rows=args.frame_rows,
-                smooth=args.smooth,
-            ),
-        )
-        (args.out / "results.json").write_text(json.dumps(results, indent=1))
+        results = stereo.rerun_busy_scenes(results, args, modes, options)
     busy = stereo.busy_scenes(results)
     notes = stereo.busy_notes(busy) + stereo.rerun_notes(results)
     for line in stereo.table(results, modes) + notes:
