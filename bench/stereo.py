@@ -745,6 +745,15 @@ def rerun_notes(results: list[dict]) -> list[str]:
     return notes
 
 
+def machine_report(results: list[dict]) -> tuple[list[str], dict]:
+    """What a report says of the machine around each scene: the notes under the table (the
+    scenes on a busy machine, :func:`busy_notes`, and those tracked again, :func:`rerun_notes`)
+    and the JSON line's fields (``scenes_on_a_busy_machine``, ``scenes_rerun``)."""
+    busy = busy_scenes(results)
+    fields = {"scenes_on_a_busy_machine": [b["scene"] for b in busy], **_rerun_summary(results)}
+    return busy_notes(busy) + rerun_notes(results), fields
+
+
 _STAGE_LABELS = {
     "features": "features (waited for)",
     "features_ahead": "features extracted ahead, in the worker",
@@ -753,8 +762,8 @@ _STAGE_LABELS = {
 
 def report(results, modes, out: Path, frames, load0, *, timing: bool = False) -> None:
     """Markdown table, figure and the last JSON line of a run (or of saved results)."""
-    busy = busy_scenes(results)
-    print("\n".join(table(results, modes) + busy_notes(busy) + rerun_notes(results)))
+    notes, machine = machine_report(results)
+    print("\n".join(table(results, modes) + notes))
     if timing or len(results) == 1:
         m = results[0]["points+lines"]
         cpu = m.get("mean_stage_cpu_s", {})
@@ -784,8 +793,7 @@ def report(results, modes, out: Path, frames, load0, *, timing: bool = False) ->
         ],
         "median_fps": float(np.median(fps)) if fps else None,
         **_yardstick_summary(results),
-        "scenes_on_a_busy_machine": [b["scene"] for b in busy],
-        **_rerun_summary(results),
+        **machine,
         **_smoothed_summary(results),
         "median_cpu_s_per_frame": float(
             np.median([r["points+lines"]["mean_frame_cpu_s"] for r in results])

@@ -143,8 +143,7 @@ def main(argv=None) -> int:
     )
     if args.rerun_busy:
         results = stereo.rerun_busy_scenes(results, args, modes, options)
-    busy = stereo.busy_scenes(results)
-    notes = stereo.busy_notes(busy) + stereo.rerun_notes(results)
+    notes, machine = stereo.machine_report(results)
     for line in stereo.table(results, modes) + notes:
         print(line)
     stereo.figure(results, args.out / "rms_vs_range_rate.png")
@@ -166,8 +165,7 @@ def main(argv=None) -> int:
         "lost_frames": int(sum(r["points+lines"]["lost_frames"] for r in results)),
         "median_fps": float(np.median([r["points+lines"]["fps"] for r in results])),
         "min_fps": float(np.min([r["points+lines"]["fps"] for r in results])),
-        "scenes_on_a_busy_machine": [b["scene"] for b in busy],
-        **stereo._rerun_summary(results),
+        **machine,
         "load_average": [round(x, 1) for x in load0 + os.getloadavg()],
     }
     if args.both_modes:
