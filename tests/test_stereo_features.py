@@ -1,6 +1,8 @@
 """Stereo tracker features: LSD segments on drawn edges at every detection scale, and the
 ratio-test matching over candidate pairs against a brute-force reference."""
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -230,3 +232,35 @@ def test_a_region_of_interest_keeps_the_keypoints_orb_finds_on_the_whole_image()
     # exactly, the coarser levels' within 2 px (the crop's corner is not on their pixel grid)
     d = np.linalg.norm(whole[:, None] - cropped[None], axis=-1).min(1)
     assert np.mean(d < 2.0) > 0.9, np.mean(d < 2.0)
+
+
+def test_dark_margin_drops_the_keypoints_beside_the_dark_sky_and_only_those():
+    """A textured target on a dark sky: with ``dark_margin_px`` the keypoints whose window of
+    that half-width holds a pixel below ``DARK_LEVEL`` (checked here pixel by pixel) are dropped,
+    the others kept as they were, descriptors and responses with them."""
+    from jaxpose.vision.stereo_features import DARK_LEVEL, detect_points
+
+    rng = np.random.default_rng(4)
+    img = np.zeros((240, 320), np.uint8)
+    blocks = (rng.random((10, 14)) > 0.5).astype(np.uint8) * 180 + 40
+    img[60:180, 76:244] = cv2.resize(blocks, (168, 120), interpolation=cv2.INTER_NEAREST)
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    base = FeatureOptions(n_points=3000, subpixel=False)
+    pts, desc, resp = detect_points(img, options=base, response=True)
+    m = 5
+    near = np.array(
+        [
+            (img[max(v - m, 0) : v + m + 1, max(u - m, 0) : u + m + 1] < DARK_LEVEL).any()
+            for u, v in np.rint(pts).astype(int)
+        ]
+    )
+    assert 10 < near.sum() < len(pts) - 10  # both kinds present
+    got, got_desc, got_resp = detect_points(
+        img, options=replace(base, dark_margin_px=m), response=True
+    )
+    np.testing.assert_array_equal(got, pts[~near])
+    np.testing.assert_array_equal(got_desc, desc[~near])
+    np.testing.assert_array_equal(got_resp, resp[~near])
+    for bad in (-1, True):  # (a float is refused by the type check under the tests' hook)
+        with pytest.raises(ValueError, match="dark_margin_px"):
+            FeatureOptions(dark_margin_px=bad)

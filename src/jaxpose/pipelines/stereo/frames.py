@@ -17,7 +17,7 @@ import numpy as np
 from jaxpose.core.camera import StereoCamera
 from jaxpose.pipelines.stereo.options import TrackerOptions
 from jaxpose.vision.features import to_gray
-from jaxpose.vision.stereo_features import FeatureOptions, FrameFeatures, extract
+from jaxpose.vision.stereo_features import DARK_LEVEL, FeatureOptions, FrameFeatures, extract
 from jaxpose.vision.undistort import check_roi
 
 __all__ = [
@@ -31,7 +31,9 @@ __all__ = [
 ]
 
 
-def target_roi(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> np.ndarray | None:
+def target_roi(
+    image: np.ndarray, *, threshold: int = DARK_LEVEL, step: int = 4
+) -> np.ndarray | None:
     """Bounding box ``(u0, v0, u1, v1)`` of the pixels brighter than ``threshold`` (a target on a
     dark sky), from a ``step``-subsampled image; ``None`` when nothing is bright."""
     small = np.asarray(image)[::step, ::step]
@@ -41,7 +43,7 @@ def target_roi(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> np.n
     return np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float) * step
 
 
-def target_area(image: np.ndarray, *, threshold: int = 10, step: int = 4) -> float:
+def target_area(image: np.ndarray, *, threshold: int = DARK_LEVEL, step: int = 4) -> float:
     """Apparent area of the target, pixels: the pixels brighter than ``threshold`` (a target on a
     dark sky), counted on a ``step``-subsampled image."""
     small = np.asarray(image)[::step, ::step]
