@@ -95,7 +95,8 @@ def raycast(pixels, R, t, camera, model) -> np.ndarray:
         near, far = np.nanmax(np.minimum(t1, t2), 1), np.nanmin(np.maximum(t1, t2), 1)
         hit = (near <= far) & (near > 0) & (near < best)
         best = np.where(hit, near, best)
-    X = o + d * best[:, None]
+    with np.errstate(invalid="ignore"):  # a miss: inf times a zero component
+        X = o + d * best[:, None]
     X[~np.isfinite(best)] = np.nan
     return X
 

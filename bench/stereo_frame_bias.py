@@ -25,6 +25,13 @@ minus the true body point's projection at the frame's true pose, pixels) along i
 motion's length (the true projection's change since the frame before, pixels a frame), and the
 mean residual in u and v.
 
+``by_surface``: the frame-0 landmarks by where their first pixel lies on the model, from rays cast
+at the true pose through the pixels ``margin`` (5) pixels around it (:func:`surface_classes`):
+``face`` (every ray on one face), ``edge`` (on two faces or more: a crease of the box, or one
+part in front of another) or ``silhouette`` (a ray misses the target: sky); per class the
+landmarks, their left observations in frames 1 on, the MAD-scaled spread and median length of
+their residuals and the mean residual in u and v (pixels).
+
 ``--scene-option`` changes a field of every scene (``pixel_samples=3``, ``exact_faces=True``,
 ``noise_sigma=0.0``, ...), to tell the renderer's part from the features'; ``--option`` a field
 of the tracker's options as in ``bench/stereo.py`` (``features.subpixel=False``,
@@ -87,6 +94,56 @@ def frame_fit(pixels, points, offsets, R, t, focal, centre, iterations: int = 10
     return R, t, normal
 
 
+def _faces(X: np.ndarray, model) -> np.ndarray:
+    """Which face of the model's two boxes (body, wing; ``6 box + side``) each body point ``(n,
+    3)`` lies on (the nearest of the box's six planes, the box holding the point); -1 for NaN."""
+    V = model.vertices
+    out = np.full(len(X), -1)
+    for b in (1, 0):  # the body last: a point where the wing meets it is the body's
+        lo, hi = V[8 * b : 8 * b + 8].min(0), V[8 * b : 8 * b + 8].max(0)
+        with np.errstate(invalid="ignore"):
+            inside = np.all((X >= lo - 1e-6) & (X <= hi + 1e-6), axis=1)
+        d = np.concatenate([np.abs(X[inside] - lo), np.abs(X[inside] - hi)], axis=1)
+        out[inside] = 6 * b + np.argmin(d, axis=1)
+    return out
+
+
+def surface_classes(pixels, R, t, camera, model, margin: float = 5.0) -> np.ndarray:
+    """``(n,)`` ``"face"``, ``"edge"`` or ``"silhouette"`` for left pixels ``(n, 2)`` at the pose
+    ``(R, t)``: rays are cast through the 3 x 3 pixels ``margin`` apart about each (the module
+    docstring's ``by_surface``)."""
+    from stereo_diagnose import raycast
+
+    faces = np.stack(
+        [
+            _faces(raycast(pixels + [du, dv], R, t, camera, model), model)
+            for du in (-margin, 0.0, margin)
+            for dv in (-margin, 0.0, margin)
+        ],
+        axis=1,
+    )
+    several = np.array([len(set(f)) > 1 for f in faces])
+    return np.where((faces < 0).any(1), "silhouette", np.where(several, "edge", "face"))
+
+
+def surface_summary(classes: np.ndarray, residuals: np.ndarray, observed: np.ndarray) -> dict:
+    """Per class of :func:`surface_classes`: the landmarks, and the residuals ``(m, 2)`` of their
+    observations (``observed (m,)``: each observation's class) summarised (``by_surface``)."""
+    from stereo_diagnose import _mad_std
+
+    out = {}
+    for c in ("face", "edge", "silhouette"):
+        r = residuals[observed == c]
+        out[c] = {"landmarks": int(np.sum(classes == c)), "observations": len(r)}
+        if len(r):
+            out[c] |= {
+                "spread_px": round(float(_mad_std(r.ravel())), 3),
+                "median_length_px": round(float(np.median(np.linalg.norm(r, axis=1))), 3),
+                "mean_residual_uv_px": np.round(r.mean(0), 3).tolist(),
+            }
+    return out
+
+
 def motion_summary(residuals: np.ndarray, motion: np.ndarray) -> dict:
     """Residuals ``(n, 2)`` (pixels) against the image motion ``(n, 2)`` of the same points:
     the least-squares slope and intercept of the residual's component along the motion on the
@@ -125,8 +182,11 @@ def frame_bias(name: str, frames: int, seed: int, scene_options=(), option=()) -
     ids0, px0, right0, _ = logs[0].arrays()
     R0, t0 = np.asarray(seq[0].pose.R, float), np.asarray(seq[0].pose.t, float)
     X = raycast(px0[~right0], R0, t0, cam, model)
-    truth = {int(i): x for i, x in zip(ids0[~right0], X, strict=True) if np.all(np.isfinite(x))}
-    rows, motion, resid = [], [], []
+    hit = np.all(np.isfinite(X), axis=1)
+    truth = {int(i): x for i, x, h in zip(ids0[~right0], X, hit, strict=True) if h}
+    classes = surface_classes(px0[~right0][hit], R0, t0, cam, model)
+    surface = dict(zip(ids0[~right0][hit].tolist(), classes, strict=True))
+    rows, motion, resid, kinds = [], [], [], []
     for log in logs[1:]:
         ids, px, right, _ = log.arrays()
         keep = np.array([int(i) in truth for i in ids], bool)
@@ -141,6 +201,7 @@ def frame_bias(name: str, frames: int, seed: int, scene_options=(), option=()) -
         left = ~rt  # the image motion of the left observations since the frame before
         before = project(np.asarray(prev.R), np.asarray(prev.t), pts[left], 0.0, focal, centre)
         resid.append(pix[left] - proj[left])
+        kinds.append(np.array([surface[int(i)] for i in ids[keep][left]]))
         motion.append(proj[left] - before)
         sigma = _mad_std((proj - pix).ravel())
         Rf, _, normal = frame_fit(pix, pts, offsets, R, t, focal, centre)
@@ -168,6 +229,7 @@ def frame_bias(name: str, frames: int, seed: int, scene_options=(), option=()) -
         "median_abs_z": np.round(np.median(z, axis=0), 1).tolist(),
         "share_abs_z_above_3": np.round(np.mean(z > 3, axis=0), 2).tolist(),
         "motion": motion_summary(np.concatenate(resid), np.concatenate(motion)),
+        "by_surface": surface_summary(classes, np.concatenate(resid), np.concatenate(kinds)),
     }
 
 
@@ -228,6 +290,7 @@ def main(argv=None) -> None:
                 f"{r['share_abs_z_above_3']}; along the motion {r['motion']}",
                 flush=True,
             )
+            print(f"by surface {r['by_surface']}", flush=True)
     print(json.dumps({"frames": args.frames, "runs": runs}))
 
 

@@ -88,3 +88,35 @@ def test_motion_summary_reads_a_displacement_along_the_motion():
     np.testing.assert_allclose(got["mean_residual_uv_px"], residuals.mean(0), atol=1e-3)
     across = bench.motion_summary(motion[:, ::-1] * [1, -1] * 0.2, motion)  # perpendicular
     assert abs(across["slope_along_motion"]) < 1e-9 and abs(across["intercept_px"]) < 1e-9
+
+
+def test_surface_classes_tell_a_face_an_edge_and_the_silhouette():
+    """The body's +z face seen head-on at 4 m: its centre is on one face, the midpoint of its +x
+    edge has sky beside it, and the midpoint of its +y edge has the wing (another box, behind)
+    beside it; the classes come from rays cast through the pixels around each."""
+    from jaxpose.vision.stereo_render import default_rig, tumbler_model
+
+    cam = default_rig().left
+    model = tumbler_model(1.0)
+    R, t = np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 4.0])
+    bx, by, bz = 0.25, 0.225, 0.275  # the body's half-sizes (tumbler_model)
+    X = np.array([[0.0, 0.0, bz], [bx, 0.0, bz], [0.0, by, bz]])
+    xc = X @ R.T + t
+    fx, fy, cx, cy = (float(v) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
+    pix = np.stack([fx * xc[:, 0] / xc[:, 2] + cx, fy * xc[:, 1] / xc[:, 2] + cy], 1)
+    got = bench.surface_classes(pix, R, t, cam, model, margin=5.0)
+    assert got.tolist() == ["face", "silhouette", "edge"]
+    # a pixel 20 px inside the +x edge is on the face again
+    inside = bench.surface_classes(pix[1:2] - [20.0, 0.0], R, t, cam, model, margin=5.0)
+    assert inside.tolist() == ["face"]
+
+
+def test_surface_summary_counts_and_averages_each_class():
+    classes = np.array(["face", "face", "edge"])
+    observed = np.array(["face", "face", "edge", "face"])
+    res = np.array([[0.1, 0.0], [0.3, 0.0], [1.0, -1.0], [0.2, 0.3]])
+    got = bench.surface_summary(classes, res, observed)
+    assert got["face"]["landmarks"] == 2 and got["face"]["observations"] == 3
+    np.testing.assert_allclose(got["face"]["mean_residual_uv_px"], [0.2, 0.1], atol=1e-9)
+    assert got["edge"]["median_length_px"] == round(float(np.sqrt(2.0)), 3)
+    assert got["silhouette"] == {"landmarks": 0, "observations": 0}
