@@ -102,9 +102,9 @@ class FeatureOptions:
             (``bench/stereo_frame_bias.py``, ``by_surface``): at 4-5 m those observations of
             the first frame's landmarks err by a median 0.72-0.81 px against 0.43-0.58 px on
             the faces, with a mean of 0.14-0.39 px in one direction. ``None`` (the default):
-            keep every keypoint. Not the stereo tracker's default: on its development scenes
-            at 5 the 4-5 m scenes' worst axes fall by 14% summed over three noise seeds, but
-            the 1.5-3 m scenes' rise by 33% (on 9 of 12 runs; ``docs/stereo-evaluation.md``,
+            keep every keypoint. Not the stereo tracker's default: at 5, the worst axes of its
+            4-5 m development scenes fall by 14% summed over three noise seeds, but those of
+            the 1.5-3 m scenes rise by 33% (on 9 of 12 runs; ``docs/stereo-evaluation.md``,
             *Keypoints beside the dark sky*).
     """
 
