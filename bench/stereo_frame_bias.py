@@ -32,6 +32,10 @@ part in front of another) or ``silhouette`` (a ray misses the target: sky); per 
 landmarks, their left observations in frames 1 on, the MAD-scaled spread and median length of
 their residuals and the mean residual in u and v (pixels).
 
+``--figure DIR`` writes ``DIR/SCENE-seedS-surface.png``: the first left image about the target,
+each frame-0 landmark drawn at its pixel in its class's colour (face green, edge yellow,
+silhouette red).
+
 ``--scene-option`` changes a field of every scene (``pixel_samples=3``, ``exact_faces=True``,
 ``noise_sigma=0.0``, ...), to tell the renderer's part from the features'; ``--option`` a field
 of the tracker's options as in ``bench/stereo.py`` (``features.subpixel=False``,
@@ -144,6 +148,34 @@ def surface_summary(classes: np.ndarray, residuals: np.ndarray, observed: np.nda
     return out
 
 
+SURFACE_COLOURS = {"face": (60, 200, 60), "edge": (0, 220, 255), "silhouette": (40, 40, 255)}
+
+
+def surface_figure(image: np.ndarray, pixels: np.ndarray, classes: np.ndarray, path) -> None:
+    """A PNG at ``path`` of the grey ``image`` about its bright target (10 px around), scaled to
+    600 px on its longer side, with a dot at each of ``pixels (n, 2)`` in the colour of its class
+    (:data:`SURFACE_COLOURS`)."""
+    import cv2
+
+    from jaxpose.pipelines.stereo import target_roi
+
+    box = target_roi(image)
+    H, W = image.shape
+    u0, v0, u1, v1 = (0, 0, W, H) if box is None else box.astype(int)
+    u0, v0, u1, v1 = max(u0 - 10, 0), max(v0 - 10, 0), min(u1 + 10, W), min(v1 + 10, H)
+    scale = 600.0 / max(u1 - u0, v1 - v0)
+    crop = np.ascontiguousarray(image[v0:v1, u0:u1])
+    out = cv2.resize(cv2.cvtColor(crop, cv2.COLOR_GRAY2BGR), None, fx=scale, fy=scale)
+    for (u, v), c in zip(pixels, classes, strict=True):
+        centre = (
+            int(round((u - u0 + 0.5) * scale - 0.5)),
+            int(round((v - v0 + 0.5) * scale - 0.5)),
+        )
+        cv2.circle(out, centre, 3, SURFACE_COLOURS[str(c)], -1, cv2.LINE_AA)
+    if not cv2.imwrite(str(path), out):
+        raise OSError(f"could not write {path}")
+
+
 def motion_summary(residuals: np.ndarray, motion: np.ndarray) -> dict:
     """Residuals ``(n, 2)`` (pixels) against the image motion ``(n, 2)`` of the same points:
     the least-squares slope and intercept of the residual's component along the motion on the
@@ -161,9 +193,13 @@ def motion_summary(residuals: np.ndarray, motion: np.ndarray) -> dict:
     }
 
 
-def frame_bias(name: str, frames: int, seed: int, scene_options=(), option=()) -> dict:
+def frame_bias(
+    name: str, frames: int, seed: int, scene_options=(), option=(), figure_dir=None
+) -> dict:
     """Per frame: the fitted attitude error and its bound (module docstring). ``scene_options``
-    and ``option``: ``NAME=VALUE`` items for the scene and the tracker's options."""
+    and ``option``: ``NAME=VALUE`` items for the scene and the tracker's options; ``figure_dir``:
+    where :func:`surface_figure` writes the first frame's landmarks by class (``None``: no
+    figure)."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -186,6 +222,9 @@ def frame_bias(name: str, frames: int, seed: int, scene_options=(), option=()) -
     truth = {int(i): x for i, x, h in zip(ids0[~right0], X, hit, strict=True) if h}
     classes = surface_classes(px0[~right0][hit], R0, t0, cam, model)
     surface = dict(zip(ids0[~right0][hit].tolist(), classes, strict=True))
+    if figure_dir is not None:
+        path = Path(figure_dir) / f"{name}-seed{seed}-surface.png"
+        surface_figure(np.asarray(seq[0].left), px0[~right0][hit], classes, path)
     rows, motion, resid, kinds = [], [], [], []
     for log in logs[1:]:
         ids, px, right, _ = log.arrays()
@@ -254,7 +293,14 @@ def main(argv=None) -> None:
         metavar="NAME=VALUE",
         help="a TrackerOptions field as in bench/stereo.py, e.g. features.subpixel=False",
     )
+    ap.add_argument(
+        "--figure",
+        metavar="DIR",
+        help="write each run's first frame with its landmarks by surface class to DIR",
+    )
     args = ap.parse_args(argv)
+    if args.figure is not None:
+        Path(args.figure).mkdir(parents=True, exist_ok=True)
     if args.frames < 3:
         ap.error(f"--frames must be at least 3; got {args.frames}")
     check_scenes(ap, args.scenes)
@@ -274,7 +320,7 @@ def main(argv=None) -> None:
     runs = []
     for name in args.scenes:
         for seed in args.seeds:
-            r = frame_bias(name, args.frames, seed, args.scene_option, args.option)
+            r = frame_bias(name, args.frames, seed, args.scene_option, args.option, args.figure)
             runs.append(r)
             print(f"{name} seed {seed} {' '.join(args.scene_option)} {' '.join(args.option)}")
             print("| frame | obs | sigma px | error x, y, z deg | left only | bound | z |")

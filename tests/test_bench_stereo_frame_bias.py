@@ -120,3 +120,20 @@ def test_surface_summary_counts_and_averages_each_class():
     np.testing.assert_allclose(got["face"]["mean_residual_uv_px"], [0.2, 0.1], atol=1e-9)
     assert got["edge"]["median_length_px"] == round(float(np.sqrt(2.0)), 3)
     assert got["silhouette"] == {"landmarks": 0, "observations": 0}
+
+
+def test_surface_figure_draws_each_class_in_its_colour_about_the_target(tmp_path):
+    import cv2
+
+    img = np.zeros((240, 320), np.uint8)
+    img[100:160, 120:220] = 120  # the target: 100 x 60 px, so the crop is 120 x 80 (10 px more)
+    pix = np.array([[170.0, 130.0], [125.0, 130.0], [150.0, 105.0]])
+    classes = np.array(["face", "silhouette", "edge"])
+    path = tmp_path / "f.png"
+    bench.surface_figure(img, pix, classes, path)
+    out = cv2.imread(str(path))
+    assert out.shape[:2] == (400, 600)  # scaled by 600 / 120 = 5
+    for (u, v), c in zip(pix, classes, strict=True):
+        x, y = round((u - 110 + 0.5) * 5 - 0.5), round((v - 90 + 0.5) * 5 - 0.5)
+        np.testing.assert_array_equal(out[y, x], bench.SURFACE_COLOURS[c])
+    assert np.all(out[5, 5] == 0) and np.all(out[100, 100] == 120)  # the sky and the face
