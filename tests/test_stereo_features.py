@@ -204,6 +204,17 @@ def test_peak_refinement_stays_within_half_a_pixel_of_the_corners():
             FeatureOptions(subpixel_half_window=bad)
 
 
+def _target_on_sky(seed: int, shape, box, blocks) -> np.ndarray:
+    """A ``shape`` image, black but for a target of random grey blocks (``blocks`` rows and
+    columns) in ``box`` ``(u, v, width, height)``, blurred by a Gaussian of 1 px."""
+    rng = np.random.default_rng(seed)
+    img = np.zeros(shape, np.uint8)
+    grid = (rng.random(blocks) > 0.5).astype(np.uint8) * 180 + 40
+    u, v, w, h = box
+    img[v : v + h, u : u + w] = cv2.resize(grid, (w, h), interpolation=cv2.INTER_NEAREST)
+    return cv2.GaussianBlur(img, (0, 0), 1.0)
+
+
 def test_a_region_of_interest_keeps_the_keypoints_orb_finds_on_the_whole_image():
     """A textured target on a dark sky, the region of interest its tight box: ORB drops
     keypoints within 31 pixels of its level of the image it is given, so the crop must keep that
@@ -212,11 +223,7 @@ def test_a_region_of_interest_keeps_the_keypoints_orb_finds_on_the_whole_image()
     from jaxpose.pipelines.stereo import target_roi
     from jaxpose.vision.stereo_features import detect_points
 
-    rng = np.random.default_rng(3)
-    img = np.zeros((480, 640), np.uint8)
-    blocks = (rng.random((12, 16)) > 0.5).astype(np.uint8) * 180 + 40
-    img[200:296, 260:388] = cv2.resize(blocks, (128, 96), interpolation=cv2.INTER_NEAREST)
-    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    img = _target_on_sky(3, (480, 640), (260, 200, 128, 96), (12, 16))
     opts = FeatureOptions(n_points=5000, subpixel=False)
     roi = target_roi(img)
     assert roi is not None and roi[0] >= 250 and roi[2] <= 400  # the box hugs the target
@@ -240,11 +247,7 @@ def test_dark_margin_drops_the_keypoints_beside_the_dark_sky_and_only_those():
     the others kept as they were, descriptors and responses with them."""
     from jaxpose.vision.stereo_features import DARK_LEVEL, detect_points
 
-    rng = np.random.default_rng(4)
-    img = np.zeros((240, 320), np.uint8)
-    blocks = (rng.random((10, 14)) > 0.5).astype(np.uint8) * 180 + 40
-    img[60:180, 76:244] = cv2.resize(blocks, (168, 120), interpolation=cv2.INTER_NEAREST)
-    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    img = _target_on_sky(4, (240, 320), (76, 60, 168, 120), (10, 14))
     base = FeatureOptions(n_points=3000, subpixel=False)
     pts, desc, resp = detect_points(img, options=base, response=True)
     m = 5
