@@ -28,7 +28,9 @@ mean residual in u and v.
 ``by_surface``: the frame-0 landmarks by where their first pixel lies on the model, from rays cast
 at the true pose through the pixels ``margin`` (5) pixels around it (:func:`surface_classes`):
 ``face`` (every ray on one face), ``edge`` (on two faces or more: a crease of the box, or one
-part in front of another) or ``silhouette`` (a ray misses the target: sky); per class the
+part in front of another) or ``silhouette`` (a ray misses the target: sky); the rays meet the
+model's two boxes only (body and wing: a landmark on an antenna has no true point and is left
+out, one beside an antenna is classed by what lies behind it); per class the
 landmarks, their left observations in frames 1 on, the MAD-scaled spread and median length of
 their residuals and the mean residual in u and v (pixels).
 
