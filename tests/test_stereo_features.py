@@ -264,6 +264,9 @@ def test_dark_margin_drops_the_keypoints_beside_the_dark_sky_and_only_those():
     np.testing.assert_array_equal(got, pts[~near])
     np.testing.assert_array_equal(got_desc, desc[~near])
     np.testing.assert_array_equal(got_resp, resp[~near])
+    on_dark = np.array([img[v, u] < DARK_LEVEL for u, v in np.rint(pts).astype(int)])
+    at_zero, _ = detect_points(img, options=replace(base, dark_margin_px=0))
+    np.testing.assert_array_equal(at_zero, pts[~on_dark])  # the keypoint's own pixel only
     for bad in (-1, True):  # (a float is refused by the type check under the tests' hook)
         with pytest.raises(ValueError, match="dark_margin_px"):
             FeatureOptions(dark_margin_px=bad)

@@ -249,24 +249,22 @@ def detect_points(
         w = int(options.subpixel_half_window)
         pts = cv2.cornerSubPix(crop, pts, (w, w), (-1, -1), _SUBPIX_CRITERIA)
     pts = pts.reshape(-1, 2).astype(np.float64)
-    resp = np.array([k.response for k in kps], np.float64)
+    keep = slice(None)  # every keypoint
     if options.dark_margin_px is not None:
         keep = ~_near_dark(crop, pts, options.dark_margin_px)
-        pts, desc, resp = pts[keep], desc[keep], resp[keep]
+        pts, desc = pts[keep], desc[keep]
     pts += [u0, v0]
-    return (pts, desc, resp) if response else (pts, desc)
+    if not response:
+        return pts, desc
+    return pts, desc, np.array([k.response for k in kps], np.float64)[keep]
 
 
 def _near_dark(image: np.ndarray, pts: np.ndarray, margin: int) -> np.ndarray:
     """``(N,)`` whether a pixel darker than :data:`DARK_LEVEL` lies within ``margin`` pixels
     (a ``2 margin + 1`` square) of each keypoint's nearest whole pixel in ``image``."""
     H, W = image.shape
-    if not len(pts):
-        return np.zeros(0, bool)
     u = np.clip(np.rint(pts[:, 0]).astype(np.int64), 0, W - 1)
     v = np.clip(np.rint(pts[:, 1]).astype(np.int64), 0, H - 1)
-    if margin == 0:
-        return image[v, u] < DARK_LEVEL
     # the window's minimum (a grey erosion; pixels beyond the border do not count)
     low = cv2.erode(image, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8))
     return low[v, u] < DARK_LEVEL
