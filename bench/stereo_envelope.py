@@ -93,8 +93,11 @@ def summarise(rows: list[dict], edges=RANGE_EDGES, fast: float = FAST_DEG_S) -> 
         "meet": sum(r["meets"] for r in rows),
         "by_range": by_range,
         "by_range_and_spin": by_spin,
-        "misses": [
-            {k: r[k] for k in ("source", "name", "worst_position_over_target", "lost_frames")}
+        "misses": [  # a lost track's ratio as None (JSON has no infinity)
+            {
+                **{k: r[k] for k in ("source", "name", "lost_frames")},
+                "worst_position_over_target": _finite(r["worst_position_over_target"]),
+            }
             for r in rows
             if not r["meets"]
         ],
@@ -108,8 +111,12 @@ def _count(rows: list[dict]) -> dict:
     return {
         "meet": sum(r["meets"] for r in rows),
         "scenes": len(rows),
-        "median_worst_over_target": float(np.median(ratios)) if rows else None,
+        "median_worst_over_target": _finite(float(np.median(ratios))) if rows else None,
     }
+
+
+def _finite(x: float) -> float | None:
+    return x if np.isfinite(x) else None
 
 
 def table(summary: dict) -> list[str]:
@@ -226,12 +233,17 @@ def main(argv=None) -> int:
     print("\n".join(table(summary)))
     for m in summary["misses"]:
         print(
-            f"miss: {m['source']} {m['name']}: worst position axis "
-            f"{m['worst_position_over_target']:.3f} of its target, {m['lost_frames']} lost"
+            f"miss: {m['source']} {m['name']}: "
+            + (
+                "no RMS (the track was lost)"
+                if m["worst_position_over_target"] is None
+                else f"worst position axis {m['worst_position_over_target']:.3f} of its target"
+            )
+            + f", {m['lost_frames']} frames lost"
         )
     a.out.mkdir(parents=True, exist_ok=True)
     figure(rows, a.out / "envelope.png")
-    print(json.dumps({"bench": "stereo-envelope", **summary}))
+    print(json.dumps({"bench": "stereo-envelope", **summary}, allow_nan=False))
     return 0
 
 

@@ -63,6 +63,8 @@ def test_counts_by_range_band_and_spin_match_a_count_written_out():
     missed = {m["name"] for m in s["misses"]}
     assert {"att", "lost"} <= missed  # attitude over 1 degree; a lost track
     assert missed == {r["scene"]["name"] for r in recs if not _meets(r)}
+    lost = next(m for m in s["misses"] if m["name"] == "lost")
+    assert lost["worst_position_over_target"] is None and lost["lost_frames"] == 3
 
 
 def test_the_worst_axis_over_its_target():
@@ -82,6 +84,7 @@ def test_main_reads_folders_writes_the_figure_and_ends_with_a_json_line(tmp_path
     assert (tmp_path / "out" / "envelope.png").stat().st_size > 10_000
     last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert last["bench"] == "stereo-envelope" and last["scenes"] == 42
+    assert last["meet"] == sum(map(_meets, _records()))  # the lost track's miss in strict JSON
 
 
 def test_a_path_without_results_is_named(tmp_path):
