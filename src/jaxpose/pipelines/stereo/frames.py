@@ -115,6 +115,11 @@ def feature_options(
 #: with the pyramid and 2.1 with the full-resolution corners throughout). The band keeps a
 #: sequence at one range from switching back and forth; the one switch stays.
 FINE_CORNERS_BAND = 1.5
+#: The far window (``TrackerOptions.window_frames_far``) is left only below ``window_far_m``
+#: over this: the visible faces' median depth moves as the target turns (by up to its half-size,
+#: a tenth of the range for the suite's 1 m target at 3 m), and a sequence at one range should
+#: not switch back and forth.
+WINDOW_FAR_BAND = 1.1
 
 
 def fine_corners(
@@ -147,3 +152,17 @@ def detect_features(
         lines=options.use_lines,
         threads=options.threads,
     )
+
+
+def far_window(options: TrackerOptions, depth_m: float | None, previous: bool) -> bool:
+    """Whether the window holds ``window_frames_far`` frames
+    (``TrackerOptions.window_far_m``) after a frame whose inlier point landmarks lie at a
+    median depth of ``depth_m`` metres, with hysteresis: entered at the threshold, left below
+    it over :data:`WINDOW_FAR_BAND`, ``previous`` the choice so far; a frame without a
+    measured depth (``None``, NaN) keeps it."""
+    limit = options.window_far_m
+    if limit is None:
+        return False
+    if depth_m is None or not np.isfinite(depth_m):
+        return previous
+    return bool(depth_m >= (limit / WINDOW_FAR_BAND if previous else limit))

@@ -49,6 +49,7 @@ _FIELD_KINDS = dict(
     integers={
         "feature_budget": 4,
         "window_frames": 0,
+        "window_frames_far": 2,
         "max_points": 1,
         "max_lines": 1,
         "min_features": 1,
@@ -82,6 +83,7 @@ _FIELD_KINDS = dict(
         "fine_corners_area_px",
         "neighbour_px",
         "window_depth_m",
+        "window_far_m",
         "budget_subsample",
         "anchor_turn_deg",
     ),
@@ -106,6 +108,7 @@ _FIELD_KINDS = dict(
         "lsd_area_px",
         "fine_corners_area_px",
         "window_depth_m",
+        "window_far_m",
         "anchor_turn_deg",
     ),
 )
@@ -259,6 +262,19 @@ class TrackerOptions:
             frames as a prior, the first frame's pose is fixed while it is in the window); an
             adjusted frame's result is its adjusted pose. ``0``: off. 8 chosen on the
             development scenes ``d2`` and ``d6`` against 6 and 12.
+        window_frames_far, window_far_m: the window holds ``window_frames_far`` frames instead
+            while the target is far: from a frame whose inlier point landmarks lie at a median
+            depth of ``window_far_m`` or more (metres, in the left camera; measured from the
+            map, so the same whether the first pose was given or the identity) until one
+            whose median depth falls below ``window_far_m /``
+            :data:`~jaxpose.pipelines.stereo.frames.WINDOW_FAR_BAND`. At range the rotation
+            across the line of sight is weakly determined and its offset is made in the early
+            frames (``docs/stereo.md``, *What still fails*); a longer window keeps them free
+            longer. Up close it costs accuracy (development scenes at 1.5-3 m, seeds 0-2: worst
+            axes summed 16% higher with 12 frames throughout). ``window_far_m=None``: always
+            ``window_frames``. 12 frames from 3.3 m (the visible faces of the suite's target
+            at a range of about 3.5 m) chosen on development scenes and draws
+            (``docs/stereo-evaluation.md``, *A longer window at range*).
         window_iterations: Gauss-Newton iterations of each adjustment.
         window_every, window_depth_m: run the windowed adjustment every ``k``-th tracked frame
             only, ``k = floor(window_depth_m / depth)`` within ``[1, window_every]`` (``depth``:
@@ -414,6 +430,8 @@ class TrackerOptions:
         default_factory=lambda: StereoMatchOptions(coarse_min_range=128, merge_px=0.01)
     )
     window_frames: int = 8
+    window_frames_far: int = 12
+    window_far_m: float | None = 3.3
     window_iterations: int = 2
     window_every: int = 4
     window_depth_m: float | None = 6.0
@@ -501,6 +519,12 @@ class TrackerOptions:
                 f"window_every must be at most window_frames ({self.window_frames}); "
                 f"got {self.window_every}"
             )
+        if self.window_frames and self.window_far_m is not None:
+            if self.window_every > self.window_frames_far:
+                raise ValueError(
+                    f"window_every must be at most window_frames_far ({self.window_frames_far}); "
+                    f"got {self.window_every}"
+                )
         if not self.line_scale_memory < 1.0:
             raise ValueError(f"line_scale_memory must be in [0, 1); got {self.line_scale_memory}")
 

@@ -23,7 +23,8 @@ Per stereo pair (rectified, see :mod:`jaxpose.vision.stereo_match`):
 5. windowed adjustment (:mod:`~jaxpose.pipelines.stereo.window`, ``window_frames``): the last
    frames' poses and their point landmarks adjusted jointly, each landmark's older rays kept as
    a prior, every frame beyond 3 m and every 2nd-4th nearer (``window_every``,
-   ``window_depth_m``); an adjusted frame's result is its adjusted pose;
+   ``window_depth_m``), 12 frames instead of 8 while the target is far (``window_frames_far``,
+   ``window_far_m``); an adjusted frame's result is its adjusted pose;
 6. an explicit :data:`~jaxpose.core.status.Status.LOST` (pose NaN) when too few features match, the
    solver fails, the fit error is large, or the step from the prediction is implausible; the
    tracker keeps the map and a constant-velocity prediction and tries again on the next frame
@@ -68,6 +69,7 @@ from jaxpose.pipelines.stereo.frames import (
     as_gray_uint8,
     checked_pair,
     detect_features,
+    far_window,
     feature_options,
     fine_corners,
     target_area,
@@ -206,9 +208,10 @@ class StereoTracker:
         self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
         self._since_adjust = 0  # tracked frames since the last adjustment (window_every)
         self._since_global = 0  # tracked frames since the last global adjustment
+        self._far = False  # the window holds window_frames_far frames (far_window)
         warm_up_projection(rig.left)
         if self._window is not None:
-            self._window.warm_up()
+            self._window.warm_up((options.window_frames_far,) if options.window_far_m else ())
 
     # ------------------------------------------------------------------ scene-dependent settings
     def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
@@ -649,6 +652,11 @@ class StereoTracker:
                 in_p, in_l = fit.in_points, fit.in_lines
                 if self._window is not None:
                     R, t = rt(pose)
+                    z = self.map.points.X[i_m[in_p]] @ R[2] + t[2]  # the inliers' depths
+                    far = far_window(o, float(np.median(z)) if len(z) >= 10 else None, self._far)
+                    if far != self._far:
+                        self._far = far
+                        self._window.resize(o.window_frames_far if far else o.window_frames)
                     self._rays = self._window.start(R, t, index=k)
                 self.map.record("points", cand, i_m[in_p], k)
                 self._reanchor(left, feats, i_cur[in_p], i_m[in_p], pose)

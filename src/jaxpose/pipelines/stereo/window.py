@@ -221,6 +221,20 @@ class WindowAdjuster:
             self.history.append(fr)
         return fr
 
+    def resize(self, frames: int) -> None:
+        """Hold the last ``frames`` frames from now on (at least 2; the tracker's far window,
+        ``TrackerOptions.window_frames_far``). A smaller window lets its oldest frames go as
+        they would leave one by one (kept for the global adjustment, ``anchors``); the
+        adjustment's padded size follows (compiled once per size, :meth:`warm_up`)."""
+        frames = int(frames)
+        if frames < 2:
+            raise ValueError(f"window frames must be >= 2; got {frames}")
+        if frames == self.frames.maxlen:
+            return
+        while len(self.frames) > frames:
+            self._keep(self.frames.popleft())
+        self.frames = deque(self.frames, maxlen=frames)
+
     def _keep(self, fr: FrameRays) -> None:
         """Keep a frame leaving the recent window for the global adjustment (``anchors``)."""
         if not self.anchors:
@@ -249,14 +263,16 @@ class WindowAdjuster:
                 w[j] = row
         return w
 
-    def warm_up(self) -> None:
-        """Compile the adjustment for this window's padded size (about 2 s of CPU, once per
-        process and size; with ``anchors``, the global adjustment's size too) before the first
-        frame rather than in the middle of a sequence."""
-        for spanning in (False, True) if self.anchors else (False,):
-            self._warm_up(spanning)
+    def warm_up(self, sizes=()) -> None:
+        """Compile the adjustment for this window's padded size and the window ``sizes`` it may
+        be given later (:meth:`resize`; about 2 s of CPU, once per process and size; with
+        ``anchors``, the global adjustment's sizes too) before the first frame rather than in
+        the middle of a sequence."""
+        for size in sorted({self.frames.maxlen, *map(int, sizes)}):
+            for spanning in (False, True) if self.anchors else (False,):
+                self._warm_up(spanning, size)
 
-    def _warm_up(self, spanning: bool) -> None:
+    def _warm_up(self, spanning: bool, size: int | None = None) -> None:
         R, t = np.eye(3)[None], np.array([[0.0, 0.0, 2.0]])
         one = np.zeros(1, np.int64)
         self._solve(
@@ -271,6 +287,7 @@ class WindowAdjuster:
             np.zeros((1, 3)),
             np.zeros(1, bool),
             spanning=spanning,
+            size=size,
         )
 
     # ------------------------------------------------------------------ the adjustment
@@ -499,13 +516,14 @@ class WindowAdjuster:
         frames=(),
         *,
         spanning: bool = False,
+        size: int | None = None,
     ):
         """The adjustment (:func:`jaxpose.core.refine.adjust_window`) on the visibility grid,
-        padded to ``frames`` frames (plus ``anchors`` in the global adjustment, ``spanning``),
-        ``max_points`` (``anchor_points``) landmarks and ``max_lines`` lines a frame (one
-        compiled size each); ``None`` poses when it fails."""
+        padded to the window's ``frames`` frames (``size`` if given; plus ``anchors`` in the
+        global adjustment, ``spanning``), ``max_points`` (``anchor_points``) landmarks and
+        ``max_lines`` lines a frame (one compiled size each); ``None`` poses when it fails."""
         n, K = len(X), len(Rs)
-        f = self.frames.maxlen + (self.anchors if spanning else 0)
+        f = (self.frames.maxlen if size is None else size) + (self.anchors if spanning else 0)
         max_points = self._points_cap(spanning)
         n_pad, k_pad = max(max_points, n), 2 * self.max_lines
         Rp = np.broadcast_to(np.eye(3), (f, 3, 3)).copy()
