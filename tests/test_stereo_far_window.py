@@ -81,9 +81,16 @@ def test_far_window_options_are_checked():
         TrackerOptions(window_frames_far=1)
     with pytest.raises(ValueError, match="window_far_m"):
         TrackerOptions(window_far_m=0.0)
-    with pytest.raises(ValueError, match="at most window_frames_far"):
-        TrackerOptions(window_frames=12, window_every=10, window_frames_far=8)
-    TrackerOptions(window_frames=12, window_every=10, window_frames_far=8, window_far_m=None)
+
+
+def test_a_far_window_shorter_than_window_frames_does_not_shorten_it():
+    """``window_frames=16`` asked for: the far window is never the shorter one."""
+    from jaxpose.vision.stereo_render import default_rig
+
+    tracker = StereoTracker(
+        default_rig(), None, options=TrackerOptions(window_frames=16, window_every=10)
+    )
+    assert tracker._far_frames == 16 and tracker._window.frames.maxlen == 16
 
 
 @pytest.mark.parametrize("range_m, frames", [(2.0, 8), (4.5, 12)])

@@ -263,10 +263,10 @@ class TrackerOptions:
             adjusted frame's result is its adjusted pose. ``0``: off. 8 chosen on the
             development scenes ``d2`` and ``d6`` against 6 and 12.
         window_frames_far, window_far_m: the window holds ``window_frames_far`` frames instead
-            while the target is far: from a frame whose inlier point landmarks lie at a median
-            depth of ``window_far_m`` or more (metres, in the left camera; measured from the
-            map, so the same whether the first pose was given or the identity) until one
-            whose median depth falls below ``window_far_m /``
+            (``window_frames`` if that is more) while the target is far: from a frame whose
+            inlier point landmarks lie at a median depth of ``window_far_m`` or more (metres,
+            in the left camera; measured from the map, so the same whether the first pose was
+            given or the identity) until one whose median depth falls below ``window_far_m /``
             :data:`~jaxpose.pipelines.stereo.frames.WINDOW_FAR_BAND`. At range the rotation
             across the line of sight is weakly determined and its offset is made in the early
             frames (``docs/stereo.md``, *What still fails*); a longer window keeps them free
@@ -519,12 +519,6 @@ class TrackerOptions:
                 f"window_every must be at most window_frames ({self.window_frames}); "
                 f"got {self.window_every}"
             )
-        if self.window_frames and self.window_far_m is not None:
-            if self.window_every > self.window_frames_far:
-                raise ValueError(
-                    f"window_every must be at most window_frames_far ({self.window_frames_far}); "
-                    f"got {self.window_every}"
-                )
         if not self.line_scale_memory < 1.0:
             raise ValueError(f"line_scale_memory must be in [0, 1); got {self.line_scale_memory}")
 

@@ -208,10 +208,11 @@ class StereoTracker:
         self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
         self._since_adjust = 0  # tracked frames since the last adjustment (window_every)
         self._since_global = 0  # tracked frames since the last global adjustment
-        self._far = False  # the window holds window_frames_far frames (far_window)
+        self._far = False  # the window holds _far_frames frames (far_window)
+        self._far_frames = max(options.window_frames, options.window_frames_far)
         warm_up_projection(rig.left)
         if self._window is not None:
-            self._window.warm_up((options.window_frames_far,) if options.window_far_m else ())
+            self._window.warm_up((self._far_frames,) if options.window_far_m else ())
 
     # ------------------------------------------------------------------ scene-dependent settings
     def feature_options(self, target_area_px: float | None = None) -> FeatureOptions:
@@ -656,7 +657,7 @@ class StereoTracker:
                     far = far_window(o, float(np.median(z)) if len(z) >= 10 else None, self._far)
                     if far != self._far:
                         self._far = far
-                        self._window.resize(o.window_frames_far if far else o.window_frames)
+                        self._window.resize(self._far_frames if far else o.window_frames)
                     self._rays = self._window.start(R, t, index=k)
                 self.map.record("points", cand, i_m[in_p], k)
                 self._reanchor(left, feats, i_cur[in_p], i_m[in_p], pose)
