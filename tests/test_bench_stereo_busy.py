@@ -82,14 +82,35 @@ def test_busy_scenes_are_tracked_again_and_their_first_fps_kept():
     assert all(a is b for a, b in zip(out, results, strict=True) if a["scene"]["name"] != "changed")
     again = out[2]
     assert again["points+lines"]["fps"] == 10.5
-    assert again["rerun"] == {"first_fps": {"points+lines": 6.0}, "same_errors": True}
+    assert again["rerun"] == {
+        "first_fps": {"points+lines": 6.0},
+        "second_fps": {"points+lines": 10.5},
+        "kept": "second",
+        "same_errors": True,
+    }
     assert bench.busy_scenes(out) == []  # the second run is steady
     assert bench._rerun_summary(out) == {
-        "scenes_rerun": {"changed": {"first_fps": 6.0, "fps": 10.5, "same_errors": True}}
+        "scenes_rerun": {
+            "changed": {"first_fps": 6.0, "second_fps": 10.5, "fps": 10.5, "same_errors": True}
+        }
     }
     (note,) = bench.rerun_notes(out)
-    assert "6 fps first, 10.5 now (the errors the same)" in note
+    assert "6 fps first, 10.5 the second time (the errors the same)" in note
+    assert "the faster, the second run" in note
     assert bench._rerun_summary(results) == {} and bench.rerun_notes(results) == []
+
+
+def test_a_rerun_slowed_more_than_the_first_run_leaves_the_first():
+    """Other work only slows a run: when the second is the slower, the first stays."""
+    bench = load_bench("stereo")
+    results = [_tracked(f"quiet-{i}", 25.0, 25.0, 10.0) for i in range(4)]
+    results.append(_tracked("changed", 44.0, 29.0, 9.0))
+    out = bench.rerun_busy(results, lambda name: _tracked(name, 60.0, 66.0, 5.0))
+    kept = out[-1]
+    assert kept["points+lines"]["fps"] == 9.0 and kept["opencv_yardstick_ms"] == 36.5
+    assert kept["rerun"]["kept"] == "first" and kept["rerun"]["second_fps"]["points+lines"] == 5.0
+    assert "rerun" not in results[-1]  # the first run's record is not changed in place
+    assert "9 fps first, 5 the second time" in bench.rerun_notes(out)[0]
 
 
 def test_a_rerun_whose_errors_differ_is_said_so():
