@@ -111,6 +111,14 @@ def test_a_rerun_slowed_more_than_the_first_run_leaves_the_first():
     assert kept["rerun"]["kept"] == "first" and kept["rerun"]["second_fps"]["points+lines"] == 5.0
     assert "rerun" not in results[-1]  # the first run's record is not changed in place
     assert "9 fps first, 5 the second time" in bench.rerun_notes(out)[0]
+    # results saved before: the second run's record, no second_fps nor kept
+    old = dict(
+        _tracked("older", 44.0, 29.0, 11.0),
+        rerun={"first_fps": {"points+lines": 6.0}, "same_errors": True},
+    )
+    (note,) = bench.rerun_notes([old])
+    assert "6 fps first, 11 the second time" in note and note.endswith("has the second run")
+    assert bench._rerun_summary([old])["scenes_rerun"]["older"]["second_fps"] == 11.0
 
 
 def test_a_rerun_whose_errors_differ_is_said_so():
