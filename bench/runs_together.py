@@ -1,10 +1,29 @@
-"""Reading several runs of a bench together (noise seeds, ``--from-results``): the label of a
-scene run and the statistics of paired ratios, shared by ``stereo_budget.py`` and
-``stereo_lines_gain.py``."""
+"""Reading several runs of a bench together (noise seeds, ``--from-results``): their saved
+scene records, the label of a scene run and the statistics of paired ratios, shared by
+``stereo_budget.py``, ``stereo_lines_gain.py`` and ``stereo_envelope.py``."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
+
+
+def load_runs(paths, keep, bench: str, lacking: str) -> list[tuple[Path, list[dict]]]:
+    """Each path (a ``results.json`` of a bench run, or the folder holding one) with its scene
+    records that ``keep(record)`` accepts. A path without a ``results.json``, or whose records
+    ``keep`` all refuses, is an error that names it (``"<bench>: <file> has <lacking>"``)."""
+    runs = []
+    for p in map(Path, paths):
+        f = p / "results.json" if p.is_dir() else p
+        if not f.is_file():
+            raise SystemExit(f"{bench}: no results.json at {p}")
+        rows = [r for r in json.loads(f.read_text()) if keep(r)]
+        if not rows:
+            raise SystemExit(f"{bench}: {f} has {lacking}")
+        runs.append((p, rows))
+    return runs
 
 
 def scene_label(scene: dict) -> str:

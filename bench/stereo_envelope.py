@@ -24,6 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from runs_together import load_runs  # noqa: E402
+
 #: Range bands (m) of the table and the JSON line: the misses measured so far lie at 4-5 m.
 RANGE_EDGES = (1.5, 2.5, 3.5, 4.0, 4.5, 5.0)
 #: Spin rates (deg/s) at or above this are counted as fast.
@@ -35,16 +38,13 @@ POSITION_MM_PER_M, ATTITUDE_DEG = 5.0, 1.0
 def load(paths) -> list[dict]:
     """Scene records with a points + lines run, each with ``"source"`` (the path it came from):
     a path without a ``results.json`` or without any such record is an error naming it."""
-    records = []
-    for p in map(Path, paths):
-        f = p / "results.json" if p.is_dir() else p
-        if not f.is_file():
-            raise SystemExit(f"stereo_envelope: no results.json at {p}")
-        rows = [r for r in json.loads(f.read_text()) if "points+lines" in r]
-        if not rows:
-            raise SystemExit(f"stereo_envelope: {f} has no scene tracked with points + lines")
-        records += [{**r, "source": str(p)} for r in rows]
-    return records
+    runs = load_runs(
+        paths,
+        lambda r: "points+lines" in r,
+        "stereo_envelope",
+        "no scene tracked with points + lines",
+    )
+    return [{**r, "source": str(p)} for p, rows in runs for r in rows]
 
 
 def scene_figures(record: dict) -> dict:

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from runs_together import ratio_stats, scene_label  # noqa: E402
+from runs_together import load_runs, ratio_stats, scene_label  # noqa: E402
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 
@@ -35,19 +35,13 @@ AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 def load(paths) -> list[dict]:
     """Scene records of ``bench/stereo.py`` results (files or the folders holding them) that have
     both modes; a path without any such record is an error (it names the path)."""
-    records = []
-    for p in map(Path, paths):
-        f = p / "results.json" if p.is_dir() else p
-        if not f.is_file():
-            raise SystemExit(f"stereo_lines_gain: no results.json at {p}")
-        rows = [r for r in json.loads(f.read_text()) if "points-only" in r and "points+lines" in r]
-        if not rows:
-            raise SystemExit(
-                f"stereo_lines_gain: {f} has no scene run in both modes "
-                "(run bench/stereo.py without --points-lines-only)"
-            )
-        records += rows
-    return records
+    runs = load_runs(
+        paths,
+        lambda r: "points-only" in r and "points+lines" in r,
+        "stereo_lines_gain",
+        "no scene run in both modes (run bench/stereo.py without --points-lines-only)",
+    )
+    return [r for _, rows in runs for r in rows]
 
 
 def log_ratios(record: dict) -> np.ndarray:
