@@ -5,7 +5,9 @@ from pathlib import Path
 
 # The suite is bound by XLA's compilation, not by the compiled code: its tests compile with the
 # backend's optimisation off (compile-heavy PnP tests: 145 -> 84 s of CPU; the results they check
-# are the same functions at other optimisation). Speed is measured by the benches in bench/, which
+# are the same functions at other optimisation; LLVM's expensive passes off: a cold run of
+# test_solve_pnp.py 133 -> 108 s, of test_refine.py with test_bad_inputs_core.py 152 -> 137 s on
+# the 2-core Xeon, 2026-12-01). Speed is measured by the benches in bench/, which
 # use the package's defaults. Set JAXPOSE_TEST_XLA_OPT=1 to test at XLA's default optimisation.
 # Subprocesses that the tests start (CLI, notebooks, README) inherit the flags.
 # XLA aborts the process on a flag it does not know, and flag names change between releases
@@ -26,7 +28,11 @@ if os.environ.get("JAXPOSE_TEST_XLA_OPT") != "1" and "JAXPOSE_TEST_XLA_FLAGS" no
     _given = os.environ.get("XLA_FLAGS", "").split()
     _flags = [
         f
-        for f in ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+        for f in (
+            "--xla_backend_optimization_level=0",
+            "--xla_cpu_use_fusion_emitters=false",
+            "--xla_llvm_disable_expensive_passes=true",
+        )
         if not any(g.split("=")[0] == f.split("=")[0] for g in _given)
     ]
     if not _xla_takes(_given + _flags):

@@ -10,8 +10,9 @@ from window_scenes import angle_deg, observe, perturbed, window_scene
 from jaxpose.core.geometry import Pose
 from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo import LandmarkMap, StereoTracker, TrackerOptions
-from jaxpose.pipelines.stereo.frames import WINDOW_FAR_BAND, far_window
+from jaxpose.pipelines.stereo.frames import WINDOW_FAR_BAND, far_window, window_cadence
 from jaxpose.pipelines.stereo.window import WindowAdjuster
+from jaxpose.vision.stereo_match import disparity_range
 
 
 def _run(win, rig, X, poses, true_frames, resize_at=None, size=None, fixed_first=True):
@@ -96,7 +97,10 @@ def test_a_far_window_shorter_than_window_frames_does_not_shorten_it():
 @pytest.mark.parametrize("range_m, frames", [(2.0, 8), (4.5, 12)])
 def test_the_tracker_takes_the_far_window_by_the_depth_it_measures(range_m, frames):
     """Started from the identity (the target frame the first camera frame: its pose's ``t_z``
-    says nothing of the range), the landmarks' measured depth decides."""
+    says nothing of the range), the landmarks' measured depth decides the window's size, its
+    cadence (every frame beyond 3 m, every 3rd at 2 m: ``floor(window_depth_m / depth)`` at the
+    depth of the map's origin, moved to the first landmarks, 1.75-2 m), and the depths searched
+    when the map has no landmark in view."""
     from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
 
     rig = default_rig()
@@ -106,3 +110,8 @@ def test_the_tracker_takes_the_far_window_by_the_depth_it_measures(range_m, fram
         res = tracker.process(fr.left, fr.right)
     assert res.status == int(Status.OK)
     assert tracker._window.frames.maxlen == frames
+    assert window_cadence(tracker.options, tracker._last_depth) == (1 if range_m > 3 else 3)
+    d_lo, d_hi = tracker._disparities()  # no prediction: around the measured depth
+    d_true = float(rig.left.fx) * float(rig.baseline) / range_m  # the target's centre
+    full_lo, full_hi = disparity_range(rig, 0.3, 12.0)  # the tracker's whole depth range
+    assert d_lo < d_true < d_hi and d_hi - d_lo < 0.5 * (full_hi - full_lo)

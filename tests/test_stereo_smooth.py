@@ -68,3 +68,22 @@ def test_smooth_sequence_of_a_tracker_leaves_the_tracker_as_it_was():
     np.testing.assert_array_equal(tracker.map.points.X, X_before)  # the tracker is untouched
     for fr, R in zip(tracker._window.history, R_records, strict=True):
         np.testing.assert_array_equal(fr.R, R)
+
+
+def test_smooth_sequence_from_the_identity_reports_poses_in_the_given_frame():
+    """Started from the identity, the map's origin moves to the first landmarks (map_origin);
+    the smoothed poses are reported, as the tracker's results are, in the given frame: frame 0 is
+    the identity and the others within a degree and a few cm of the causal results."""
+    from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
+
+    rig = default_rig()
+    frames = list(render_sequence(StereoScene(frames=3), rig))
+    tracker = StereoTracker(rig, None, options=TrackerOptions(keep_history=True))
+    results = [tracker.process(fr.left, fr.right) for fr in frames]
+    assert np.linalg.norm(tracker.map_origin) > 1.5  # moved from the camera to the target
+    smoothed = smooth_sequence(tracker)
+    np.testing.assert_allclose(np.asarray(smoothed[0].R), np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(smoothed[0].t), np.zeros(3), atol=1e-12)
+    for k, pose in smoothed.items():
+        assert angle_deg(np.asarray(pose.R), results[k].R) < 1.0
+        assert np.linalg.norm(np.asarray(pose.t) - np.asarray(results[k].pose.t)) < 0.05

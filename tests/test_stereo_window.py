@@ -149,9 +149,12 @@ def test_window_every_and_points_options():
             tracker.process(fr.left, fr.right)
     assert calls == {1: 2, 2: 1}  # the 2 tracked frames after the first (map start)
     # the depth rule: floor(window_depth_m / depth) within [1, window_every]
-    tracker = StereoTracker(rig, None, options=TrackerOptions(window_every=3, window_depth_m=6.0))
-    ks = [tracker._window_every(z) for z in (1.0, 1.5, 2.5, 3.0, 3.5, 5.0)]
+    from jaxpose.pipelines.stereo.frames import window_cadence
+
+    o = TrackerOptions(window_every=3, window_depth_m=6.0)
+    ks = [window_cadence(o, z) for z in (1.0, 1.5, 2.5, 3.0, 3.5, 5.0)]
     assert ks == [3, 3, 2, 2, 1, 1]
+    assert window_cadence(o, None) == 3  # no depth measured yet: window_every
 
 
 def test_a_budget_over_the_window_adjusts_every_frame():
@@ -180,8 +183,9 @@ def test_a_budget_over_the_window_adjusts_every_frame():
     assert calls == {"budget, window": 3, "budget, no window": 1, "no budget": 1}
     # the depth rule gives way to the budget's window at every depth
     o = TrackerOptions(feature_budget=20, window_every=3, window_depth_m=6.0)
-    tracker = StereoTracker(rig, None, options=o)
-    assert [tracker._window_every(z) for z in (1.0, 2.5, 5.0)] == [1, 1, 1]
+    from jaxpose.pipelines.stereo.frames import window_cadence
+
+    assert [window_cadence(o, z) for z in (1.0, 2.5, 5.0, None)] == [1, 1, 1, 1]
 
 
 def test_motion_prior_weights_only_frames_between_their_neighbours():

@@ -28,6 +28,7 @@ __all__ = [
     "fine_corners",
     "target_area",
     "target_roi",
+    "window_cadence",
 ]
 
 
@@ -166,3 +167,20 @@ def far_window(options: TrackerOptions, depth_m: float | None, previous: bool) -
     if depth_m is None or not np.isfinite(depth_m):
         return previous
     return bool(depth_m >= (limit / WINDOW_FAR_BAND if previous else limit))
+
+
+def window_cadence(options: TrackerOptions, depth_m: float | None) -> int:
+    """Frames between two windowed adjustments (``TrackerOptions.window_every``): ``floor(
+    window_depth_m / depth_m)`` within ``[1, window_every]``, or ``window_every`` without
+    ``window_depth_m`` or a positive ``depth_m`` (the depth of the map's origin at the last
+    tracked frame: the target's centre from the truth, the first landmarks' median from the
+    identity, :func:`~jaxpose.pipelines.stereo.landmarks.map_origin`). Near the target the
+    single-frame poses are already good (many features, wide apparent size) and the adjustment
+    is at its most expensive (the most landmarks). With a feature budget over the window
+    (``budget_window``) every frame: the window is then the budgeted pose's estimator, and a
+    small one (the budget's features)."""
+    if options.feature_budget is not None and options.budget_window:
+        return 1
+    if options.window_depth_m is None or depth_m is None or not depth_m > 0:
+        return options.window_every
+    return int(min(options.window_every, max(1, np.floor(options.window_depth_m / depth_m))))

@@ -26,7 +26,32 @@ import numpy as np
 from jaxpose.core.geometry import Pose
 from jaxpose.pipelines.stereo._arrays import rt, sym3_eigvalsh
 
-__all__ = ["LandmarkMap", "LandmarkSet"]
+__all__ = ["LandmarkMap", "LandmarkSet", "map_origin"]
+
+#: The map's origin is moved to its first landmarks when the given one lies farther from their
+#: median than this many times their median distance from it (outside the target).
+ORIGIN_SPREADS = 3.0
+
+
+def map_origin(pose: Pose, points_cam: np.ndarray) -> np.ndarray:
+    """``(3,)`` where the tracker puts its map's origin, in the given target frame (metres):
+    ``0`` (the given origin) when it lies within the first frame's landmarks ``points_cam``
+    (``(p, 3)``, left camera, metres; ``pose`` the given first pose), else their median.
+
+    The tracker adjusts poses by turning them about the map's origin: an origin far from the
+    landmarks (the first camera's, for a start at the identity) couples the turn with a sideways
+    shift as large as the range times the angle, which the few Gauss-Newton iterations of each
+    frame and window do not undo (at 5 m the aligned errors of an identity start were twice a
+    truth start's, ``docs/stereo-evaluation.md``, *The map's origin*). The rule depends on the
+    landmarks, not on how the start was made: a body origin within the target (the truth, the
+    monocular initialisation) is kept."""
+    R, t = rt(pose)
+    X = (np.asarray(points_cam, float) - t) @ R  # R^T (x - t): the given target frame
+    if len(X) < 10:
+        return np.zeros(3)
+    m = np.median(X, axis=0)
+    spread = float(np.median(np.linalg.norm(X - m, axis=1)))
+    return m if np.linalg.norm(m) > ORIGIN_SPREADS * spread else np.zeros(3)
 
 
 @dataclass

@@ -279,10 +279,12 @@ class TrackerOptions:
         window_iterations: Gauss-Newton iterations of each adjustment.
         window_every, window_depth_m: run the windowed adjustment every ``k``-th tracked frame
             only, ``k = floor(window_depth_m / depth)`` within ``[1, window_every]`` (``depth``:
-            the frame's single-frame pose's ``t_z``; ``window_depth_m=None``: ``k =
-            window_every``). The frames in between keep their single-frame poses (the next
-            adjustment moves them in the window). Near the target the single-frame poses are
-            already good and the adjustment costs the most; at range it is cheap and needed.
+            the ``t_z`` of the frame's pose of the map, whose origin lies within the target
+            whatever the start, :func:`~jaxpose.pipelines.stereo.landmarks.map_origin`;
+            ``window_depth_m=None``: ``k = window_every``). The frames in between keep their
+            single-frame poses (the next adjustment moves them in the window). Near the target
+            the single-frame poses are already good and the adjustment costs the most; at range
+            it is cheap and needed.
             Chosen on the development scenes (``docs/stereo-evaluation.md``): ``k = 1`` beyond
             3 m, 2 at 2-3 m, 3 at 1.5-2 m, 4 at 1.5 m and nearer.
         window_points: most point landmarks in each adjustment (those observed most often in

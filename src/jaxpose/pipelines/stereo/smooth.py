@@ -111,4 +111,7 @@ def smooth_sequence(
         max_lines=o.max_lines,
         max_points=max_points,
     )
-    return {fr.index: Pose(np.asarray(fr.R, float), np.asarray(fr.t, float)) for fr in frames}
+    return {
+        fr.index: tracker.given_frame(Pose(np.asarray(fr.R, float), np.asarray(fr.t, float)))
+        for fr in frames
+    }

@@ -74,6 +74,7 @@ from jaxpose.pipelines.stereo.frames import (
     fine_corners,
     target_area,
     target_roi,
+    window_cadence,
 )
 from jaxpose.pipelines.stereo.guided import match_by_projection
 from jaxpose.pipelines.stereo.keyframes import (
@@ -81,7 +82,7 @@ from jaxpose.pipelines.stereo.keyframes import (
     stereo_correspondences,
     update_map,
 )
-from jaxpose.pipelines.stereo.landmarks import LandmarkMap
+from jaxpose.pipelines.stereo.landmarks import LandmarkMap, map_origin
 from jaxpose.pipelines.stereo.options import (
     STAGES,
     FrameResult,
@@ -115,7 +116,8 @@ class StereoTracker:
             :meth:`~jaxpose.core.camera.StereoCamera.from_baseline` or
             ``jaxpose.vision.stereo_rectify.rectify(rig).rectified_camera()``.
         initial_pose: target pose in the left camera at the first frame (``None``: identity, the
-            target frame is the first left camera frame).
+            target frame is the first left camera frame). Poses are reported in its frame; an
+            origin outside the target is moved to the first landmarks inside (``map_origin``).
         options: :class:`~jaxpose.pipelines.stereo.TrackerOptions`.
     """
 
@@ -209,6 +211,7 @@ class StereoTracker:
         self._since_adjust = 0  # tracked frames since the last adjustment (window_every)
         self._since_global = 0  # tracked frames since the last global adjustment
         self._far = False  # the window holds _far_frames frames (far_window)
+        self.map_origin = np.zeros(3)  # the map's origin in the given target frame (map_origin)
         self._far_frames = max(options.window_frames, options.window_frames_far)
         warm_up_projection(rig.left)
         if self._window is not None:
@@ -415,9 +418,11 @@ class StereoTracker:
     def _first_frame(self, left, right, feats, clock) -> FrameResult:
         """Start the map at the initial pose (frame 0, or the first frame with enough features)."""
         o = self.options
-        pose = self.initial_pose
         stereo = self._stereo(left, right, feats, clock)
         k = self.index - 1
+        self.map_origin = map_origin(self.initial_pose, stereo.points)
+        R0, t0 = rt(self.initial_pose)
+        pose = Pose(jnp.asarray(R0), jnp.asarray(t0 + R0 @ self.map_origin))  # of the map
         if len(stereo.point_idx) + len(stereo.line_idx) < o.min_features:
             return FrameResult(
                 k,
@@ -426,6 +431,7 @@ class StereoTracker:
                 timings=clock.wall,
                 cpu_timings=clock.cpu,
             )
+        self._pose_prev = pose
         log = None
         if self._window is not None:
             R, t = rt(pose)
@@ -470,7 +476,7 @@ class StereoTracker:
         k = self.index
         self.index += 1
         if not self._started:
-            return self._first_frame(left, right, feats, clock)
+            return self.given_frame(self._first_frame(left, right, feats, clock))
 
         pose_pred = compose(self._delta, self._pose_prev)
         with clock.stage("match"):
@@ -527,17 +533,29 @@ class StereoTracker:
             self._since_kf = 0
             result.keyframe = True
         if self._rays is not None:
-            depth, self._rays = float(self._rays.t[2]), None
+            depth, self._rays = float(self._rays.t[2]), None  # the map origin's depth
             self._since_adjust += 1
             self._since_global += 1
-            if self._since_adjust >= self._window_every(depth):
+            if self._since_adjust >= window_cadence(o, depth):
                 self._since_adjust = 0
                 spanning = bool(o.window_anchors) and self._since_global >= o.window_anchor_every
                 if spanning:
                     self._since_global = 0
                 with clock.stage("map"):
                     self._adjust_window(result, spanning=spanning)
-        return result
+        return self.given_frame(result)
+
+    def given_frame(self, item):
+        """A pose (or a frame result's) of the map's target frame in the given one, the frame
+        of ``initial_pose``: ``(R, t - R map_origin)`` (the same pose when the map kept the given
+        origin, :func:`~jaxpose.pipelines.stereo.landmarks.map_origin`). ``tracker.map`` holds
+        its landmarks in the map's frame: ``X + map_origin`` in the given one."""
+        pose = getattr(item, "pose", item)
+        if not self.map_origin.any() or not np.isfinite(np.asarray(pose.R)).all():
+            return item
+        R, t = rt(pose)
+        moved = Pose(jnp.asarray(R), jnp.asarray(t - R @ self.map_origin))
+        return replace(item, pose=moved) if hasattr(item, "pose") else moved
 
     def _capture(self, left, added, pose: Pose) -> None:
         """Keep the reference patches of the new point landmarks (``anchor_points``)."""
@@ -569,20 +587,6 @@ class StereoTracker:
         points = feats.points.copy()
         points[i_cur] = px
         return replace(feats, points=points)
-
-    def _window_every(self, depth: float) -> int:
-        """Frames between two adjustments: ``window_depth_m / depth`` (rounded down) within
-        ``[1, window_every]``, or ``window_every`` without ``window_depth_m``. Near the target
-        the single-frame poses are already good (many features, wide apparent size) and the
-        adjustment is at its most expensive (the most landmarks). With a feature budget over
-        the window (``budget_window``) every frame: the window is then the budgeted pose's
-        estimator, and a small one (the budget's features)."""
-        o = self.options
-        if o.feature_budget is not None and o.budget_window:
-            return 1  # the window is the budgeted pose's estimator (budget_window)
-        if o.window_depth_m is None or not depth > 0:
-            return o.window_every
-        return int(min(o.window_every, max(1, np.floor(o.window_depth_m / depth))))
 
     def _adjust_window(self, result: FrameResult, *, spanning: bool = False) -> None:
         """Jointly adjust the window's poses and landmarks (``window_frames``; ``spanning``:
