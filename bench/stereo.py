@@ -204,8 +204,11 @@ def run_scene(
     *,
     rows=False,
     smooth=False,
+    init: str = "truth",
 ) -> dict:
-    """One scene rendered once and tracked in each mode; ``rows``: keep the per-frame rows of
+    """One scene rendered once and tracked in each mode, started at the true first pose or
+    (``init="identity"``) without it, errors after aligning the first frame; ``rows``: keep the
+    per-frame rows of
     :func:`~jaxpose.studies.stereo_track.summarize` (features, inliers, post-fit RMS, errors);
     ``smooth``: also the points + lines run's poses adjusted all at once after the last frame
     (:func:`~jaxpose.pipelines.stereo.smooth_sequence`, offline), under ``"smoothed"``."""
@@ -229,7 +232,8 @@ def run_scene(
         opts = replace(base, use_lines=mode == "points+lines", depth_range_m=depth)
         if smooth and mode == "points+lines":
             opts = replace(opts, keep_history=True)
-        trackers[mode] = StereoTracker(rig, frames[0].pose, options=opts)
+        start = frames[0].pose if init == "truth" else None  # None: the identity
+        trackers[mode] = StereoTracker(rig, start, options=opts)
         results, truths, seconds = logs[mode]
         t0, c0 = time.perf_counter(), time.process_time()
         stream = track_stream(trackers[mode], ((fr.left, fr.right) for fr in frames))
@@ -254,6 +258,7 @@ def run_scene(
             "frames": scene.n_frames(),
             "seed": seed,
         },
+        "init": init,
         "render_s_per_frame": render_s / scene.n_frames(),
         # frames 0-1 left out, as from the frame rate
         "opencv_yardstick_ms": float(np.mean(yardstick[2:])) if len(yardstick) > 2 else None,
@@ -314,13 +319,15 @@ def _smoothed(tracker, results, truths, range_m: float) -> dict:
 
 
 def run_scenes(
-    names, frames, modes, seed, options, out: Path, *, rows=False, smooth=False
+    names, frames, modes, seed, options, out: Path, *, rows=False, smooth=False, init="truth"
 ) -> list[dict]:
     """:func:`run_scene` on each scene in turn, ``out/results.json`` rewritten after each (a run
     cut short keeps what it did) and a progress line on stderr."""
     results = []
     for name in names:
-        r = run_scene(name, frames, modes, seed=seed, options=options, rows=rows, smooth=smooth)
+        r = run_scene(
+            name, frames, modes, seed=seed, options=options, rows=rows, smooth=smooth, init=init
+        )
         results.append(r)
         (out / "results.json").write_text(json.dumps(results, indent=1))
         m = r["points+lines"]
@@ -439,6 +446,13 @@ def main(argv=None) -> int:
         "a field of its feature or stereo options as features.mu=0.03, stereo.window=11",
     )
     p.add_argument(
+        "--init",
+        choices=("truth", "identity"),
+        default="truth",
+        help="first pose: the rendered truth, or the identity (no ground truth, as a user "
+        "starts; errors after aligning the first frame)",
+    )
+    p.add_argument(
         "--frame-rows",
         action="store_true",
         help="keep each frame's row (features, inliers, post-fit RMS, errors) in results.json",
@@ -497,6 +511,7 @@ def main(argv=None) -> int:
         args.out,
         rows=args.frame_rows,
         smooth=args.smooth,
+        init=args.init,
     )
     if args.rerun_busy:
         results = rerun_busy_scenes(results, args, modes, options)
@@ -729,6 +744,7 @@ def rerun_busy_scenes(results: list[dict], args, modes, options) -> list[dict]:
             options=options,
             rows=args.frame_rows,
             smooth=args.smooth,
+            init=getattr(args, "init", "truth"),
         ),
     )
     (args.out / "results.json").write_text(json.dumps(results, indent=1))
@@ -802,6 +818,7 @@ def report(results, modes, out: Path, frames, load0, *, timing: bool = False) ->
     summary = {
         "scenes": len(results),
         "frames_per_scene": frames,
+        "init": sorted({r.get("init", "truth") for r in results}),  # older runs: the truth
         "meets_targets": _met_by_split(results, lambda m: m, splits),
         "lines_help_with_blur_or_glints": [
             r["scene"]["name"]

@@ -94,6 +94,12 @@ def main(argv=None) -> int:
         help="keep each frame's row (features, inliers, post-fit RMS, errors) in results.json",
     )
     ap.add_argument(
+        "--init",
+        choices=("truth", "identity"),
+        default="truth",
+        help="first pose: the rendered truth or the identity, as in bench/stereo.py",
+    )
+    ap.add_argument(
         "--smooth",
         action="store_true",
         help="also the points+lines runs adjusted all at once after the last frame (offline)",
@@ -140,6 +146,7 @@ def main(argv=None) -> int:
         args.out,
         rows=args.frame_rows,
         smooth=args.smooth,
+        init=args.init,
     )
     if args.rerun_busy:
         results = stereo.rerun_busy_scenes(results, args, modes, options)

@@ -52,12 +52,14 @@ def test_stereo_bench_runs_and_ends_with_its_figures(tmp_path):
             "--frames",
             "3",
             "--points-lines-only",
+            "--init",
+            "identity",
             "--out",
             str(tmp_path / "st"),
         ],
         tmp_path,
     )
-    assert out["scenes"] == 2 and out["frames_per_scene"] == 3
+    assert out["scenes"] == 2 and out["frames_per_scene"] == 3 and out["init"] == ["identity"]
     assert set(out["meets_targets"]) == {"dev", "check", "own"}  # the --scene counted apart
     assert out["median_fps"] > 0
     assert out["median_opencv_yardstick_ms"] > 0 and out["median_frame_over_yardstick"] > 0
