@@ -111,7 +111,7 @@ def test_the_tracker_takes_the_far_window_by_the_depth_it_measures(range_m, fram
     assert res.status == int(Status.OK)
     assert tracker._window.frames.maxlen == frames
     assert window_cadence(tracker.options, tracker._last_depth) == (1 if range_m > 3 else 3)
-    d_lo, d_hi = tracker._disparities()  # no prediction: around the measured depth
+    d_lo, d_hi = tracker._disparities()  # no prediction: around the map origin's depth
     d_true = float(rig.left.fx) * float(rig.baseline) / range_m  # the target's centre
     full_lo, full_hi = disparity_range(rig, 0.3, 12.0)  # the tracker's whole depth range
     assert d_lo < d_true < d_hi and d_hi - d_lo < 0.5 * (full_hi - full_lo)
