@@ -208,8 +208,8 @@ def run_scene(
 ) -> dict:
     """One scene rendered once and tracked in each mode, started at the true first pose or
     (``init="identity"``) without it, errors after aligning the first frame; ``rows``: keep the
-    per-frame rows of
-    :func:`~jaxpose.studies.stereo_track.summarize` (features, inliers, post-fit RMS, errors);
+    per-frame rows of :func:`~jaxpose.studies.stereo_track.summarize` (features, inliers,
+    post-fit RMS, errors);
     ``smooth``: also the points + lines run's poses adjusted all at once after the last frame
     (:func:`~jaxpose.pipelines.stereo.smooth_sequence`, offline), under ``"smoothed"``."""
     scene = scene_of(name, frames, seed)
@@ -732,8 +732,8 @@ def rerun_busy(results: list[dict], rerun, factor: float = BUSY_FACTOR) -> list[
 
 def rerun_busy_scenes(results: list[dict], args, modes, options) -> list[dict]:
     """``--rerun-busy`` of a bench run with the command line ``args`` (``frames``, ``seed``,
-    ``frame_rows``, ``smooth``, ``out``): :func:`rerun_busy` with a fresh :func:`run_scene` of
-    each busy scene; ``out/results.json`` rewritten."""
+    ``frame_rows``, ``smooth``, ``init``, ``out``): :func:`rerun_busy` with a fresh
+    :func:`run_scene` of each busy scene; ``out/results.json`` rewritten."""
     results = rerun_busy(
         results,
         lambda name: run_scene(
@@ -744,7 +744,7 @@ def rerun_busy_scenes(results: list[dict], args, modes, options) -> list[dict]:
             options=options,
             rows=args.frame_rows,
             smooth=args.smooth,
-            init=getattr(args, "init", "truth"),
+            init=args.init,
         ),
     )
     (args.out / "results.json").write_text(json.dumps(results, indent=1))

@@ -6,6 +6,9 @@ The checks of a pair (:func:`checked_pair`), the target's box and apparent area 
 LSD segments with LBD descriptors). None of it depends on the poses or the map, only on the
 images and the :class:`~jaxpose.pipelines.stereo.TrackerOptions`, so the next pair's features
 may be extracted while this pair is tracked (:func:`~jaxpose.pipelines.stereo.track_stream`).
+Beside them, the two rules that set the windowed adjustment by a depth the tracker measures, as
+the feature budget is set by the measured area: its length (:func:`far_window`) and how often it
+runs (:func:`window_cadence`); pure functions of that depth and the options.
 """
 
 from __future__ import annotations

@@ -551,8 +551,8 @@ class StereoTracker:
         origin, :func:`~jaxpose.pipelines.stereo.landmarks.map_origin`). ``tracker.map`` holds
         its landmarks in the map's frame: ``X + map_origin`` in the given one."""
         pose = getattr(item, "pose", item)
-        if not self.map_origin.any() or not np.isfinite(np.asarray(pose.R)).all():
-            return item
+        if not self.map_origin.any():
+            return item  # a lost frame's NaN pose stays NaN below
         R, t = rt(pose)
         moved = Pose(jnp.asarray(R), jnp.asarray(t - R @ self.map_origin))
         return replace(item, pose=moved) if hasattr(item, "pose") else moved
