@@ -1,5 +1,10 @@
 """The benches run end to end at the smallest size and end with one JSON line of their figures
-(their timings are not checked here: speed is the benches' business, not the tests')."""
+(their timings are not checked here: speed is the benches' business, not the tests').
+
+The monocular bench runs as the script a user starts; the stereo benches run their ``main`` in
+the test's process, where the tracker is already compiled by the stereo tests (as subprocesses
+they spent most of their 11-22 s each importing and compiling it again; in-process 1-5 s after
+the first)."""
 
 import json
 import subprocess
@@ -41,10 +46,10 @@ def test_monocular_bench_runs_and_ends_with_its_figures(tmp_path):
 
 
 @pytest.mark.slow
-def test_stereo_bench_runs_and_ends_with_its_figures(tmp_path):
-    out = _last_json_line(
+def test_stereo_bench_runs_and_ends_with_its_figures(tmp_path, capsys):
+    out = _main_json(
+        "stereo",
         [
-            str(REPO / "bench" / "stereo.py"),
             "--scenes",
             "d1-clean-2m",
             "--scene",
@@ -57,7 +62,7 @@ def test_stereo_bench_runs_and_ends_with_its_figures(tmp_path):
             "--out",
             str(tmp_path / "st"),
         ],
-        tmp_path,
+        capsys,
     )
     assert out["scenes"] == 2 and out["frames_per_scene"] == 3 and out["init"] == ["identity"]
     assert set(out["meets_targets"]) == {"dev", "check", "own"}  # the --scene counted apart
@@ -70,16 +75,11 @@ def test_stereo_bench_runs_and_ends_with_its_figures(tmp_path):
 
 
 @pytest.mark.slow
-def test_stereo_matching_bench_counts_what_it_finds(tmp_path):
-    out = _last_json_line(
-        [
-            str(REPO / "bench" / "stereo_matching.py"),
-            "--scene",
-            'far={"range_m": 4.0, "rate_deg_s": 10.0}',
-            "--frames",
-            "3",
-        ],
-        tmp_path,
+def test_stereo_matching_bench_counts_what_it_finds(capsys):
+    out = _main_json(
+        "stereo_matching",
+        ["--scene", 'far={"range_m": 4.0, "rate_deg_s": 10.0}', "--frames", "3"],
+        capsys,
     )
     orb = out["orb_between_frames"]
     assert 0 < orb["found_again"] <= orb["on_target"] <= orb["keypoints"]
@@ -90,43 +90,26 @@ def test_stereo_matching_bench_counts_what_it_finds(tmp_path):
 
 
 @pytest.mark.slow
-def test_stereo_budget_bench_runs_every_rule_on_shared_features(tmp_path):
+def test_stereo_budget_bench_runs_every_rule_on_shared_features(tmp_path, capsys):
     """``bench/stereo_budget.py`` shares one feature extraction among its trackers by replacing
-    the features stage's ``extract``: a move of that stage broke it once without a test."""
-    out = _last_json_line(
-        [
-            str(REPO / "bench" / "stereo_budget.py"),
-            "--scenes",
-            "d1-clean-2m",
-            "--frames",
-            "3",
-            "--budgets",
-            "30",
-            "--rules",
-            "dop",
-            "random",
-            "--out",
-            str(tmp_path / "b"),
-        ],
-        tmp_path,
-    )
+    the features stage's ``extract`` (a move of that stage broke it once without a test), and
+    puts the stage's own back when it is done (it runs in this process here)."""
+    from jaxpose.pipelines.stereo import frames
+
+    extract = frames.extract
+    argv = ["--scenes", "d1-clean-2m", "--frames", "3", "--budgets", "30"]
+    argv += ["--rules", "dop", "random", "--out", tmp_path / "b"]
+    out = _main_json("stereo_budget", argv, capsys)
+    assert frames.extract is extract
     assert out["bench"] == "stereo-budget" and out["scenes"] == 1 and out["N"] == 30
     assert {"all", "dop@30", "random@30"} <= set(out["median_pose_cpu_ms"])
 
 
 @pytest.mark.slow
-def test_stereo_turnover_bench_measures_matches_against_the_truth(tmp_path):
+def test_stereo_turnover_bench_measures_matches_against_the_truth(tmp_path, capsys):
     figure = tmp_path / "turnover.png"
-    out = _last_json_line(
-        [
-            str(REPO / "bench" / "stereo_turnover.py"),
-            "d1-clean-2m",
-            "--frames",
-            "6",
-            "--figure",
-            str(figure),
-        ],
-        tmp_path,
+    out = _main_json(
+        "stereo_turnover", ["d1-clean-2m", "--frames", "6", "--figure", figure], capsys
     )
     assert figure.stat().st_size > 10_000
     (scene,) = out["scenes"]
@@ -140,16 +123,15 @@ def test_stereo_turnover_bench_measures_matches_against_the_truth(tmp_path):
 
 
 @pytest.mark.slow
-def test_stereo_paired_bench_tells_same_tracking_from_changed(tmp_path):
+def test_stereo_paired_bench_tells_same_tracking_from_changed(capsys):
     """The features in one thread or two are the same features (a speed option), so the two
     trackers' poses agree to the bit; a different search radius changes the tracking."""
-    bench = REPO / "bench" / "stereo_paired.py"
-    common = [str(bench), "d1-clean-2m", "--frames", "4", "--reps", "1"]
-    out = _last_json_line([*common, "--option", "threads=False"], tmp_path)
+    common = ["d1-clean-2m", "--frames", "4", "--reps", "1"]
+    out = _main_json("stereo_paired", [*common, "--option", "threads=False"], capsys)
     (scene,) = out["scenes"]
     assert scene["same_poses"] is True
     assert scene["A"]["wall_ms"]["frame"] > 0 and "stereo" in scene["ratio_B_over_A"]["cpu_ms"]
-    out = _last_json_line([*common, "--option", "search_radius_px=3.0"], tmp_path)
+    out = _main_json("stereo_paired", [*common, "--option", "search_radius_px=3.0"], capsys)
     assert out["scenes"][0]["same_poses"] is False
 
 
