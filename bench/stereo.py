@@ -212,6 +212,8 @@ def run_scene(
     post-fit RMS, errors);
     ``smooth``: also the points + lines run's poses adjusted all at once after the last frame
     (:func:`~jaxpose.pipelines.stereo.smooth_sequence`, offline), under ``"smoothed"``."""
+    if init not in ("truth", "identity"):
+        raise ValueError(f"init must be 'truth' or 'identity'; got {init!r}")
     scene = scene_of(name, frames, seed)
     rig = default_rig()
     depth = depth_range(scene)
@@ -227,12 +229,12 @@ def run_scene(
     # machine's speed drifts within minutes, and one side alone lent a scene the speed of the
     # minutes before or after its tracking
     before = [yardstick_ms(fr.left, fr.right) for fr in frames]
+    start = frames[0].pose if init == "truth" else None  # None: the identity
     for mode in modes:
         base = TrackerOptions() if options is None else options
         opts = replace(base, use_lines=mode == "points+lines", depth_range_m=depth)
         if smooth and mode == "points+lines":
             opts = replace(opts, keep_history=True)
-        start = frames[0].pose if init == "truth" else None  # None: the identity
         trackers[mode] = StereoTracker(rig, start, options=opts)
         results, truths, seconds = logs[mode]
         t0, c0 = time.perf_counter(), time.process_time()

@@ -159,6 +159,11 @@ def _main_json(bench: str, argv, capsys) -> dict:
     return json.loads(lines[-1])
 
 
+def test_stereo_bench_refuses_an_unknown_start_before_rendering():
+    with pytest.raises(ValueError, match="init must be 'truth' or 'identity'; got 'Truth'"):
+        load_bench("stereo").run_scene("d1-clean-2m", 3, init="Truth")
+
+
 def test_lines_gain_bench_reads_runs_of_both_modes(tmp_path, capsys):
     """Per axis the geometric mean of the ratios (here 0.5 and 2 on x give 1; 0.5 twice on yaw
     gives 0.5), the scene-runs lower on every axis, only scenes with blur or glints."""
