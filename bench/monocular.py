@@ -228,7 +228,8 @@ def _json_default(x):
     raise TypeError(type(x))
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
+    """Run the bench on the command line ``argv`` (default ``sys.argv[1:]``); 0 when it ran."""
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -352,7 +353,7 @@ def main() -> None:
         "instead of renders (with --stages: the per-stage breakdown on them)",
     )
     ap.add_argument("--out", default=None, help="write the summary and per-image records (JSON)")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     enable_compilation_cache()
     model, camera = tango(), SPEEDPLUS_CAMERA
     opts = InitOptions(
@@ -375,7 +376,7 @@ def main() -> None:
     )
     if args.speedplus:
         _speedplus(args, model, opts)
-        return
+        return 0
     rng = np.random.default_rng(args.seed)
     warm = render(model, random_pose(rng, camera), camera, rng=rng)
     t0 = time.perf_counter()
@@ -453,7 +454,7 @@ def main() -> None:
         rows.append(row)
     if args.roi_only:
         _roi_summary(rows, args)
-        return
+        return 0
     n = len(rows)
     by = {
         c: [r for r in rows if r["confidence"] == c]
@@ -512,7 +513,8 @@ def main() -> None:
         Path(args.out).write_text(
             json.dumps({"summary": summary, "per_image": rows}, default=_json_default)
         )
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
