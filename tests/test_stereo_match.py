@@ -307,15 +307,19 @@ def test_twins_are_searched_once_and_keep_their_own_column(pair, monkeypatch):
         StereoMatchOptions(merge_px=-0.01)
 
 
-@pytest.mark.parametrize("scale", [1, 2**40], ids=["packed", "too-wide-to-pack"])
-def test_row_keys_rank_rows_as_numpys_unique_along_axis_0(scale):
+@pytest.mark.parametrize(
+    ("scale", "high", "k"),
+    [(1, 5, 4), (2**40, 5, 4), (2**61, 2, 3)],
+    ids=["packed", "too-wide-to-pack", "span-beyond-int64"],
+)
+def test_row_keys_rank_rows_as_numpys_unique_along_axis_0(scale, high, k):
     """The twins' grouping key: ``np.unique`` of the keys gives the same first indices and
     inverse as ``np.unique(rows, axis=0)``, rows of negative values and repeats included, and
-    when the rows' ranges do not fit one 64-bit integer."""
+    when the rows' ranges do not fit one 64-bit integer (nor, at +-2^62, does max - min)."""
     from jaxpose.vision.stereo_match import _row_keys
 
     rng = np.random.default_rng(3)
-    rows = rng.integers(-5, 6, (400, 4)) * scale
+    rows = rng.integers(-high, high + 1, (400, k)) * scale
     rows[::7] = rows[3]  # repeats of one row
     _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
     _, first_k, inverse_k = np.unique(_row_keys(rows), return_index=True, return_inverse=True)

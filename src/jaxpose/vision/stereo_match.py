@@ -358,9 +358,10 @@ def _row_keys(rows: np.ndarray) -> np.ndarray:
     for equal rows: ``np.unique`` of these is ``np.unique(rows, axis=0)`` (the same first indices
     and inverse) at a sixth of its time. Rows whose ranges do not fit 62 bits are ranked."""
     lo = rows.min(axis=0)
-    span = rows.max(axis=0) - lo + 1
-    if np.prod(span.astype(float)) >= 2.0**62:
+    # the spans in floating point first: max - min itself overflows for the widest int64 rows
+    if np.prod(rows.max(axis=0).astype(float) - lo.astype(float) + 1.0) >= 2.0**62:
         return np.unique(rows, axis=0, return_inverse=True)[1].reshape(-1)
+    span = rows.max(axis=0) - lo + 1
     key = np.zeros(len(rows), np.int64)
     for j in range(rows.shape[1]):
         key = key * span[j] + (rows[:, j] - lo[j])
