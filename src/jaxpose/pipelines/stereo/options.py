@@ -311,7 +311,8 @@ class TrackerOptions:
             ``window_anchor_points`` landmarks, so
             the first frames' poses and the landmarks placed at them keep being re-estimated
             with the later frames' rays. ``window_anchors=0``: off (measured on the development
-            scenes, ``docs/stereo-evaluation.md``: better at 4 m, worse at 5 m).
+            scenes, ``docs/stereo-evaluation.md``: no gain at 4-5 m at the defaults of
+            2026-12-01, one 5 m run of three over its target).
         keep_history: keep every tracked frame's observations (its point rays and line planes)
             so that :func:`jaxpose.pipelines.stereo.smooth_sequence` can adjust the whole
             sequence after the last frame (offline smoothing); memory grows with the sequence
