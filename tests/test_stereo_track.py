@@ -207,8 +207,8 @@ def test_keypoint_budget_follows_the_target_area():
 
 def test_a_near_target_can_get_full_resolution_corners_at_their_response_peak():
     """With ``fine_corners_area_px``, from that apparent area up one ORB level and the
-    response's sub-pixel peak; below it (and with the option off, the default) ORB's pyramid
-    and ``cornerSubPix``."""
+    response's sub-pixel peak; below it (and with the option off) the tracker's default, three
+    pyramid levels at the response's peak."""
     from jaxpose.vision.stereo_features import detect_points
 
     limit = 100_000.0
@@ -216,10 +216,10 @@ def test_a_near_target_can_get_full_resolution_corners_at_their_response_peak():
     tracker = StereoTracker(RIG, None, options=TrackerOptions(fine_corners_area_px=limit))
     near, far = tracker.feature_options(limit), tracker.feature_options(0.99 * limit)
     assert (near.orb_levels, near.subpixel) == (1, "peak")
-    assert (far.orb_levels, far.subpixel) == (8, True)
+    assert (far.orb_levels, far.subpixel) == (3, "peak")
     assert near.n_points == round(limit / 8.0**2, -2)  # the budget still follows the area
     off = StereoTracker(RIG, None, options=TrackerOptions(fine_corners_area_px=None))
-    assert off.feature_options(10 * limit).orb_levels == 8
+    assert off.feature_options(10 * limit).orb_levels == 3
     with pytest.raises(ValueError, match="fine_corners_area_px"):
         TrackerOptions(fine_corners_area_px=0.0)
     # hysteresis: entered at the threshold, left below threshold / FINE_CORNERS_BAND

@@ -79,8 +79,9 @@ class FeatureOptions:
             both seeds tried). Chosen on the development scenes over noise seeds 0-5
             (docs/stereo-evaluation.md, *The corner refinement's window*). ``"peak"``: the
             sub-pixel peak of the Shi-Tomasi response (3 x 3 blocks) within half a pixel of the
-            keypoint's nearest whole pixel (no keypoint moves to another corner; meant with
-            ``orb_levels=1``). ``False``: the keypoints as ORB returns them.
+            keypoint's nearest whole pixel (no keypoint moves to another corner; meant with few
+            pyramid levels: the stereo tracker's default is three, ``TrackerOptions.features``).
+            ``False``: the keypoints as ORB returns them.
         orb_levels: ORB's pyramid levels (``nlevels``, scale 1.2 between levels); 1 keeps the
             FAST corners of the full-resolution image only (whole-pixel positions without
             ``subpixel``).

@@ -176,14 +176,22 @@ class TrackerOptions:
         stereo_residuals: also fit the right-image pixels of the matched landmarks.
         features: the feature options; 2000 ORB keypoints instead of 1200 (chosen on the clean
             2 m sequences, noise seeds 0-2: per-axis RMS position errors at most 10.5 mm instead
-            of at most 16.5 mm, at about 2/3 of the frame rate).
+            of at most 16.5 mm, at about 2/3 of the frame rate), and ORB's corners on three
+            pyramid levels at the sub-pixel peak of their corner response (``orb_levels=3``,
+            ``subpixel="peak"``) instead of eight levels refined by ``cornerSubPix`` (the
+            default until 2026-12-01): on the development scenes and draws the errors are the
+            same within their scatter (the worst axes summed 7% lower beyond 3.5 m, 23 of 25 far
+            runs meeting the targets either way), and a frame at 1.5-2 m takes 0.83-0.85 of the
+            wall time, 0.79-0.80 of the CPU (fewer keypoints to match and keep, no window
+            refinement); the same at 4 m (``docs/stereo-evaluation.md``, *Three pyramid levels
+            at the response's peak*).
         keypoint_spacing_px: the ORB budget of a frame is the target's apparent area (its bright
             pixels on the dark sky, measured on the frame) divided by ``spacing^2``: one keypoint
             per ``spacing x spacing`` pixels of target, within ``[keypoint_floor,
             features.n_points]`` (about 2000 at 2 m for the 1 m target, 700 at 3 m). A near target
             seen with more gets weak extra corners. ``None``: always ``features.n_points``.
         keypoint_floor: the least ORB budget a frame gets from ``keypoint_spacing_px`` (at most
-            ``features.n_points``). ORB shares its budget among its eight pyramid levels and
+            ``features.n_points``). ORB shares its budget among its pyramid levels and
             keeps the strongest corners of each, so a small budget on a small target keeps a
             few of many similar corners, a different few every frame: on the 5 m development
             scene (``d6``, frame 0) a budget of 250 gave 230 keypoints of which 13-34 were found
@@ -200,8 +208,9 @@ class TrackerOptions:
             than eq. 1's bound). ``None``: always ``features.lsd_scale``.
         fine_corners_area_px: on a target of apparent area at least this (pixels), the
             keypoints are ORB's full-resolution corners at the sub-pixel peak of their corner
-            response (``features.orb_levels=1``, ``features.subpixel="peak"``) instead of its
-            eight pyramid levels refined by ``cornerSubPix``; a sequence leaves them only below
+            response (``features.orb_levels=1``, ``features.subpixel="peak"``) instead of the
+            default's three pyramid levels (measured against eight levels refined by
+            ``cornerSubPix``, the default then); a sequence leaves them only below
             the threshold over :data:`~jaxpose.pipelines.stereo.frames.FINE_CORNERS_BAND`
             (hysteresis). A speed option, off by default (``None``): at 100 000 (the 1 m
             target nearer than about 2.3 m) a frame at 1.5-2 m takes two thirds of the CPU
@@ -415,7 +424,9 @@ class TrackerOptions:
     duplicate_px: float = 2.0
     frame_rays: bool = True
     stereo_residuals: bool = True
-    features: FeatureOptions = field(default_factory=lambda: FeatureOptions(n_points=2000))
+    features: FeatureOptions = field(
+        default_factory=lambda: FeatureOptions(n_points=2000, orb_levels=3, subpixel="peak")
+    )
     keypoint_spacing_px: float | None = 8.0
     keypoint_floor: int = 1000
     lsd_area_px: float | None = 120_000.0
