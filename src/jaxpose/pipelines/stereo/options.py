@@ -183,8 +183,8 @@ class TrackerOptions:
             same within their scatter (the worst axes summed 7% lower beyond 3.5 m, 23 of 25 far
             runs meeting the targets either way), and a frame at 1.5-2 m takes 0.83-0.85 of the
             wall time, 0.79-0.80 of the CPU (no ``cornerSubPix`` and five levels fewer to
-            detect, a cheaper search by projection and map upkeep); the same at 4 m (``docs/stereo-evaluation.md``, *Three pyramid levels
-            at the response's peak*).
+            detect, a cheaper search by projection and map upkeep); the same at 4 m
+            (``docs/stereo-evaluation.md``, *Three pyramid levels at the response's peak*).
         keypoint_spacing_px: the ORB budget of a frame is the target's apparent area (its bright
             pixels on the dark sky, measured on the frame) divided by ``spacing^2``: one keypoint
             per ``spacing x spacing`` pixels of target, within ``[keypoint_floor,
