@@ -215,3 +215,38 @@ def test_sym3_eigvalsh_agrees_with_lapack_and_keeps_the_conditioning_test():
     np.testing.assert_array_equal(got[:, 0] > 1e-4 * got[:, 2], want[:, 0] > 1e-4 * want[:, 2])
     np.testing.assert_array_equal(rays_meet(M), want[:, 0] > 1e-4 * want[:, 2])
     assert 0 < np.sum(want[:k, 0] > 1e-4 * want[:k, 2]) < k  # both sides of the test exercised
+
+
+def test_array_helpers_equal_their_numpy_references():
+    """The map's scatter sum, 3 x 3 solves, per-frame products and sorted lookup against
+    ``np.add.at``, ``np.linalg.solve``, a gathered ``einsum`` and an ``argsort`` lookup."""
+    from jaxpose.pipelines.stereo._arrays import find, rows_times, scatter_add, solve3
+
+    rng = np.random.default_rng(5)
+    idx = rng.integers(0, 50, 4000)
+    vals = rng.normal(size=(4000, 3, 3))
+    want = rng.normal(size=(50, 3, 3))
+    got = want.copy()
+    np.add.at(want, idx, vals)
+    scatter_add(got, idx, vals)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    strided = np.zeros((50, 2, 3))[:, 0]  # not contiguous: the slow path, still in place
+    scatter_add(strided, idx, vals[:, 0])
+    ref = np.zeros((50, 3))
+    np.add.at(ref, idx, vals[:, 0])
+    np.testing.assert_allclose(strided, ref, atol=1e-12)
+    A = rng.normal(size=(300, 3, 3))
+    b = rng.normal(size=(300, 3))
+    np.testing.assert_allclose(solve3(A, b), np.linalg.solve(A, b[..., None])[..., 0], rtol=1e-7)
+    assert not np.isfinite(solve3(np.zeros((1, 3, 3)), np.ones((1, 3)))).any()
+    mats, v = rng.normal(size=(6, 3, 3)), rng.normal(size=(200, 3))
+    for frame in (np.sort(rng.integers(0, 6, 200)), rng.integers(0, 6, 200)):  # grouped, not
+        want = np.einsum("na,nab->nb", v, mats[frame])
+        np.testing.assert_allclose(rows_times(v, mats, frame), want, rtol=1e-12, atol=1e-12)
+    keys = np.sort(rng.choice(10_000, 500, replace=False))
+    queries = rng.integers(0, 10_000, 2000)
+    q, at = find(keys, queries, increasing=True)
+    q_ref, at_ref = find(rng.permutation(keys), queries)  # the general path, shuffled keys
+    np.testing.assert_array_equal(q, q_ref)
+    np.testing.assert_array_equal(keys[at], queries[q])
+    np.testing.assert_array_equal(np.isin(queries, keys), np.isin(np.arange(2000), q))

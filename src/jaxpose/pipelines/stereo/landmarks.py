@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jaxpose.core.geometry import Pose
-from jaxpose.pipelines.stereo._arrays import rt, sym3_eigvalsh
+from jaxpose.pipelines.stereo._arrays import rt, scatter_add, solve3, sym3_eigvalsh
 
 __all__ = ["LandmarkMap", "LandmarkSet", "map_origin"]
 
@@ -243,12 +243,12 @@ class LandmarkMap:
         c = np.asarray(origins, float)
         w = np.ones(len(idx)) if weights is None else np.asarray(weights, float)
         P = w[:, None, None] * (np.eye(3)[None] - d[:, :, None] * d[:, None, :])
-        np.add.at(s.M, idx, P)
-        np.add.at(s.b, idx, np.einsum("nij,nj->ni", P, c))
+        scatter_add(s.M, idx, P)
+        scatter_add(s.b, idx, np.einsum("nij,nj->ni", P, c))
         u = np.unique(idx)
         u = u[rays_meet(s.M[u])]
         if len(u):
-            s.X[u] = np.linalg.solve(s.M[u], s.b[u][..., None])[..., 0]
+            s.X[u] = solve3(s.M[u], s.b[u])
 
     def observe_lines(self, idx, normals, offsets, weights=None) -> None:
         """Add observation planes ``normals . X = offsets`` (body frame; ``(n, 3)`` and ``(n,)``:
@@ -267,8 +267,8 @@ class LandmarkMap:
         norm = np.where(norm > 0, norm, 1.0)
         n, d = n / norm[:, None], np.asarray(offsets, float) / norm
         w = np.ones(len(idx)) if weights is None else np.asarray(weights, float)
-        np.add.at(s.M, idx, w[:, None, None] * n[:, :, None] * n[:, None, :])
-        np.add.at(s.b, idx, (w * d)[:, None] * n)
+        scatter_add(s.M, idx, w[:, None, None] * n[:, :, None] * n[:, None, :])
+        scatter_add(s.b, idx, (w * d)[:, None] * n)
         u = np.unique(idx)
         ev, V = np.linalg.eigh(s.M[u])
         ok = planes_meet(ev)

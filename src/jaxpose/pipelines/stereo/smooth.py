@@ -64,7 +64,7 @@ def adjust_sequence(
         frames=len(frames),
         iterations=iterations,
         max_points=max(n_points, 1),
-        max_lines=max(int(max_lines), (len(landmarks.lines) + 1) // 2),
+        max_lines=max(int(max_lines), len(landmarks.lines)),  # every line may be free
         free_lines=free_lines,
         lines=lines,
     )

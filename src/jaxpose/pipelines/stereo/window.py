@@ -26,7 +26,8 @@ held where the map has them, their left-image lines in the pose blocks only. The
 complement on the ``3 x 3`` landmark and endpoint blocks, Jacobians by ``jax.jacfwd`` of one
 observation's residual; compiled once): this module gathers the window's observations, priors
 and line terms into its padded visibility grid (``frames`` x ``max_points`` landmarks x two
-images; ``2 max_lines`` free lines x two planes; ``2 max_lines`` held line rows a frame).
+images; ``max_lines`` free lines x two planes; held line rows a frame: ``2 max_lines`` without
+free lines, else a sixth of that, as few lines are held then).
 
 After the adjustment the rays and line planes of the window's frames are moved to the adjusted
 poses (removed at the old pose, added at the new one) and the landmarks re-solved from them, so
@@ -45,7 +46,7 @@ from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
 from jaxpose.core.refine import WindowLines, WindowObservations, WindowOptions, adjust_window
 from jaxpose.core.status import Status
-from jaxpose.pipelines.stereo._arrays import find, sym3_eigvalsh
+from jaxpose.pipelines.stereo._arrays import find, rows_times, scatter_add, sym3_eigvalsh
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap, planes_meet
 
 __all__ = ["FrameRays", "WindowAdjuster"]
@@ -154,8 +155,12 @@ class WindowAdjuster:
             (:func:`jaxpose.core.refine.motion_residual`), or ``None`` (no prior).
         free_lines: the line landmarks observed by the window's stereo planes are adjusted
             with the poses (:class:`jaxpose.core.refine.WindowLines`: their endpoints free,
-            the planes from outside the window as a prior; at most ``2 max_lines``); off, or
-            for the others, the lines' endpoints are held where the map has them.
+            the planes from outside the window as a prior; at most ``max_lines``, those with
+            the most planes in the window; the development scenes had at most 85 of 96); off,
+            or for the others, the lines' endpoints are held where the map has them (at most
+            ``2 max_lines`` endpoint rows a frame without free lines, a sixth of that with them:
+            then only the lines whose planes do not yet meet are held, at most 6 a frame on the
+            development scenes; a frame with more keeps its first ones).
         anchors: most past frames kept for the global adjustment (:meth:`adjust` with
             ``spanning=True``): the fixed first frame and frames spread over the run (a frame
             leaving the recent window is kept when it is at least ``spacing`` frames after
@@ -205,6 +210,9 @@ class WindowAdjuster:
         self.max_points = int(max_points)
         self.max_lines = int(max_lines)
         self.free_lines = bool(free_lines) and bool(lines)
+        # endpoint rows of held lines a frame: all of a frame's lines without free lines; with
+        # them only the lines whose planes do not yet meet (a sixth of the lines is ample)
+        self._held_rows = 2 * self.max_lines if not self.free_lines else 2 * -(-self.max_lines // 6)
         self.motion_sigma = motion_sigma  # (deg, mm), or None
         c = rig.left
         self.f = (float(c.fx), float(c.fy))
@@ -302,27 +310,22 @@ class WindowAdjuster:
         s = landmarks.points
         if len(s) == 0:
             return False
-        obs = []
-        for j, fr in enumerate(frames):
-            ids, px, right, w = fr.arrays()
-            q, at = find(s.ids, ids)  # the rays whose landmark is still in the map
-            obs.append((j, at, px[q], right[q], w[q]))
-        jj = np.concatenate([np.full(len(o[1]), o[0]) for o in obs])
+        cols = [fr.arrays() for fr in frames]
+        jj = np.repeat(np.arange(len(frames)), [len(c[0]) for c in cols])  # (non-decreasing)
+        ids, px, right, w = (np.concatenate(c) for c in zip(*cols, strict=True))
+        q, idx = find(s.ids, ids, increasing=True)  # the rays whose landmark is still in the map
+        jj, px, right, w = jj[q], px[q], right[q], w[q]
         if len(jj) < 20:
             return False
-        idx = np.concatenate([o[1] for o in obs])
-        px = np.concatenate([o[2] for o in obs])
-        right = np.concatenate([o[3] for o in obs])
-        w = np.concatenate([o[4] for o in obs])
         lm, li = np.unique(idx, return_inverse=True)  # landmarks of the window
         # priors: each landmark's rays outside the window (all its rays minus the window's)
         Rs = np.stack([fr.R for fr in frames])
         ts = np.stack([fr.t for fr in frames])
         M_out, b_out = s.M[lm].copy(), s.b[lm].copy()
-        o_old, d_old = self._rays(Rs[jj], ts[jj], px, right)
+        o_old, d_old = self._rays(Rs, ts, jj, px, right)
         P = w[:, None, None] * (np.eye(3)[None] - d_old[:, :, None] * d_old[:, None, :])
-        np.subtract.at(M_out, li, P)
-        np.subtract.at(b_out, li, np.einsum("nij,nj->ni", P, o_old))
+        scatter_add(M_out, li, -P)
+        scatter_add(b_out, li, -np.einsum("nij,nj->ni", P, o_old))
         free = np.array([not fr.fixed for fr in frames])
         if free.all() and self.anchor_oldest:
             free[0] = False  # the oldest frame fixes the gauge
@@ -363,7 +366,7 @@ class WindowAdjuster:
         if self.free_lines:
             self._move_planes(landmarks, frames, Rs_new, ts_new)
         # move the window's rays to the adjusted poses and re-solve the landmarks from all rays
-        o_new, d_new = self._rays(Rs_new[jj], ts_new[jj], px, right)
+        o_new, d_new = self._rays(Rs_new, ts_new, jj, px, right)
         # (one call: each landmark is re-solved once)
         landmarks.observe(
             np.concatenate([idx, idx]),
@@ -378,7 +381,7 @@ class WindowAdjuster:
     def _free_line_terms(self, landmarks: LandmarkMap, frames):
         """The free line landmarks of the window: those with observation planes in the window's
         frames whose planes in the map cross at a line (the map's own test,
-        :meth:`LandmarkMap.observe_lines`), at most ``2 max_lines`` (the most planes in the
+        :meth:`LandmarkMap.observe_lines`), at most ``max_lines`` (the most planes in the
         window first). A dict of the plane rows (frame, line, camera-frame plane, weight), the
         lines' stable ids and endpoints, and their priors: the map's plane normal equations
         less the window's planes at the poses they were placed at; ``None`` without any."""
@@ -388,7 +391,7 @@ class WindowAdjuster:
         rows = []
         for j, fr in enumerate(frames):
             ids, n, d, cam, w = fr.plane_arrays()
-            q, at = find(s.ids, ids)
+            q, at = find(s.ids, ids, increasing=True)
             if len(q):
                 rows.append((np.full(len(q), j), at, n[q], d[q], cam[q], w[q]))
         if not rows:
@@ -399,7 +402,7 @@ class WindowAdjuster:
         count = np.bincount(li, minlength=len(lu))
         ok = planes_meet(ev)
         order = np.lexsort((lu, -count))
-        sel = np.sort(order[ok[order]][: 2 * self.max_lines])
+        sel = np.sort(order[ok[order]][: self.max_lines])
         if len(sel) == 0:
             return None
         new_index = np.full(len(lu), -1)
@@ -412,8 +415,8 @@ class WindowAdjuster:
         n_b = np.einsum("ki,kij->kj", n, Rs[jj])  # body-frame planes at the frames' poses
         d_b = d - np.einsum("ki,ki->k", n, ts[jj])
         M_out, b_out = s.M[lu].copy(), s.b[lu].copy()
-        np.subtract.at(M_out, li, w[:, None, None] * n_b[:, :, None] * n_b[:, None, :])
-        np.subtract.at(b_out, li, (w * d_b)[:, None] * n_b)
+        scatter_add(M_out, li, -w[:, None, None] * n_b[:, :, None] * n_b[:, None, :])
+        scatter_add(b_out, li, -(w * d_b)[:, None] * n_b)
         return {
             "ids": s.ids[lu],
             "X": s.X[lu].copy(),
@@ -433,7 +436,7 @@ class WindowAdjuster:
         idx, normals, offsets, weights = [], [], [], []
         for fr, R, t in zip(frames, Rs_new, ts_new, strict=True):
             ids, n, d, _, w = fr.plane_arrays()
-            q, at = find(s.ids, ids)
+            q, at = find(s.ids, ids, increasing=True)
             if len(q) == 0:
                 continue
             n, d, w = n[q], d[q], w[q]
@@ -463,7 +466,7 @@ class WindowAdjuster:
             if len(fr.line_ids) == 0:
                 continue
             line_ids = np.asarray(fr.line_ids)
-            q, at = find(s.ids, line_ids)
+            q, at = find(s.ids, line_ids, increasing=True)
             if held is not None and len(q):
                 fixed = ~np.isin(line_ids[q], held)
                 q, at = q[fixed], at[fixed]
@@ -485,13 +488,15 @@ class WindowAdjuster:
             return None
         return tuple(np.concatenate(c) for c in zip(*rows, strict=True))
 
-    def _rays(self, R, t, px, right):
+    def _rays(self, Rs, ts, jj, px, right):
+        """Body-frame origins and unit directions ``(n, 3)`` of the rays of pixels ``px`` seen
+        in frames ``jj`` (non-decreasing: rows grouped by frame) at the poses ``Rs, ts``."""
         fx, fy = self.f
         cx, cy = self.c
         d = np.stack([(px[:, 0] - cx) / fx, (px[:, 1] - cy) / fy, np.ones(len(px))], 1)
         centre = np.where(right[:, None], -self.t_rl[None], 0.0)
-        origin = np.einsum("nj,nji->ni", centre - t, R)
-        d = np.einsum("nj,nji->ni", d, R)
+        origin = rows_times(centre - ts[jj], Rs, jj)
+        d = rows_times(d, Rs, jj)
         return origin, d / np.linalg.norm(d, axis=1, keepdims=True)
 
     def _points_cap(self, spanning: bool) -> int:
@@ -525,7 +530,7 @@ class WindowAdjuster:
         n, K = len(X), len(Rs)
         f = (self.frames.maxlen if size is None else size) + (self.anchors if spanning else 0)
         max_points = self._points_cap(spanning)
-        n_pad, k_pad = max(max_points, n), 2 * self.max_lines
+        n_pad, k_pad = max(max_points, n), self._held_rows
         Rp = np.broadcast_to(np.eye(3), (f, 3, 3)).copy()
         tp = np.zeros((f, 3))
         tp[:, 2] = 1.0
@@ -542,7 +547,7 @@ class WindowAdjuster:
         if lines is not None:
             jl, Xl, L, wl = lines
             slot = np.arange(len(jl)) - np.searchsorted(jl, jl)  # rank within the frame
-            keep = slot < k_pad  # (more than max_lines lines in a frame: the first ones)
+            keep = slot < k_pad  # (more lines in a frame: the first ones)
             jl, slot = jl[keep], slot[keep]
             Lp[jl, slot], Lc[jl, slot], Lw[jl, slot] = Xl[keep], L[keep], wl[keep]
         X_pad = np.zeros((n_pad, 3))
@@ -579,11 +584,11 @@ class WindowAdjuster:
         )
 
     def _free_line_grid(self, f: int, free_lines):
-        """The free lines padded to ``2 max_lines`` lines and ``f`` frames (two planes a frame:
+        """The free lines padded to ``max_lines`` lines and ``f`` frames (two planes a frame:
         left and right), weights times the line weight ``1 / line_sigma^2``: the
-        :class:`WindowLines` and the endpoints ``(2 max_lines, 2, 3)`` (padded lines: a 0.1 m
+        :class:`WindowLines` and the endpoints ``(max_lines, 2, 3)`` (padded lines: a 0.1 m
         segment 1 m ahead)."""
-        m_pad = 2 * self.max_lines
+        m_pad = self.max_lines
         planes = np.zeros((f, m_pad, 2, 4))
         planes[..., 2] = 1.0
         weight = np.zeros((f, m_pad, 2))
