@@ -322,6 +322,7 @@ def _lucas_kanade(image, T, half: int, centre, iterations: int):
     windows over ``k * k`` terms keep about six significant digits), solved in float64."""
     img = np.asarray(image)
     h, w = img.shape[:2]
+    flat = img.reshape(h * w, *img.shape[2:])
     g = np.arange(-half - 1, half + 3)  # a window a pixel wider, one more for the interpolation
     n, k2 = len(centre), (2 * half + 1) ** 2
     p = centre.astype(float).copy()
@@ -336,7 +337,8 @@ def _lucas_kanade(image, T, half: int, centre, iterations: int):
         ax, ay = (p - base).T.astype(np.float32)
         cols = np.clip(base[:, 0, None] + g[None], 0, w - 1)
         rows = np.clip(base[:, 1, None] + g[None], 0, h - 1)
-        G = img[rows[:, :, None], cols[:, None, :]].astype(np.float32)  # (n, k + 3, k + 3)
+        # (one gather from the flattened image: a third of the 2-D fancy index's time)
+        G = flat[rows[:, :, None] * w + cols[:, None, :]].astype(np.float32)  # (n, k+3, k+3)
         ax, ay = ax[:, None, None], ay[:, None, None]
         top = G[:, :-1, :-1] + ax * (G[:, :-1, 1:] - G[:, :-1, :-1])
         bottom = G[:, 1:, :-1] + ax * (G[:, 1:, 1:] - G[:, 1:, :-1])
