@@ -15,6 +15,13 @@ change meant to leave the tracking alone). Run from the repository root::
     python bench/stereo_paired.py d1-clean-2m d6-blur-5m-slow --frames 20 --reps 3 \\
         --option window_every=2
 
+``--base-rev REV`` runs tracker ``A`` with the package as it was at git revision ``REV`` (a copy
+of its ``src/jaxpose`` under another import name, in a temporary folder) and ``B`` with the
+working tree: a change of code rather than of options, timed on the same frames in one process
+(its options' fields that ``REV`` does not know are left out, and said)::
+
+    python bench/stereo_paired.py d4-glints-4m-slow d1-clean-2m --base-rev HEAD~2
+
 ``SCENE``: a scene of ``bench/stereo.py``, ``hNN`` of ``bench/stereo_heldout.py``'s default draw,
 or ``NAME={StereoScene fields as JSON}``. Ends with one JSON line: per scene, both
 configurations' figures and the ratios.
@@ -23,8 +30,15 @@ configurations' figures and the ratios.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import importlib
+import io
 import json
+import re
+import subprocess
 import sys
+import tarfile
+import tempfile
 import time
 from pathlib import Path
 
@@ -33,8 +47,65 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 
 
-def paired(name: str, frames: int, reps: int, seed: int, option_a=(), option_b=()) -> dict:
-    """Track scene ``name`` with both configurations, ``reps`` times; the figures of one scene."""
+REPO = Path(__file__).resolve().parents[1]
+
+
+def package_at(rev: str, folder: Path) -> str:
+    """Put the package as it was at git revision ``rev`` under ``folder``, renamed so that it
+    imports beside the working tree's (``jaxpose_at_<commit>``: its own imports rewritten), put
+    ``folder`` on ``sys.path`` and return the import name. Raises ``ValueError`` for a revision
+    git does not know."""
+    got = subprocess.run(
+        ["git", "rev-parse", "--short=10", f"{rev}^{{commit}}"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
+    if got.returncode:
+        raise ValueError(f"git does not know the revision {rev!r}: {got.stderr.strip()}")
+    name = f"jaxpose_at_{got.stdout.strip()}"
+    tar = subprocess.run(
+        ["git", "archive", got.stdout.strip(), "src/jaxpose"], cwd=REPO, capture_output=True
+    )
+    if tar.returncode:
+        raise ValueError(f"git archive {rev} src/jaxpose failed: {tar.stderr.decode().strip()}")
+    with tarfile.open(fileobj=io.BytesIO(tar.stdout)) as t:
+        t.extractall(folder, filter="data")
+    (folder / "src" / "jaxpose").rename(folder / name)
+    for path in (folder / name).rglob("*.py"):
+        text = path.read_text()
+        text = re.sub(r"\bjaxpose\.", f"{name}.", text)
+        text = re.sub(r"\bfrom jaxpose import\b", f"from {name} import", text)
+        text = re.sub(r"^(\s*)import jaxpose$", rf"\1import {name} as jaxpose", text, flags=re.M)
+        path.write_text(text)
+    sys.path.insert(0, str(folder))
+    return name
+
+
+def _in_package(value, name: str):
+    """``value`` (options, cameras, a pose: frozen dataclasses or equinox modules, nested)
+    rebuilt from the classes of the same names in package ``name``; a field the other class does
+    not have is left out, and said."""
+    kind = type(value)
+    if not kind.__module__.startswith("jaxpose."):
+        return value
+    module = importlib.import_module(name + kind.__module__[len("jaxpose") :])
+    other = getattr(module, kind.__name__)
+    if dataclasses.is_dataclass(value):  # (equinox modules are dataclasses too)
+        known = {f.name for f in dataclasses.fields(other)}
+        fields = {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+        dropped = sorted(set(fields) - known)
+        if dropped:
+            print(f"note: {name} has no {kind.__name__} field {', '.join(dropped)}: left out")
+        return other(**{k: _in_package(v, name) for k, v in fields.items() if k in known})
+    raise TypeError(f"cannot rebuild a {kind.__name__} in {name}")
+
+
+def paired(
+    name: str, frames: int, reps: int, seed: int, option_a=(), option_b=(), base_package=None
+) -> dict:
+    """Track scene ``name`` with both configurations, ``reps`` times; the figures of one scene.
+    ``base_package``: the import name of :func:`package_at`, configuration ``A``'s code."""
     import stereo  # bench/stereo.py
     from stereo_diagnose import rendered
 
@@ -45,12 +116,18 @@ def paired(name: str, frames: int, reps: int, seed: int, option_a=(), option_b=(
         "A": stereo.tracker_options(option_a, base),
         "B": stereo.tracker_options(option_b, base),
     }
+    kinds = {"A": StereoTracker, "B": StereoTracker}
+    start = {c: (rig, seq[0].pose) for c in configs}
+    if base_package is not None:
+        kinds["A"] = importlib.import_module(base_package + ".pipelines.stereo").StereoTracker
+        configs["A"] = _in_package(configs["A"], base_package)
+        start["A"] = (_in_package(rig, base_package), _in_package(seq[0].pose, base_package))
     keys = [*STAGES, "frame"]
     wall = {c: {k: [] for k in keys} for c in configs}
     cpu = {c: {k: [] for k in keys} for c in configs}
-    same = True
+    same, apart = True, 0.0
     for rep in range(reps):
-        trackers = {c: StereoTracker(rig, seq[0].pose, options=o) for c, o in configs.items()}
+        trackers = {c: kinds[c](*start[c], options=o) for c, o in configs.items()}
         for i, fr in enumerate(seq):
             order = ["A", "B"] if (i + rep) % 2 == 0 else ["B", "A"]
             out = {}
@@ -68,11 +145,21 @@ def paired(name: str, frames: int, reps: int, seed: int, option_a=(), option_b=(
                 np.array_equal(np.asarray(getattr(out["A"], a)), np.asarray(getattr(out["B"], a)))
                 for a in ("R", "t", "status")
             )
+            ta, tb = (np.asarray(out[c].t, float) for c in ("A", "B"))
+            if np.isfinite(ta).all() and np.isfinite(tb).all():
+                apart = max(apart, float(np.abs(ta - tb).max()))
 
     def means(d):
         return {k: round(1e3 * float(np.mean(v)), 2) for k, v in d.items() if v}
 
-    res = {"scene": name, "frames": frames, "reps": reps, "seed": seed, "same_poses": bool(same)}
+    res = {
+        "scene": name,
+        "frames": frames,
+        "reps": reps,
+        "seed": seed,
+        "same_poses": bool(same),
+        "max_position_difference_m": apart,  # frames both trackers tracked
+    }
     for c in configs:
         res[c] = {"wall_ms": means(wall[c]), "cpu_ms": means(cpu[c])}
     res["ratio_B_over_A"] = {
@@ -89,7 +176,7 @@ def paired(name: str, frames: int, reps: int, seed: int, option_a=(), option_b=(
 def _print(res: dict) -> None:
     print(
         f"\n{res['scene']}: {res['frames']} frames x {res['reps']}, poses the same: "
-        f"{res['same_poses']}"
+        f"{res['same_poses']} (positions at most {res['max_position_difference_m']:.1e} m apart)"
     )
     print(
         f"  {'stage':12s} {'A wall':>8s} {'B wall':>8s} {'B/A':>6s} {'A cpu':>8s} "
@@ -114,6 +201,11 @@ def main(argv=None) -> int:
     p.add_argument(
         "--base-option", action="append", default=[], help="NAME=VALUE of configuration A"
     )
+    p.add_argument(
+        "--base-rev",
+        default=None,
+        help="configuration A runs the package at this git revision (module docstring)",
+    )
     args = p.parse_args(argv)
     if args.frames < 4:
         p.error(f"--frames must be at least 4; got {args.frames}")
@@ -123,9 +215,18 @@ def main(argv=None) -> int:
 
     jax.config.update("jax_enable_x64", True)
     results = []
+    folder = tempfile.TemporaryDirectory(prefix="jaxpose-base-")
+    base_package = None
+    if args.base_rev is not None:
+        try:
+            base_package = package_at(args.base_rev, Path(folder.name))
+        except ValueError as err:
+            p.error(f"--base-rev: {err}")
     for name in args.scenes:
         try:
-            res = paired(name, args.frames, args.reps, args.seed, args.base_option, args.option)
+            res = paired(
+                name, args.frames, args.reps, args.seed, args.base_option, args.option, base_package
+            )
         except ValueError as err:
             p.error(f"scene {name}: {err}")
         _print(res)
@@ -136,6 +237,7 @@ def main(argv=None) -> int:
                 "bench": "stereo-paired",
                 "option_A": args.base_option,
                 "option_B": args.option,
+                "base_rev": args.base_rev,
                 "scenes": results,
             }
         )

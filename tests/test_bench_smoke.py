@@ -220,3 +220,45 @@ def test_budget_bench_reads_several_seeds_together(tmp_path, capsys):
     assert vs["attitude"]["geometric_mean_ratio"] == pytest.approx(0.5, abs=1e-3)
     assert vs["attitude"]["dop_lower"] == "2/2"
     assert "response" not in out["dop_against"]  # no response runs: nothing compared
+
+
+def test_stereo_paired_base_rev_imports_a_revision_beside_the_working_tree(tmp_path):
+    """``--base-rev``: the package at a git revision, renamed, imports beside the working tree's
+    and rebuilds the working tree's options, rig and pose from its own classes (field by field,
+    the same values); a revision git does not know is a ValueError that names it."""
+    import subprocess
+
+    import numpy as np
+
+    bench = load_bench("stereo_paired")
+    if subprocess.run(["git", "rev-parse", "HEAD"], cwd=bench.REPO, capture_output=True).returncode:
+        pytest.skip("not a git checkout")
+    name = bench.package_at("HEAD", tmp_path)
+    try:
+        import importlib
+
+        from jaxpose.core.camera import PinholeCamera, StereoCamera
+        from jaxpose.core.geometry import Pose
+        from jaxpose.pipelines.stereo import TrackerOptions
+        from jaxpose.vision.stereo_features import FeatureOptions
+
+        other = importlib.import_module(name + ".pipelines.stereo")
+        assert other.__file__.startswith(str(tmp_path))
+        opts = TrackerOptions(window_points=123, features=FeatureOptions(n_points=777))
+        got = bench._in_package(opts, name)
+        assert type(got) is other.TrackerOptions and type(got) is not TrackerOptions
+        assert got.window_points == 123 and got.features.n_points == 777
+        cam = PinholeCamera(800.0, 801.0, 512.0, 384.0, width=1024, height=768)
+        rig = bench._in_package(StereoCamera(cam, cam, np.eye(3), np.array([-0.3, 0, 0])), name)
+        assert type(rig).__module__.startswith(name) and rig.left.width == 1024
+        assert float(rig.left.fy) == 801.0 and float(rig.t_rl[0]) == -0.3
+        pose = bench._in_package(Pose(np.eye(3), np.ones(3)), name)
+        assert type(pose).__module__.startswith(name)
+        with pytest.raises(ValueError, match="no-such-revision"):
+            bench.package_at("no-such-revision", tmp_path / "x")
+    finally:
+        import sys
+
+        sys.path.remove(str(tmp_path))
+        for mod in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
+            del sys.modules[mod]
