@@ -156,11 +156,11 @@ class WindowAdjuster:
         free_lines: the line landmarks observed by the window's stereo planes are adjusted
             with the poses (:class:`jaxpose.core.refine.WindowLines`: their endpoints free,
             the planes from outside the window as a prior; at most ``max_lines``, those with
-            the most planes in the window; the development scenes had at most 85 of 96); off,
+            the most planes in the window; five development scenes had at most 85 of 96); off,
             or for the others, the lines' endpoints are held where the map has them (at most
             ``2 max_lines`` endpoint rows a frame without free lines, a sixth of that with them:
-            then only the lines whose planes do not yet meet are held, at most 6 a frame on the
-            development scenes; a frame with more keeps its first ones).
+            then only the lines whose planes do not yet meet are held, at most 6 a frame on
+            those scenes; a frame with more keeps its first ones).
         anchors: most past frames kept for the global adjustment (:meth:`adjust` with
             ``spanning=True``): the fixed first frame and frames spread over the run (a frame
             leaving the recent window is kept when it is at least ``spacing`` frames after
