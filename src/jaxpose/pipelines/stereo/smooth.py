@@ -64,7 +64,10 @@ def adjust_sequence(
         frames=len(frames),
         iterations=iterations,
         max_points=max(n_points, 1),
-        max_lines=max(int(max_lines), len(landmarks.lines)),  # every line may be free
+        # every line may be free (at most max_lines), or held (2 max_lines endpoint rows a frame)
+        max_lines=max(
+            int(max_lines), len(landmarks.lines) if free_lines else (len(landmarks.lines) + 1) // 2
+        ),
         free_lines=free_lines,
         lines=lines,
     )
