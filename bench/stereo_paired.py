@@ -215,9 +215,9 @@ def main(argv=None) -> int:
 
     jax.config.update("jax_enable_x64", True)
     results = []
-    folder = tempfile.TemporaryDirectory(prefix="jaxpose-base-")
     base_package = None
     if args.base_rev is not None:
+        folder = tempfile.TemporaryDirectory(prefix="jaxpose-base-")  # kept until main returns
         try:
             base_package = package_at(args.base_rev, Path(folder.name))
         except ValueError as err:

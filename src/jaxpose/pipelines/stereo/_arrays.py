@@ -142,16 +142,12 @@ def find(
     """Indices ``q`` of the ``queries`` present in the non-empty ``keys`` and, for each, its
     index in ``keys`` (sorted lookup). ``increasing``: the keys are already in increasing
     order (the map's stable ids, :attr:`LandmarkSet.ids`), so they are not sorted again."""
-    if increasing:
-        pos = np.searchsorted(keys, queries)
-        hit = (pos < len(keys)) & (keys[np.minimum(pos, len(keys) - 1)] == queries)
-        q = np.nonzero(hit)[0]
-        return q, pos[q]
-    order = np.argsort(keys)
-    pos = np.searchsorted(keys[order], queries)
-    hit = (pos < len(keys)) & (keys[order][np.minimum(pos, len(keys) - 1)] == queries)
+    order = None if increasing else np.argsort(keys)
+    ranked = keys if order is None else keys[order]
+    pos = np.searchsorted(ranked, queries)
+    hit = (pos < len(keys)) & (ranked[np.minimum(pos, len(keys) - 1)] == queries)
     q = np.nonzero(hit)[0]
-    return q, order[pos[q]]
+    return q, pos[q] if order is None else order[pos[q]]
 
 
 def scatter_add(out: np.ndarray, idx: np.ndarray, values: np.ndarray) -> None:
