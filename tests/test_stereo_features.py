@@ -270,3 +270,59 @@ def test_dark_margin_drops_the_keypoints_beside_the_dark_sky_and_only_those():
     for bad in (-1, True):  # (a float is refused by the type check under the tests' hook)
         with pytest.raises(ValueError, match="dark_margin_px"):
             FeatureOptions(dark_margin_px=bad)
+
+
+def _noisy_sky_with_stars(seed: int, shape, box, blocks, sigma: float) -> np.ndarray:
+    """:func:`_target_on_sky` with Gaussian sensor noise of ``sigma`` grey levels and 30 stars
+    (single pixels of grey 120-255) scattered over the sky."""
+    rng = np.random.default_rng(seed)
+    img = _target_on_sky(seed, shape, box, blocks).astype(float)
+    img += rng.normal(0.0, sigma, shape)
+    v, u = rng.integers(0, shape[0], 30), rng.integers(0, shape[1], 30)
+    keep = (u < box[0] - 40) | (u > box[0] + box[2] + 40)  # on the sky, not on the target
+    img[v[keep], u[keep]] = rng.integers(120, 256, keep.sum())
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("scale", [0.8, 0.55, 1.0])
+def test_lines_in_a_box_are_the_lines_lsd_finds_on_the_whole_image(scale):
+    """A noisy textured target on a sky with stars: the segments of ``detect_lines`` within a
+    box, found on a crop, are those OpenCV's LSD finds on the whole image near the target, to
+    float precision. Without the crop's snapped corner (the resampling grid) and raised
+    threshold (the number of tests), some move by a fraction of a pixel or appear and vanish:
+    the reference is the whole image's LSD through the same function without a box."""
+    from jaxpose.pipelines.stereo.frames import lit_box
+
+    img = _noisy_sky_with_stars(5, (480, 640), (241, 187, 150, 110), (9, 12), 5.0)
+    opts = FeatureOptions(mu=0.04, lsd_scale=scale, max_lines=500)
+    whole, whole_desc = detect_lines(img, options=opts)
+    box = lit_box(img)
+    got, got_desc = detect_lines(img, options=opts, roi=box)
+    near = (whole.min(1) > box[:2] - 16).all(1) & (whole.max(1) < box[2:] + 16).all(1)
+    assert near.sum() >= 10
+    assert len(got) == near.sum()
+    d = np.abs(whole[near][:, None] - got[None]).max(axis=(2, 3))
+    assert d.min(1).max() < 1e-4, d.min(1).max()
+    # a plain crop of the box (LSD's own grid and threshold) does not find the same segments
+    crop = img[int(box[1]) - 19 : int(box[3]) + 16, int(box[0]) - 18 : int(box[2]) + 16]
+    plain, _ = detect_lines(crop, options=replace(opts, mu=0.04 * 480 / crop.shape[0]))
+    plain = plain + [int(box[0]) - 18, int(box[1]) - 19]
+    if scale != 1.0:  # (at scale 1 only the threshold differs)
+        e = np.abs(whole[near][:, None] - plain[None]).max(axis=(2, 3)).min(1)
+        assert (e > 1e-3).sum() >= 1 or len(plain) != near.sum()
+
+
+def test_lit_box_holds_the_target_whatever_the_noise_and_stars():
+    """Sensor noise of 5 grey levels makes the bright-sample box (``target_roi``) the whole
+    image; the lit box (``lit_box``) is the target's box within a sample step, stars and
+    noise aside, and ``None`` on a black image."""
+    from jaxpose.pipelines.stereo import target_roi
+    from jaxpose.pipelines.stereo.frames import lit_box
+
+    u, v, w, h = 241, 187, 150, 110
+    img = _noisy_sky_with_stars(6, (480, 640), (u, v, w, h), (9, 12), 5.0)
+    roi = target_roi(img)
+    assert roi[2] - roi[0] > 600 and roi[3] - roi[1] > 440  # the noise widens it to the image
+    box = lit_box(img)
+    np.testing.assert_allclose(box, [u, v, u + w, v + h], atol=8)
+    assert lit_box(np.zeros((480, 640), np.uint8)) is None

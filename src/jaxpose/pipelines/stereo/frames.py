@@ -1,7 +1,8 @@
 """A stereo frame's images and features, before the tracker's state comes in.
 
 The checks of a pair (:func:`checked_pair`), the target's box and apparent area on a dark sky
-(:func:`target_roi`, :func:`target_area`), the feature budget they set
+(:func:`target_roi`, :func:`target_area`; :func:`lit_box`, the lines' box, which noise and
+stars do not widen), the feature budget they set
 (:func:`feature_options`) and the features stage itself (:func:`detect_features`: ORB points,
 LSD segments with LBD descriptors). None of it depends on the poses or the map, only on the
 images and the :class:`~jaxpose.pipelines.stereo.TrackerOptions`, so the next pair's features
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 
 from jaxpose.core.camera import StereoCamera
@@ -29,6 +31,7 @@ __all__ = [
     "detect_features",
     "feature_options",
     "fine_corners",
+    "lit_box",
     "target_area",
     "target_roi",
     "window_cadence",
@@ -42,6 +45,22 @@ def target_roi(
     dark sky), from a ``step``-subsampled image; ``None`` when nothing is bright."""
     small = np.asarray(image)[::step, ::step]
     vv, uu = np.nonzero(small > threshold)
+    if len(uu) < 4:
+        return None
+    return np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float) * step
+
+
+def lit_box(image: np.ndarray, *, threshold: int = DARK_LEVEL, step: int = 4) -> np.ndarray | None:
+    """Bounding box ``(u0, v0, u1, v1)`` of the target on a dark sky that sensor noise and stars
+    do not widen: the ``step``-subsampled pixels brighter than ``threshold`` whose ``step x
+    step`` block's mean is brighter too (not a lone noisy pixel) and which have a lit neighbour
+    among their eight (not a star); ``None`` when fewer than four remain."""
+    img = np.asarray(image)
+    h, w = img.shape[0] // step, img.shape[1] // step
+    mean = cv2.resize(img[: h * step, : w * step], (w, h), interpolation=cv2.INTER_AREA)
+    lit = (img[: h * step : step, : w * step : step] > threshold) & (mean > threshold)
+    near = cv2.boxFilter(lit.astype(np.uint8), cv2.CV_16S, (3, 3), normalize=False)
+    vv, uu = np.nonzero(lit & (near >= 2))
     if len(uu) < 4:
         return None
     return np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float) * step
@@ -144,15 +163,18 @@ def detect_features(
 ) -> FrameFeatures:
     """The features of a left image (``uint8`` grey, as :func:`checked_pair` returns it): ORB
     points and, with ``options.use_lines``, LSD segments with LBD descriptors, within ``roi``
-    (``[u0, v0, u1, v1]``, checked; default: :func:`target_roi`), at the budget of
+    (``[u0, v0, u1, v1]``, checked; default: :func:`target_roi` for the points, :func:`lit_box`
+    for the lines, as LSD finds them on the whole image), at the budget of
     :func:`feature_options` for the image's :func:`target_area` (``area``, when measured
     already) and ``fine``."""
+    line_roi = lit_box(left) if roi is None else None
     roi = target_roi(left) if roi is None else check_roi(roi, left.shape)
     area = target_area(left) if area is None else area
     return extract(
         left,
         options=feature_options(options, area, fine=fine),
         roi=roi,
+        line_roi=line_roi,
         lines=options.use_lines,
         threads=options.threads,
     )
