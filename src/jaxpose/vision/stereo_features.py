@@ -315,11 +315,11 @@ def _lsd_box(shape, roi, scale: float) -> tuple[tuple[int, int, int, int], float
     corner: the crop's corner is snapped to a multiple of ``q`` pixels, ``scale``'s denominator
     (5 at 0.8), so that the crop's grid is the whole image's. (2) It accepts a segment whose
     number of false alarms is below 1 (``log_eps = 0``) with a number of tests that grows as
-    ``(X Y)^(5/2)`` with the resampled image's size (Grompone von Gioi et al. 2012, eq. 5 and
-    sec. 2.8): on the crop, ``log_eps = 2.5 log10(X Y / (x y))`` keeps the whole image's test.
-    On the suite's development frames the segments longer than eq. 1's minimum were those of
-    the whole image, one in a few hundred missing or added, at 4-6 times less time where the
-    target is small. No ``roi``: the whole image, ``log_eps = 0``."""
+    ``(X Y)^(5/2)`` with the resampled image's size (Grompone von Gioi et al., *LSD: a Line
+    Segment Detector*, IPOL 2012): on the crop, ``log_eps = 2.5 log10(X Y / (x y))`` keeps
+    the whole image's test. On the suite's development frames the segments longer than eq. 1's
+    minimum were those of the whole image, one in a few hundred missing or added, at 4-6 times
+    less time where the target is small. No ``roi``: the whole image, ``log_eps = 0``."""
     H, W = shape
     u0, v0, u1, v1 = _roi_slice(shape, roi, pad=16)
     if (u0, v0, u1, v1) == (0, 0, W, H):
