@@ -51,10 +51,13 @@ def target_roi(
 
 
 def lit_box(image: np.ndarray, *, threshold: int = DARK_LEVEL, step: int = 4) -> np.ndarray | None:
-    """Bounding box ``(u0, v0, u1, v1)`` of the target on a dark sky that sensor noise and stars
-    do not widen: the ``step``-subsampled pixels brighter than ``threshold`` whose ``step x
-    step`` block's mean is brighter too (not a lone noisy pixel) and which have a lit neighbour
-    among their eight (not a star); ``None`` when fewer than four remain."""
+    """Bounding box ``(u0, v0, u1, v1)`` (pixels) of the target on a dark sky in a grey
+    ``(H, W)`` image, one that sensor noise and stars do not widen: the ``step``-subsampled
+    pixels brighter than ``threshold`` whose ``step x step`` block's mean is brighter too (not
+    a lone noisy pixel) and which have a lit neighbour among their eight (not a star); ``None``
+    when fewer than four remain. The tracker's lines are found in it
+    (:func:`detect_features`); on the suite's noisy scenes :func:`target_roi` is the whole
+    image."""
     img = np.asarray(image)
     h, w = img.shape[0] // step, img.shape[1] // step
     mean = cv2.resize(img[: h * step, : w * step], (w, h), interpolation=cv2.INTER_AREA)
