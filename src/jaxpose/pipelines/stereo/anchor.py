@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from jaxpose.core.camera import PinholeCamera
+from jaxpose.pipelines.stereo._arrays import find
 from jaxpose.vision.stereo_match import parabolic_offset
 
 __all__ = ["PatchAnchors", "affine_to_reference"]
@@ -236,10 +237,12 @@ class PatchAnchors:
         return self.match(image, ids, A, pixels)
 
     def _lookup(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if not len(self.ids):
-            return np.zeros(len(ids), int), np.zeros(len(ids), bool)
-        pos = np.minimum(np.searchsorted(self.ids, ids), len(self.ids) - 1)
-        return pos, self.ids[pos] == ids
+        """For each of ``ids``, its row here (0 where absent) and whether it has one."""
+        pos, has = np.zeros(len(ids), int), np.zeros(len(ids), bool)
+        if len(self.ids):
+            q, rows = find(self.ids, ids, increasing=True)  # (the ids are kept increasing)
+            pos[q], has[q] = rows, True
+        return pos, has
 
     def match(
         self, image: np.ndarray, ids: np.ndarray, A: np.ndarray, pixels: np.ndarray
