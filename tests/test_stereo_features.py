@@ -317,7 +317,7 @@ def test_lit_box_holds_the_target_whatever_the_noise_and_stars():
     image; the lit box (``lit_box``) is the target's box within a sample step, stars and
     noise aside, and ``None`` on a black image."""
     from jaxpose.pipelines.stereo import target_roi
-    from jaxpose.pipelines.stereo.frames import lit_box
+    from jaxpose.pipelines.stereo.frames import lit_box, target_area
 
     u, v, w, h = 241, 187, 150, 110
     img = _noisy_sky_with_stars(6, (480, 640), (u, v, w, h), (9, 12), 5.0)
@@ -326,3 +326,6 @@ def test_lit_box_holds_the_target_whatever_the_noise_and_stars():
     box = lit_box(img)
     np.testing.assert_allclose(box, [u, v, u + w, v + h], atol=8)
     assert lit_box(np.zeros((480, 640), np.uint8)) is None
+    for box in (lit_box, target_roi, target_area):  # colour: an error that names the image
+        with pytest.raises(ValueError, match="image must be a grey"):
+            box(np.dstack([img] * 3))

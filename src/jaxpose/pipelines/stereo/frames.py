@@ -43,8 +43,21 @@ def target_roi(
 ) -> np.ndarray | None:
     """Bounding box ``(u0, v0, u1, v1)`` of the pixels brighter than ``threshold`` (a target on a
     dark sky), from a ``step``-subsampled image; ``None`` when nothing is bright."""
-    small = np.asarray(image)[::step, ::step]
-    vv, uu = np.nonzero(small > threshold)
+    return _box(_grey(image)[::step, ::step] > threshold, step)
+
+
+def _grey(image) -> np.ndarray:
+    """``image`` as an array; ``ValueError`` naming it unless it is a grey ``(H, W)`` one."""
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise ValueError(f"image must be a grey (H, W) array; got shape {img.shape}")
+    return img
+
+
+def _box(lit: np.ndarray, step: int) -> np.ndarray | None:
+    """Bounding box ``(u0, v0, u1, v1)``, pixels, of the true samples of ``lit`` (a
+    ``step``-subsampled image's); ``None`` when fewer than four."""
+    vv, uu = np.nonzero(lit)
     if len(uu) < 4:
         return None
     return np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float) * step
@@ -58,21 +71,18 @@ def lit_box(image: np.ndarray, *, threshold: int = DARK_LEVEL, step: int = 4) ->
     when fewer than four remain. The tracker's lines are found in it
     (:func:`detect_features`); on the suite's noisy scenes :func:`target_roi` is the whole
     image."""
-    img = np.asarray(image)
+    img = _grey(image)
     h, w = img.shape[0] // step, img.shape[1] // step
     mean = cv2.resize(img[: h * step, : w * step], (w, h), interpolation=cv2.INTER_AREA)
     lit = (img[: h * step : step, : w * step : step] > threshold) & (mean > threshold)
     near = cv2.boxFilter(lit.astype(np.uint8), cv2.CV_16S, (3, 3), normalize=False)
-    vv, uu = np.nonzero(lit & (near >= 2))
-    if len(uu) < 4:
-        return None
-    return np.array([uu.min(), vv.min(), uu.max() + 1, vv.max() + 1], float) * step
+    return _box(lit & (near >= 2), step)
 
 
 def target_area(image: np.ndarray, *, threshold: int = DARK_LEVEL, step: int = 4) -> float:
     """Apparent area of the target, pixels: the pixels brighter than ``threshold`` (a target on a
     dark sky), counted on a ``step``-subsampled image."""
-    small = np.asarray(image)[::step, ::step]
+    small = _grey(image)[::step, ::step]
     return float(np.count_nonzero(small > threshold)) * step * step
 
 
@@ -170,7 +180,7 @@ def detect_features(
     for the lines, as LSD finds them on the whole image), at the budget of
     :func:`feature_options` for the image's :func:`target_area` (``area``, when measured
     already) and ``fine``."""
-    line_roi = lit_box(left) if roi is None else None
+    line_roi = lit_box(left) if roi is None and options.use_lines else None
     roi = target_roi(left) if roi is None else check_roi(roi, left.shape)
     area = target_area(left) if area is None else area
     return extract(
