@@ -13,6 +13,7 @@ from jaxpose import PinholeCamera, Pose, information_blocks, line_information_bl
 from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
 from jaxpose.pipelines.stereo import budget as B
+from jaxpose.pipelines.stereo.keyframes import FrameStereo
 from jaxpose.vision.stereo_render import StereoScene, default_rig, render_sequence
 
 CAM = PinholeCamera(600.0, 600.0, 319.5, 239.5, width=640, height=480)
@@ -153,7 +154,13 @@ def _matches(n_p=40, n_l=6, seed=3):
     pixels = np.asarray(CAM.project(POSE.apply(X))) + rng.normal(0, 0.3, (n_p, 2)) + [4.0, -2.0]
     pixels[[10, 11]] += [[15.0, 0.0], [0.0, -12.0]]  # two wrong matches
     feats = SimpleNamespace(points=pixels, segments=seg, point_response=rng.uniform(size=n_p))
-    stereo = SimpleNamespace(point_idx=np.arange(0, n_p, 2), line_idx=np.arange(n_l))
+    stereo = FrameStereo(
+        point_idx=np.arange(0, n_p, 2),
+        points=np.zeros((len(range(0, n_p, 2)), 3)),  # not read by the budget
+        pixels_right=np.zeros((len(range(0, n_p, 2)), 2)),
+        line_idx=np.arange(n_l),
+        segments=np.zeros((n_l, 2, 3)),
+    )
     rig = SimpleNamespace(left=CAM, t_rl=np.array([-0.3, 0.0, 0.0]))
     matches = (np.arange(n_p), np.arange(n_p), np.arange(n_l), np.arange(n_l))
     return landmarks, feats, stereo, matches, rig

@@ -22,6 +22,7 @@ from jaxpose.pipelines.stereo._arrays import pad, project, rt
 from jaxpose.pipelines.stereo._clock import StageClock
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
 from jaxpose.pipelines.stereo.options import TrackerOptions
+from jaxpose.pipelines.stereo.row_lines import row_segment_disparities
 from jaxpose.vision.stereo_match import match_points_stereo, match_stereo
 
 __all__ = [
@@ -43,6 +44,9 @@ class FrameStereo:
         point_idx: ``(p,)`` keypoint indices; ``points``: ``(p, 3)`` left-camera points, metres;
         pixels_right: ``(p, 2)`` their right-image pixels.
         line_idx: ``(l,)`` segment indices; ``segments``: ``(l, 2, 3)`` left-camera endpoints.
+        row_lines: ``(l,)`` whether a segment's depth is the points' beside it (a segment along
+            the rows, :mod:`~jaxpose.pipelines.stereo.row_lines`) rather than its own stereo
+            match; ``None``: none is.
     """
 
     point_idx: np.ndarray
@@ -50,6 +54,13 @@ class FrameStereo:
     pixels_right: np.ndarray
     line_idx: np.ndarray
     segments: np.ndarray
+    row_lines: np.ndarray | None = None
+
+    def matched_lines(self) -> np.ndarray:
+        """``(l,)`` whether each segment has a right-image match of its own."""
+        if self.row_lines is None:
+            return np.ones(len(self.line_idx), bool)
+        return ~self.row_lines
 
 
 def triangulate_rectified(rig: StereoCamera, left: np.ndarray, right: np.ndarray) -> np.ndarray:
@@ -149,7 +160,38 @@ def _triangulate_frame(rig, feats, pm, lm, line_ok, o: TrackerOptions) -> FrameS
     lo, hi = o.depth_range_m
     okp = np.isfinite(P).all(1) & (P[:, 2] > lo) & (P[:, 2] < hi)
     oks = np.isfinite(S).all((1, 2)) & (S[..., 2] > lo).all(1) & (S[..., 2] < hi).all(1)
-    return FrameStereo(ip[okp], P[okp], pm.pixels_right[ip[okp]], il[oks], S[oks])
+    il, S = il[oks], S[oks]
+    rows = np.zeros(len(il), bool)
+    if o.use_lines and o.row_lines and len(feats.segments) and o.max_lines > len(il):
+        ir, Sr = _row_segments(rig, feats, ip[okp], pm.pixels_right[ip[okp]], line_ok, o)
+        ir, Sr = ir[: o.max_lines - len(il)], Sr[: o.max_lines - len(il)]
+        ok = (Sr[..., 2] > lo).all(1) & (Sr[..., 2] < hi).all(1)
+        il, S = np.concatenate([il, ir[ok]]), np.concatenate([S, Sr[ok]])
+        rows = np.concatenate([rows, np.ones(ok.sum(), bool)])
+    return FrameStereo(ip[okp], P[okp], pm.pixels_right[ip[okp]], il, S, rows)
+
+
+def _row_segments(rig, feats, ip, pixels_right, line_ok, o: TrackerOptions):
+    """The segments along the rows (within ``min_epipolar_angle_deg`` of them, so without a
+    stereo match of their own) that the keypoints beside them give a depth
+    (:func:`~jaxpose.pipelines.stereo.row_lines.row_segment_disparities`): their indices and
+    left-camera endpoints ``(r, 2, 3)``. A rectified rig only (else none)."""
+    none = np.zeros(0, int), np.zeros((0, 2, 3))
+    if not np.allclose(_intrinsics(rig.left), _intrinsics(rig.right)) or len(ip) == 0:
+        return none
+    seg = feats.segments
+    dv = np.abs(seg[:, 1, 1] - seg[:, 0, 1])
+    length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1)
+    along = dv < np.sin(np.radians(o.stereo.min_epipolar_angle_deg)) * np.maximum(length, 1e-12)
+    ir = np.nonzero(along & ~np.asarray(line_ok, bool))[0]
+    if len(ir) == 0:
+        return none
+    left = feats.points[ip]
+    disp, ok = row_segment_disparities(seg[ir], left, left[:, 0] - pixels_right[:, 0])
+    ir, disp = ir[ok], disp[ok]
+    pl = seg[ir].reshape(-1, 2)
+    pr = pl - np.stack([disp.reshape(-1), np.zeros(pl.shape[0])], 1)
+    return ir, triangulate_rectified(rig, pl, pr).reshape(-1, 2, 3)
 
 
 def observe_point_rays(
@@ -189,24 +231,51 @@ def observe_point_rays(
 
 
 def observe_line_planes(
-    landmarks: LandmarkMap, rig: StereoCamera, idx, S, pose: Pose, *, log=None
+    landmarks: LandmarkMap, rig: StereoCamera, idx, S, pose: Pose, *, log=None, right=None
 ) -> None:
     """Observation planes (body frame) of line landmarks ``idx`` from their stereo triangulations
     ``S`` (``(n, 2, 3)``, left camera at ``pose``): the planes through each camera centre and the
     segment, weighted by ``1 / depth^2`` (pixel-error weighting), into the landmarks' multi-view
     line fit (:meth:`LandmarkMap.observe_lines`). ``log``: a
     :class:`~jaxpose.pipelines.stereo.window.FrameRays` that records the planes (camera frame;
-    the windowed adjustment moves them when it moves the frame's pose)."""
+    the windowed adjustment moves them when it moves the frame's pose).
+
+    ``right``: ``(n,)`` whether a segment has a right-image match of its own (``None``: all). A
+    row line (:attr:`FrameStereo.row_lines`) has none: its right plane would be its left one (the
+    baseline lies in both), so its depth, the keypoints' beside it, enters instead as the plane
+    through the segment across the line of sight (normal in the left plane, perpendicular to
+    the segment), weighted as a disparity of the same pixel noise would be: ``b^2 / Z^4``
+    (a depth error ``e`` is a disparity error ``f b e / Z^2``)."""
     if len(idx) == 0:
         return
     R, t = rt(pose)
-    w = 1.0 / np.maximum(S[..., 2].mean(1), 1e-3) ** 2
-    for cam, C in enumerate((np.zeros(3), -np.asarray(rig.t_rl, float))):
-        n = np.cross(S[:, 0] - C, S[:, 1] - C)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        landmarks.observe_lines(idx, n @ R, n @ (C - t), w)
+    idx, S = np.asarray(idx, int), np.asarray(S, float)
+    own = np.ones(len(idx), bool) if right is None else np.asarray(right, bool)
+    z = np.maximum(S[..., 2].mean(1), 1e-3)
+    w = 1.0 / z**2
+    C_r = -np.asarray(rig.t_rl, float)
+    n_l = _unit_rows(np.cross(S[:, 0], S[:, 1]))
+    across = _unit_rows(np.cross(S[:, 1] - S[:, 0], n_l))  # in the left plane, across the line
+    n_r = _unit_rows(np.cross(S[:, 0] - C_r, S[:, 1] - C_r))
+    b2 = float(np.dot(C_r, C_r))
+    C0 = np.zeros(3)
+    planes = (  # (normal, offset in the body frame, offset in the camera frame, weight)
+        (n_l, n_l @ (C0 - t), n_l @ C0, w),
+        (
+            np.where(own[:, None], n_r, across),
+            np.where(own, n_r @ (C_r - t), (across * (S[:, 0] - t)).sum(1)),
+            np.where(own, n_r @ C_r, (across * S[:, 0]).sum(1)),
+            np.where(own, w, w * b2 / z**2),
+        ),
+    )
+    for cam, (n, d_body, d_cam, wc) in enumerate(planes):
+        landmarks.observe_lines(idx, n @ R, d_body, wc)
         if log is not None:
-            log.add_planes(landmarks.lines.ids[np.asarray(idx, int)], n, n @ C, cam, w)
+            log.add_planes(landmarks.lines.ids[idx], n, d_cam, cam, wc)
+
+
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
 
 
 def line_disparity_agrees(
@@ -298,10 +367,14 @@ def update_map(
                 agree = line_disparity_agrees(
                     landmarks, rig, idx, S[has_l], pose, o.refine_disparity_px
                 )
-                observe_line_planes(landmarks, rig, idx[agree], S[has_l][agree], pose, log=log)
+                own = stereo.matched_lines()[has_l][agree]
+                observe_line_planes(
+                    landmarks, rig, idx[agree], S[has_l][agree], pose, log=log, right=own
+                )
         new_l = ~has_l & ~np.isin(il, list(rejected_l))
         ids_l = landmarks.add("lines", Sb[new_l], feats.line_desc[il[new_l]], pose, frame)
         if o.line_planes:
-            observe_line_planes(landmarks, rig, ids_l, S[new_l], pose, log=log)
+            own = stereo.matched_lines()[new_l]
+            observe_line_planes(landmarks, rig, ids_l, S[new_l], pose, log=log, right=own)
     landmarks.cull()
     return added

@@ -36,6 +36,7 @@ _FIELD_KINDS = dict(
         "stereo_residuals",
         "line_planes",
         "line_stereo_residuals",
+        "row_lines",
         "measured_line_sigma",
         "predicted_disparity",
         "threads",
@@ -229,6 +230,14 @@ class TrackerOptions:
         line_stereo_residuals: with ``stereo_residuals``, also fit the right-image lines of the
             matched segments that have a stereo match (the landmark segment shifted by
             ``R^T t_rl``, as the points), so that a line counts in both images as a point does.
+        row_lines: also make line landmarks of the segments along the image rows (within
+            ``stereo.min_epipolar_angle_deg``), which have no stereo match of their own, with
+            the depth of the stereo keypoints beside them
+            (:mod:`~jaxpose.pipelines.stereo.row_lines`); their depth enters the line's planes
+            as a plane across the line of sight
+            (:func:`~jaxpose.pipelines.stereo.keyframes.observe_line_planes`), and only their
+            left image is fitted. The matched lines measure the motion along the rows, these
+            the motion across them.
         measured_line_sigma: weight the lines by their measured noise: ``line_sigma_px`` is
             scaled by the ratio of the line to the point residual scales (medians of the
             residuals kept by the last pass), averaged over frames with weight
@@ -434,6 +443,7 @@ class TrackerOptions:
     fine_corners_area_px: float | None = None
     line_planes: bool = True
     line_stereo_residuals: bool = True
+    row_lines: bool = False
     measured_line_sigma: bool = True
     line_scale_memory: float = 0.9
     mature_obs: int = 3
