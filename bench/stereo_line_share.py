@@ -1,0 +1,128 @@
+"""What the lines add to a frame's pose, axis by axis: the per-frame Cramer-Rao variance with the
+lines against without them.
+
+    python bench/stereo_line_share.py SCENE [SCENE ...] [--frames 16] [--seeds 0]
+        [--option NAME=VALUE ...]
+
+Runs the stereo tracker (points + lines, first pose given, ``--option`` as in
+``bench/stereo.py``) on scenes of ``bench/stereo.py`` (or ``hNN`` of
+``bench/stereo_heldout.py``). On every frame it takes the matches the pose solve receives and
+their weighted Jacobian rows, as the ``"dop"`` feature budget builds them
+(:func:`jaxpose.pipelines.stereo.budget.feature_rows`: left and right image, points at
+``sigma_px``, lines at the tracker's measured line noise), and computes the pose covariance
+of independent noise from the points' rows alone and from all rows. Reported per scene and
+seed, over frames 2 on: the median points and lines matched, and the median ratio of the two
+variances (all over points only) per camera axis: translation x, y, z and rotation about x,
+y, z (the roll, pitch and yaw of the stereo page's attitude errors). ``sqrt`` of a ratio is
+what the lines can lower that axis's per-frame error by, if the errors were independent pixel
+noise: a ratio of 0.98 is 1% of RMS.
+
+The run-to-run scatter of the tracker's RMS errors when its features change is 10-40%
+(``docs/stereo-evaluation.md``), so an axis whose ratio is near 1 is one on which
+"points + lines lower than points only" is a coin toss. The last line is one JSON line of the
+figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+AXES = ("tx", "ty", "tz", "rx", "ry", "rz")
+
+
+def variance_ratios(rows: np.ndarray, n_point_rows: int) -> np.ndarray:
+    """``(6,)``: the diagonal of ``(J^T J)^-1`` over all the weighted rows ``(n, k, 6)`` over the
+    same of the first ``n_point_rows`` (the points) alone, in the order of the rows' state
+    (``feature_rows``: translation, then the tangent rotation; :mod:`jaxpose.core.dilution`)."""
+    rows = np.asarray(rows, float).reshape(len(rows), -1, 6)
+    ip = np.einsum("nki,nkj->ij", rows[:n_point_rows], rows[:n_point_rows])
+    ia = np.einsum("nki,nkj->ij", rows, rows)
+    return np.diag(np.linalg.inv(ia)) / np.diag(np.linalg.inv(ip))
+
+
+def run(name: str, frames: int, seed: int, options) -> dict:
+    """One scene and seed tracked with the per-frame variance ratios recorded."""
+    import jaxpose.pipelines.stereo.tracker as tracker_module
+    from jaxpose.pipelines.stereo import StereoTracker
+    from jaxpose.pipelines.stereo.budget import _bucket, _dop_inputs
+    from jaxpose.vision.stereo_render import default_rig, render_sequence
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from stereo import depth_range
+    from stereo_diagnose import _scene_by_name
+
+    scene = _scene_by_name(name, frames, seed)
+    rig = default_rig()
+    log = []
+    fit = tracker_module.fit_pose_budgeted
+
+    def recording(landmarks, feats, stereo, matches, pose_pred, rig_, o, line_sigma, **kw):
+        i_m = matches[0]
+        rows, _, _ = _dop_inputs(
+            landmarks, feats, stereo, matches, np.arange(len(i_m)), pose_pred, rig_, o, line_sigma
+        )
+        n_pad = _bucket(len(i_m), 64)  # the points' padded rows come first
+        log.append((len(i_m), len(matches[2]), variance_ratios(rows, n_pad)))
+        return fit(landmarks, feats, stereo, matches, pose_pred, rig_, o, line_sigma, **kw)
+
+    opts = replace(options, use_lines=True, depth_range_m=depth_range(scene))
+    pairs = list(render_sequence(scene, rig))
+    tracker = StereoTracker(rig, pairs[0].pose, options=opts)
+    tracker_module.fit_pose_budgeted = recording
+    try:
+        for fr in pairs:
+            tracker.process(fr.left, fr.right)
+    finally:
+        tracker_module.fit_pose_budgeted = fit
+    kept = log[1:]  # frames 2 on (frame 0 starts the map without a solve)
+    if not kept:
+        raise SystemExit(f"{name}: no frame was solved")
+    ratio = np.median([r for _, _, r in kept], axis=0)
+    return {
+        "scene": name,
+        "seed": seed,
+        "points": float(np.median([p for p, _, _ in kept])),
+        "lines": float(np.median([q for _, q, _ in kept])),
+        "variance_ratio": dict(zip(AXES, np.round(ratio, 4).tolist(), strict=True)),
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("scenes", nargs="+", help="scenes of bench/stereo.py or hNN")
+    ap.add_argument("--frames", type=int, default=16)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--option", action="append", default=[], help="NAME=VALUE tracker option")
+    args = ap.parse_args(argv)
+    sys.path.insert(0, str(Path(__file__).parent))
+    from stereo import tracker_options
+    from stereo_bound import check_scenes
+
+    check_scenes(ap, args.scenes)
+    try:
+        options = tracker_options(args.option)
+    except ValueError as err:
+        ap.error(str(err))
+    out = []
+    print("| scene | seed | points | lines | variance ratio " + ", ".join(AXES) + " |")
+    print("|---|---|---|---|---|")
+    for name in args.scenes:
+        for seed in args.seeds:
+            r = run(name, args.frames, seed, options)
+            v = ", ".join(f"{x:.3f}" for x in r["variance_ratio"].values())
+            print(f"| {name} | {seed} | {r['points']:.0f} | {r['lines']:.0f} | {v} |", flush=True)
+            out.append(r)
+    print(json.dumps({"frames": args.frames, "options": args.option, "runs": out}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
