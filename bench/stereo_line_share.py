@@ -2,7 +2,7 @@
 lines against without them.
 
     python bench/stereo_line_share.py SCENE [SCENE ...] [--frames 16] [--seeds 0]
-        [--option NAME=VALUE ...]
+        [--option NAME=VALUE ...] [--figure PATH [--compare LOG]]
 
 Runs the stereo tracker (points + lines, first pose given, ``--option`` as in
 ``bench/stereo.py``) on scenes of ``bench/stereo.py`` (or ``hNN`` of
@@ -19,8 +19,10 @@ noise: a ratio of 0.98 is 1% of RMS.
 
 The run-to-run scatter of the tracker's RMS errors when its features change is 10-40%
 (``docs/stereo-evaluation.md``), so an axis whose ratio is near 1 is one on which
-"points + lines lower than points only" is a coin toss. The last line is one JSON line of the
-figures.
+"points + lines lower than points only" is a coin toss. ``--figure PATH`` draws that ceiling,
+``100 (1 - sqrt(ratio))`` per cent, per scene and axis; ``--compare LOG`` adds, hatched, the
+runs of an earlier output of this script (its last line, e.g. with other ``--option``). The
+last line is one JSON line of the figures.
 """
 
 from __future__ import annotations
@@ -93,6 +95,48 @@ def run(name: str, frames: int, seed: int, options) -> dict:
     }
 
 
+def figure(groups, path: Path) -> None:
+    """Bars of the per-frame RMS ceiling ``100 (1 - sqrt(ratio))`` per scene and axis;
+    ``groups``: ``[(label, runs)]``, ``runs`` as in the JSON line, drawn side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs0 = groups[0][1]
+    names = [f"{r['scene'].split('-')[0]} s{r['seed']}" for r in runs0]
+    fig, axes = plt.subplots(1, len(runs0), figsize=(2.1 * len(runs0) + 1, 3.4), sharey=True)
+    axes = np.atleast_1d(axes)
+    width = 0.8 / len(groups)
+    colours = ["tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:red", "tab:brown"]
+    for j, (label, runs) in enumerate(groups):
+        for ax, r in zip(axes, runs, strict=True):
+            gain = 100 * (1 - np.sqrt([r["variance_ratio"][a] for a in AXES]))
+            ax.bar(
+                np.arange(6) + (j - (len(groups) - 1) / 2) * width,
+                gain,
+                width,
+                color=colours,
+                hatch="//" if j else None,
+                edgecolor="k" if j else None,
+                label=label,
+            )
+    for ax, name, r in zip(axes, names, runs0, strict=True):
+        ax.set_xticks(range(6), ["tx", "ty", "tz", "roll", "pitch", "yaw"], fontsize=7)
+        ax.set_title(f"{name}: {r['lines']:.0f} lines, {r['points']:.0f} points", fontsize=8)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].set_ylabel("most the lines can lower a frame's RMS (%)", fontsize=8)
+    if len(groups) > 1:
+        axes[-1].legend(fontsize=7, loc="upper right")
+    fig.suptitle(
+        "Per-frame Cramer-Rao ceiling of the lines' gain, per camera axis (median over frames)",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -101,7 +145,20 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--option", action="append", default=[], help="NAME=VALUE tracker option")
+    ap.add_argument("--figure", type=Path, default=None, help="PNG of the ceilings")
+    ap.add_argument("--compare", type=Path, default=None, help="earlier output, drawn beside")
     args = ap.parse_args(argv)
+    keys = [(name, seed) for name in args.scenes for seed in args.seeds]
+    compare = None
+    if args.compare is not None:
+        try:
+            line = json.loads(args.compare.read_text().strip().splitlines()[-1])
+            compare = {(r["scene"], r["seed"]): r for r in line["runs"]}
+        except (OSError, ValueError, IndexError, KeyError, TypeError) as err:
+            ap.error(f"--compare {args.compare}: not an output of this script ({err})")
+        if set(compare) != set(keys):
+            ap.error(f"--compare {args.compare}: its scenes and seeds are not this run's")
+        compare_label = ", ".join(line.get("options", [])) or "defaults"
     sys.path.insert(0, str(Path(__file__).parent))
     from stereo import tracker_options
     from stereo_bound import check_scenes
@@ -121,6 +178,11 @@ def main(argv=None) -> int:
             print(f"| {name} | {seed} | {r['points']:.0f} | {r['lines']:.0f} | {v} |", flush=True)
             out.append(r)
     print(json.dumps({"frames": args.frames, "options": args.option, "runs": out}))
+    if args.figure is not None:
+        groups = [(", ".join(args.option) or "defaults", out)]
+        if compare is not None:
+            groups.append((compare_label, [compare[k] for k in keys]))
+        figure(groups, args.figure)
     return 0
 
 

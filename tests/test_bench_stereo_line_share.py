@@ -24,3 +24,33 @@ def test_correlated_rows_match_the_inverse_of_the_summed_information():
     want = np.diag(np.linalg.inv(J.T @ J)) / np.diag(np.linalg.inv(J_p.T @ J_p))
     assert np.allclose(got, want)
     assert (got <= 1 + 1e-12).all()  # more rows never raise a variance
+
+
+def test_compare_must_hold_the_same_scenes_and_seeds(tmp_path, capsys):
+    """A ``--compare`` log of other runs is a usage error before anything is tracked."""
+    import json
+
+    import pytest
+
+    log = tmp_path / "earlier.log"
+    runs = [{"scene": "d1-clean-2m", "seed": 0, "points": 1, "lines": 1, "variance_ratio": {}}]
+    log.write_text("| a table |\n" + json.dumps({"frames": 16, "options": [], "runs": runs}))
+    with pytest.raises(SystemExit) as err:
+        bench.main(["d1-clean-2m", "--seeds", "0", "1", "--compare", str(log)])
+    assert err.value.code == 2
+    assert "scenes and seeds" in capsys.readouterr().err
+    log.write_text("not json")
+    with pytest.raises(SystemExit):
+        bench.main(["d1-clean-2m", "--compare", str(log)])
+    assert "not an output of this script" in capsys.readouterr().err
+
+
+def test_the_figure_draws_one_panel_a_run(tmp_path):
+    ratio = dict(zip(bench.AXES, [0.9, 0.95, 0.99, 0.98, 0.9, 0.85], strict=True))
+    runs = [
+        {"scene": f"d{i}-x", "seed": 0, "points": 300, "lines": 5, "variance_ratio": ratio}
+        for i in (1, 2)
+    ]
+    path = tmp_path / "share.png"
+    bench.figure([("defaults", runs), ("other", runs)], path)
+    assert path.stat().st_size > 1000

@@ -148,3 +148,11 @@ def test_the_tracker_maps_segments_along_the_rows_onto_the_target():
     on_body = np.all(np.abs(Xr) < half + 0.01, axis=1)
     assert on_body.mean() > 0.7
     assert np.median(np.min(np.abs(np.abs(Xr[on_body]) - half), axis=1)) < 0.005
+
+
+def test_wrong_shapes_are_named():
+    seg = np.zeros((1, 2, 2))
+    with pytest.raises(ValueError, match="segments must be"):
+        row_segment_disparities(np.zeros((1, 4)), np.zeros((3, 2)), np.zeros(3))
+    with pytest.raises(ValueError, match="disparities"):
+        row_segment_disparities(seg, np.zeros((3, 2)), np.zeros(4))

@@ -72,9 +72,14 @@ def row_segment_disparities(
     Returns:
         ``(M, 2)`` endpoint disparities (pixels) and ``(M,)`` whether each segment got them.
     """
-    segments = np.asarray(segments, float).reshape(-1, 2, 2)
-    pixels = np.asarray(pixels, float).reshape(-1, 2)
-    d = np.asarray(disparities, float).reshape(-1)
+    segments, pixels = np.asarray(segments, float), np.asarray(pixels, float)
+    d = np.asarray(disparities, float)
+    if segments.ndim != 3 or segments.shape[1:] != (2, 2):
+        raise ValueError(f"segments must be (M, 2, 2) pixels; got shape {segments.shape}")
+    if pixels.ndim != 2 or pixels.shape[1] != 2 or d.shape != (len(pixels),):
+        raise ValueError(
+            f"pixels must be (N, 2) and disparities (N,); got {pixels.shape} and {d.shape}"
+        )
     M = len(segments)
     out, ok = np.zeros((M, 2)), np.zeros(M, bool)
     if M == 0 or len(pixels) < min_points:
