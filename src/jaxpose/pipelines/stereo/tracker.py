@@ -39,12 +39,10 @@ with fewer than ``min_features`` triangulated features (a black or unreadable fr
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import replace
 
 import jax.numpy as jnp
 import numpy as np
-from scipy.spatial import cKDTree
 
 from jaxpose.core._checks import check_pose, check_rotation
 from jaxpose.core._compile import in_float64
@@ -54,7 +52,6 @@ from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo._arrays import (
     angle_deg,
     compose,
-    find,
     fraction,
     lines_from_segments,
     project,
@@ -65,6 +62,7 @@ from jaxpose.pipelines.stereo._arrays import (
 from jaxpose.pipelines.stereo._clock import StageClock
 from jaxpose.pipelines.stereo.anchor import PatchAnchors
 from jaxpose.pipelines.stereo.budget import fit_pose_budgeted
+from jaxpose.pipelines.stereo.disparity import depth_window, feature_windows, measured_margin
 from jaxpose.pipelines.stereo.frames import (
     as_gray_uint8,
     checked_pair,
@@ -253,30 +251,9 @@ class StereoTracker:
         self._radius = float(np.clip(r, 0.5 * o.search_radius_px, 4.0 * o.search_radius_px))
 
     def _disparities(self, pose_pred: Pose | None = None) -> tuple[int, int]:
-        """Disparities searched. With a map and a predicted pose: the depths of the landmarks
-        visible from the prediction (5th to 95th percentile), widened by half their spread
-        plus ``depth_margin_m / 8`` each side (structure turning into view lies within the
-        target, whose visible depth extent the map measures); else around the last known target
-        depth (``+- depth_margin_m``); else the whole ``depth_range_m``."""
-        o = self.options
-        lo, hi = o.depth_range_m
-        z = self._last_depth
-        if o.depth_margin_m is not None and pose_pred is not None and len(self.map.points) >= 20:
-            cand = self.map.candidates("points", pose_pred)
-            if len(cand) >= 20:
-                R, t = rt(pose_pred)
-                depth = self.map.points.X[cand] @ R[2] + t[2]
-                z0, z1 = np.percentile(depth, [5, 95])
-                pad = 0.5 * (z1 - z0) + o.depth_margin_m / 8
-                lo, hi = max(lo, z0 - pad), min(hi, z1 + pad)
-                if lo < hi:
-                    return disparity_range(self.rig, lo, hi)
-                lo, hi = o.depth_range_m
-        if o.depth_margin_m is not None and z is not None and np.isfinite(z) and z > 0:
-            lo, hi = max(lo, z - o.depth_margin_m), min(hi, z + o.depth_margin_m)
-            if not lo < hi:
-                lo, hi = o.depth_range_m
-        return disparity_range(self.rig, lo, hi)
+        """Disparities searched when no feature has its own window
+        (:func:`~jaxpose.pipelines.stereo.disparity.depth_window`)."""
+        return depth_window(self.map, self.rig, self.options, self._last_depth, pose_pred)
 
     def update_line_scale(self, e_p: np.ndarray, e_l: np.ndarray) -> None:
         """Fold a frame's measured residual scales into the running line weight: the line noise
@@ -301,111 +278,25 @@ class StereoTracker:
         return self._line_scale
 
     def feature_disparities(self, feats, pose_pred: Pose | None, matches=None):
-        """Disparities searched for each feature, ``((N, 2), (M, 2), predicted)``.
-
-        Without matches (or after a lost frame), every feature gets the window of
-        :meth:`_disparities`. With ``matches = (i_m, i_cur, l_m, l_cur)``:
-
-        * a point matched to a landmark: the landmark's disparity at ``pose_pred``, plus or minus
-          the measured margin ``m`` (:meth:`_update_disparity_margin`);
-        * a matched segment: its landmark's endpoint disparities, widened by ``m`` and half
-          their difference (the segment found may reach beyond the landmark's);
-        * an unmatched feature near matched points (at least 2 within ``neighbour_px``; a
-          segment: at two of its endpoints and midpoint): the range of their predicted disparities
-          widened by ``m`` and by that range again (a rigid surface's disparity varies smoothly;
-          a depth edge among the neighbours widens the window by itself);
-        * the others: the window of :meth:`_disparities`.
-
-        Before ``predicted_disparity_after`` frames tracked in a row every feature keeps the
-        window of :meth:`_disparities` (the predicted disparities are still returned, so the
-        margin is measured).
-
-        A true disparity outside its window usually puts the ZNCC maximum on the window's edge,
-        which the search rejects (no sub-pixel parabola there): a narrow window mostly loses such
-        a match, unless a second peak inside it passes the NCC threshold. ``predicted`` holds
-        the matched points' indices and predicted disparities for the margin's update."""
+        """Disparities searched for each feature, ``((N, 2), (M, 2), predicted)``
+        (:func:`~jaxpose.pipelines.stereo.disparity.feature_windows`): around each matched
+        feature's predicted disparity once ``predicted_disparity_after`` frames are tracked in a
+        row, else the window of the map's depths. ``matches``: ``(i_m, i_cur, l_m, l_cur)``."""
         o = self.options
         base = np.array(self._disparities(pose_pred), np.int64)
-        dp = np.tile(base, (len(feats.points), 1)).astype(np.float64)
-        dl = np.tile(base, (len(feats.segments), 1)).astype(np.float64)
         if matches is None or not o.predicted_disparity or self._misses:
-            return dp.astype(np.int64), dl.astype(np.int64), None
-        i_m, i_cur, l_m, l_cur = matches
-        R, t = rt(pose_pred)
-        fb = float(self.rig.left.fx) * float(self.rig.baseline)
-        m = self._disparity_margin
-        with np.errstate(divide="ignore", invalid="ignore"):
-            z = self.map.points.X[i_m] @ R[2] + t[2]
-            d = fb / z
-        good = np.isfinite(d) & (z > 0)
-        i_cur, d = i_cur[good], d[good]
-        if self._run < o.predicted_disparity_after:  # the depth window; the margin measured
-            return dp.astype(np.int64), dl.astype(np.int64), (i_cur, d)
-        matched = np.zeros(len(dp), bool)
-        matched[i_cur] = True
-        if len(i_cur) >= 3:
-            tree = cKDTree(feats.points[i_cur])
-
-            def around(pixels):
-                dist, j = tree.query(
-                    pixels, k=min(8, len(i_cur)), distance_upper_bound=o.neighbour_px
-                )
-                near = np.isfinite(dist)
-                dj = np.where(near, d[np.minimum(j, len(d) - 1)], np.nan)
-                lo, hi = np.nanmin(dj, 1), np.nanmax(dj, 1)
-                spread = hi - lo
-                known = near.sum(1) >= 2
-                return known, lo - m - spread, hi + m + spread
-
-            free = np.nonzero(~matched)[0]
-            if len(free):
-                with np.errstate(invalid="ignore"), warnings.catch_warnings():
-                    warnings.simplefilter("ignore", RuntimeWarning)
-                    known, lo, hi = around(feats.points[free])
-                dp[free[known]] = np.stack([lo[known], hi[known]], 1)
-            if len(feats.segments):
-                seg = feats.segments
-                q = np.concatenate([seg[:, 0], seg[:, 1], seg.mean(1)])
-                with np.errstate(invalid="ignore"), warnings.catch_warnings():
-                    warnings.simplefilter("ignore", RuntimeWarning)
-                    known, lo, hi = (a.reshape(3, -1) for a in around(q))
-                lo, hi = np.where(known, lo, np.inf), np.where(known, hi, -np.inf)
-                known = known.sum(0) >= 2  # two of the endpoints and the midpoint
-                dl[known] = np.stack([lo[:, known].min(0), hi[:, known].max(0)], 1)
-        dp[i_cur] = np.stack([d - m, d + m], 1)
-        if len(l_m):
-            with np.errstate(divide="ignore", invalid="ignore"):
-                zl = self.map.lines.X[l_m] @ R[2] + t[2]  # (k, 2)
-                dd = fb / zl
-            ok = np.isfinite(dd).all(1) & (zl > 0).all(1)
-            slack = m + 0.5 * np.abs(dd[:, 1] - dd[:, 0])
-            dl[l_cur[ok]] = np.stack([dd[ok].min(1) - slack[ok], dd[ok].max(1) + slack[ok]], 1)
-        # never wider than the window of the map's depths
-        dp = np.clip(dp, base[0], base[1])
-        dl = np.clip(dl, base[0], base[1])
-        dp = np.stack(
-            [np.floor(dp[:, 0]), np.maximum(np.ceil(dp[:, 1]), np.floor(dp[:, 0]) + 2)], 1
+            matches = None
+        warm = self._run >= o.predicted_disparity_after
+        return feature_windows(
+            self.map, self.rig, o, feats, pose_pred, matches, base, self._disparity_margin, warm
         )
-        dl = np.stack(
-            [np.floor(dl[:, 0]), np.maximum(np.ceil(dl[:, 1]), np.floor(dl[:, 0]) + 2)], 1
-        )
-        return dp.astype(np.int64), dl.astype(np.int64), (i_cur, d)
 
     def _update_disparity_margin(self, feats, stereo, predicted) -> None:
-        """The next frame's margin around the predicted disparities from this frame's matched
-        points: ``4 sigma + 2`` px (within 3-24 px), ``sigma`` the robust scale (median absolute
-        value over 0.6745) of their measured minus predicted disparities. A tail of larger
-        differences (a landmark matched to the wrong keypoint, a stereo mismatch) falls outside
-        the window and is left unmatched."""
-        if predicted is None or stereo is None:
-            return
-        idx, d_pred = predicted
-        q, j = find(stereo.point_idx, idx) if len(stereo.point_idx) else (np.zeros(0, int),) * 2
-        if len(q) < 10:
-            return
-        d_meas = feats.points[idx[q], 0] - stereo.pixels_right[j, 0]
-        sigma = float(np.median(np.abs(d_meas - d_pred[q]))) / 0.6745
-        self._disparity_margin = float(np.clip(4.0 * sigma + 2.0, 3.0, 24.0))
+        """The next frame's margin around the predicted disparities
+        (:func:`~jaxpose.pipelines.stereo.disparity.measured_margin`)."""
+        margin = measured_margin(feats, stereo, predicted)
+        if margin is not None:
+            self._disparity_margin = margin
 
     # ------------------------------------------------------------------ main entry
     def _stereo(self, left, right, feats, clock, pose_pred=None, matches=None):
