@@ -13,7 +13,9 @@ their weighted Jacobian rows, as the ``"dop"`` feature budget builds them
 of independent noise from the points' rows alone and from all rows. Reported per scene and
 seed, over frames 2 on: the median points and lines matched, and the median ratio of the two
 variances (all over points only) per camera axis: translation x, y, z and rotation about x,
-y, z (the roll, pitch and yaw of the stereo page's attitude errors). ``sqrt`` of a ratio is
+y, z (the roll, pitch and yaw of the stereo page's attitude errors); and per axis of the
+chaser position in the target frame, ``c = -R^T t`` (the stereo-track metric's x, y, z,
+:func:`chaser_map`). ``sqrt`` of a ratio is
 what the lines can lower that axis's per-frame error by, if the errors were independent pixel
 noise: a ratio of 0.98 is 1% of RMS.
 
@@ -38,14 +40,27 @@ import numpy as np
 AXES = ("tx", "ty", "tz", "rx", "ry", "rz")
 
 
-def variance_ratios(rows: np.ndarray, n_point_rows: int) -> np.ndarray:
-    """``(6,)``: the diagonal of ``(J^T J)^-1`` over all the weighted rows ``(n, k, 6)`` over the
-    same of the first ``n_point_rows`` (the points) alone, in the order of the rows' state
-    (``feature_rows``: translation, then the tangent rotation; :mod:`jaxpose.core.dilution`)."""
+def variance_ratios(rows: np.ndarray, n_point_rows: int, G: np.ndarray | None = None) -> np.ndarray:
+    """The diagonal of ``G (J^T J)^-1 G^T`` over all the weighted rows ``(n, k, 6)`` over the
+    same of the first ``n_point_rows`` (the points) alone. ``G``: ``(m, 6)`` linear map of the
+    rows' state (``feature_rows``: translation, then the tangent rotation;
+    :mod:`jaxpose.core.dilution`); ``None``: the state itself, ``(6,)`` ratios."""
     rows = np.asarray(rows, float).reshape(len(rows), -1, 6)
     ip = np.einsum("nki,nkj->ij", rows[:n_point_rows], rows[:n_point_rows])
     ia = np.einsum("nki,nkj->ij", rows, rows)
-    return np.diag(np.linalg.inv(ia)) / np.diag(np.linalg.inv(ip))
+    G = np.eye(6) if G is None else np.asarray(G, float)
+    var_all = np.einsum("ij,jk,ik->i", G, np.linalg.inv(ia), G)
+    var_points = np.einsum("ij,jk,ik->i", G, np.linalg.inv(ip), G)
+    return var_all / var_points
+
+
+def chaser_map(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``(3, 6)``: the first-order change of the chaser position in the target frame,
+    ``c = -R^T t`` (the stereo-track metric), for a translation change ``dt`` and a tangent
+    attitude change ``e`` (``R <- exp([e]_x) R``): ``dc = -R^T (dt + [t]_x e)``."""
+    R, t = np.asarray(R, float), np.asarray(t, float)
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    return -R.T @ np.hstack([np.eye(3), tx])
 
 
 def run(name: str, frames: int, seed: int, options) -> dict:
@@ -70,7 +85,9 @@ def run(name: str, frames: int, seed: int, options) -> dict:
             landmarks, feats, stereo, matches, np.arange(len(i_m)), pose_pred, rig_, o, line_sigma
         )
         n_pad = _bucket(len(i_m), 64)  # the points' padded rows come first
-        log.append((len(i_m), len(matches[2]), variance_ratios(rows, n_pad)))
+        G = chaser_map(np.asarray(pose_pred.R), np.asarray(pose_pred.t))
+        ratios = np.r_[variance_ratios(rows, n_pad), variance_ratios(rows, n_pad, G)]
+        log.append((len(i_m), len(matches[2]), ratios))
         return fit(landmarks, feats, stereo, matches, pose_pred, rig_, o, line_sigma, **kw)
 
     opts = replace(options, use_lines=True, depth_range_m=depth_range(scene))
@@ -91,7 +108,8 @@ def run(name: str, frames: int, seed: int, options) -> dict:
         "seed": seed,
         "points": float(np.median([p for p, _, _ in kept])),
         "lines": float(np.median([q for _, q, _ in kept])),
-        "variance_ratio": dict(zip(AXES, np.round(ratio, 4).tolist(), strict=True)),
+        "variance_ratio": dict(zip(AXES, np.round(ratio[:6], 4).tolist(), strict=True)),
+        "chaser_variance_ratio": dict(zip("xyz", np.round(ratio[6:], 4).tolist(), strict=True)),
     }
 
 
@@ -169,13 +187,19 @@ def main(argv=None) -> int:
     except ValueError as err:
         ap.error(str(err))
     out = []
-    print("| scene | seed | points | lines | variance ratio " + ", ".join(AXES) + " |")
-    print("|---|---|---|---|---|")
+    print(
+        "| scene | seed | points | lines | variance ratio "
+        + ", ".join(AXES)
+        + " | chaser x, y, z |"
+    )
+    print("|---|---|---|---|---|---|")
     for name in args.scenes:
         for seed in args.seeds:
             r = run(name, args.frames, seed, options)
             v = ", ".join(f"{x:.3f}" for x in r["variance_ratio"].values())
-            print(f"| {name} | {seed} | {r['points']:.0f} | {r['lines']:.0f} | {v} |", flush=True)
+            c = ", ".join(f"{x:.3f}" for x in r["chaser_variance_ratio"].values())
+            row = f"| {name} | {seed} | {r['points']:.0f} | {r['lines']:.0f} | {v} | {c} |"
+            print(row, flush=True)
             out.append(r)
     print(json.dumps({"frames": args.frames, "options": args.option, "runs": out}))
     if args.figure is not None:

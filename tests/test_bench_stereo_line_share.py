@@ -54,3 +54,26 @@ def test_the_figure_draws_one_panel_a_run(tmp_path):
     path = tmp_path / "share.png"
     bench.figure([("defaults", runs), ("other", runs)], path)
     assert path.stat().st_size > 1000
+
+
+def test_the_chaser_position_ratio_maps_the_covariance_and_matches_finite_differences():
+    rng = np.random.default_rng(1)
+    rows = rng.normal(size=(30, 4, 6))
+    G = rng.normal(size=(3, 6))
+    J_p, J = rows[:20].reshape(-1, 6), rows.reshape(-1, 6)
+    Q_p, Q = np.linalg.inv(J_p.T @ J_p), np.linalg.inv(J.T @ J)
+    want = np.diag(G @ Q @ G.T) / np.diag(G @ Q_p @ G.T)
+    assert np.allclose(bench.variance_ratios(rows, 20, G), want)
+    # chaser_map: the derivative of c = -R^T t under R <- exp([e]) R, t <- t + dt
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_rotvec(rng.normal(size=3)).as_matrix()
+    t = rng.normal(size=3)
+    h = 1e-6
+    num = np.zeros((3, 6))
+    for k in range(6):
+        dx = np.zeros(6)
+        dx[k] = h
+        R2 = Rotation.from_rotvec(dx[3:]).as_matrix() @ R
+        num[:, k] = (-R2.T @ (t + dx[:3]) + R.T @ t) / h
+    assert np.allclose(bench.chaser_map(R, t), num, atol=1e-5)
