@@ -57,10 +57,11 @@ def variance_ratios(rows: np.ndarray, n_point_rows: int, G: np.ndarray | None = 
 def chaser_map(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     """``(3, 6)``: the first-order change of the chaser position in the target frame,
     ``c = -R^T t`` (the stereo-track metric), for a translation change ``dt`` and a tangent
-    attitude change ``e`` (``R <- exp([e]_x) R``): ``dc = -R^T (dt + [t]_x e)``."""
-    R, t = np.asarray(R, float), np.asarray(t, float)
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-    return -R.T @ np.hstack([np.eye(3), tx])
+    attitude change ``e`` (``R <- exp([e]_x) R``): ``dc = -R^T (dt + [t]_x e)``, the ``"dop"``
+    budget's chaser rows turned into the target frame."""
+    from jaxpose.pipelines.stereo.budget import _chaser_rows
+
+    return -np.asarray(R, float).T @ _chaser_rows(t)
 
 
 def run(name: str, frames: int, seed: int, options) -> dict:

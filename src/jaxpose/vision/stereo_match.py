@@ -44,6 +44,7 @@ __all__ = [
     "match_points_stereo",
     "match_stereo",
     "parabolic_offset",
+    "steep_segments",
     "zncc",
 ]
 
@@ -513,15 +514,22 @@ def _window_sums(rows: np.ndarray, w: int) -> np.ndarray:
     )
 
 
-def _segment_sampling(segments: np.ndarray, options: StereoMatchOptions):
-    """Of segments ``(M, 2, 2)``: their directions ``(M, 2)`` and lengths ``(M,)``, whether each
-    is steep enough for the row search (at least ``min_epipolar_angle_deg`` from the epipolar
-    lines) and how many samples it gets (``(M,)`` bool and int)."""
+def steep_segments(segments: np.ndarray, min_epipolar_angle_deg: float) -> np.ndarray:
+    """``(M,)`` whether each left-image segment ``(M, 2, 2)`` (pixels) is steep enough for the
+    row search: at least ``min_epipolar_angle_deg`` from the image rows (the epipolar lines of a
+    rectified rig). The others are never matched in stereo."""
     d = segments[:, 1] - segments[:, 0]
     length = np.linalg.norm(d, axis=1)
-    steep = np.abs(d[:, 1]) >= np.sin(np.radians(options.min_epipolar_angle_deg)) * np.maximum(
-        length, 1e-12
-    )
+    return np.abs(d[:, 1]) >= np.sin(np.radians(min_epipolar_angle_deg)) * np.maximum(length, 1e-12)
+
+
+def _segment_sampling(segments: np.ndarray, options: StereoMatchOptions):
+    """Of segments ``(M, 2, 2)``: their directions ``(M, 2)`` and lengths ``(M,)``, whether each
+    is steep enough for the row search (:func:`steep_segments`) and how many samples it gets
+    (``(M,)`` bool and int)."""
+    d = segments[:, 1] - segments[:, 0]
+    length = np.linalg.norm(d, axis=1)
+    steep = steep_segments(segments, options.min_epipolar_angle_deg)
     n = np.clip((length / options.line_step_px).astype(int), 3, options.line_max_samples)
     return d, length, steep, n
 

@@ -566,8 +566,8 @@ def _dop_inputs(landmarks, feats, stereo, matches, cand_p, pose_pred, rig, o, li
             q = q[np.isin(q, cand_p)]
             w_p[q, 1] = 1.0 / o.sigma_px
         if o.line_stereo_residuals and n_l and len(stereo.line_idx):
-            q, j = find(stereo.line_idx, l_cur)
-            w_l[q[stereo.matched_lines()[j]], 1] = 1.0 / line_sigma
+            q, _ = stereo.right_lines(l_cur)
+            w_l[q, 1] = 1.0 / line_sigma
     # padding: a harmless point 1 m in front of the camera, weight 0
     far = (np.array([0.0, 0.0, 1.0]) - np.asarray(pose_pred.t, float)) @ np.asarray(pose_pred.R)
     P = np.tile(far, (B_p, 1))

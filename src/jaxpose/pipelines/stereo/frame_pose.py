@@ -131,9 +131,7 @@ def fit_pose(
         and n_l
         and len(stereo.line_idx)
     ):
-        q, j = find(stereo.line_idx, l_cur)
-        own = stereo.matched_lines()[j]  # a row line's right image is not observed
-        q, j = q[own], j[own]
+        q, j = stereo.right_lines(l_cur)
         keep = o.max_lines - n_l
         ql_r, seg_r = q[:keep], project(rig.left, None, stereo.segments[j[:keep]] + t_rl)
     n_lr = len(ql_r)

@@ -18,12 +18,12 @@ from scipy.spatial import cKDTree
 
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
-from jaxpose.pipelines.stereo._arrays import pad, project, rt
+from jaxpose.pipelines.stereo._arrays import find, pad, project, rt
 from jaxpose.pipelines.stereo._clock import StageClock
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
 from jaxpose.pipelines.stereo.options import TrackerOptions
 from jaxpose.pipelines.stereo.row_lines import row_segment_disparities
-from jaxpose.vision.stereo_match import match_points_stereo, match_stereo
+from jaxpose.vision.stereo_match import match_points_stereo, match_stereo, steep_segments
 
 __all__ = [
     "FrameStereo",
@@ -61,6 +61,14 @@ class FrameStereo:
         if self.row_lines is None:
             return np.ones(len(self.line_idx), bool)
         return ~self.row_lines
+
+    def right_lines(self, l_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Of the frame's segments ``l_cur`` (feature indices), those with a right-image match of
+        their own (a row line's right image is not observed): their positions in ``l_cur`` and
+        their rows here."""
+        q, j = find(self.line_idx, l_cur)
+        own = self.matched_lines()[j]
+        return q[own], j[own]
 
 
 def triangulate_rectified(rig: StereoCamera, left: np.ndarray, right: np.ndarray) -> np.ndarray:
@@ -151,7 +159,8 @@ def _triangulate_frame(rig, feats, pm, lm, line_ok, o: TrackerOptions) -> FrameS
             lm.segments_right[il].reshape(-1, 2) if len(il) else np.zeros((0, 2)),
         ]
     )
-    if np.allclose(_intrinsics(rig.left), _intrinsics(rig.right)):
+    rectified = np.allclose(_intrinsics(rig.left), _intrinsics(rig.right))
+    if rectified:
         X = triangulate_rectified(rig, pl, pr)
     else:
         X = np.asarray(_triangulate(rig, pad(pl, n_tri, 1.0), pad(pr, n_tri, 0.0)))
@@ -162,7 +171,7 @@ def _triangulate_frame(rig, feats, pm, lm, line_ok, o: TrackerOptions) -> FrameS
     oks = np.isfinite(S).all((1, 2)) & (S[..., 2] > lo).all(1) & (S[..., 2] < hi).all(1)
     il, S = il[oks], S[oks]
     rows = np.zeros(len(il), bool)
-    if o.use_lines and o.row_lines and len(feats.segments) and o.max_lines > len(il):
+    if o.use_lines and o.row_lines and rectified and len(feats.segments) and o.max_lines > len(il):
         ir, Sr = _row_segments(rig, feats, ip[okp], pm.pixels_right[ip[okp]], line_ok, o)
         ir, Sr = ir[: o.max_lines - len(il)], Sr[: o.max_lines - len(il)]
         ok = (Sr[..., 2] > lo).all(1) & (Sr[..., 2] < hi).all(1)
@@ -175,14 +184,12 @@ def _row_segments(rig, feats, ip, pixels_right, line_ok, o: TrackerOptions):
     """The segments along the rows (within ``min_epipolar_angle_deg`` of them, so without a
     stereo match of their own) that the keypoints beside them give a depth
     (:func:`~jaxpose.pipelines.stereo.row_lines.row_segment_disparities`): their indices and
-    left-camera endpoints ``(r, 2, 3)``. A rectified rig only (else none)."""
+    left-camera endpoints ``(r, 2, 3)``, on a rectified rig with identical cameras."""
     none = np.zeros(0, int), np.zeros((0, 2, 3))
-    if not np.allclose(_intrinsics(rig.left), _intrinsics(rig.right)) or len(ip) == 0:
+    if len(ip) == 0:
         return none
     seg = feats.segments
-    dv = np.abs(seg[:, 1, 1] - seg[:, 0, 1])
-    length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=1)
-    along = dv < np.sin(np.radians(o.stereo.min_epipolar_angle_deg)) * np.maximum(length, 1e-12)
+    along = ~steep_segments(seg, o.stereo.min_epipolar_angle_deg)
     ir = np.nonzero(along & ~np.asarray(line_ok, bool))[0]
     if len(ir) == 0:
         return none

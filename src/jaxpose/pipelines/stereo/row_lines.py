@@ -26,11 +26,12 @@ import numpy as np
 __all__ = ["row_segment_disparities"]
 
 
-def _side_planes(s, h, d, mask, min_points: int, trim_px: float):
+def _side_planes(s, h, d, mask, length, min_points: int, trim_px: float):
     """Least-squares disparity planes ``d = c0 + c1 s + c2 h`` of the masked points of each
     segment (``(M, N)`` arrays; ``s``, ``h`` in pixels along and across the segment), refitted
     once on the points within ``trim_px`` of the first fit. Returns the coefficients ``(M, 3)``
-    and whether each fit holds at least ``min_points`` points that span half the segment."""
+    and whether each fit holds at least ``min_points`` points that span half the segment's
+    ``length`` (``(M,)``)."""
     A = np.stack([np.ones_like(s), s, h], -1)  # (M, N, 3)
     for _ in range(2):
         w = mask.astype(float)
@@ -42,7 +43,7 @@ def _side_planes(s, h, d, mask, min_points: int, trim_px: float):
     count = mask.sum(1)
     big = 1e9
     span = np.where(mask, s, -big).max(1) - np.where(mask, s, big).min(1)
-    return c, count >= min_points, span
+    return c, (count >= min_points) & (span >= 0.5 * length)
 
 
 def row_segment_disparities(
@@ -96,12 +97,12 @@ def row_segment_disparities(
     ends = np.stack([np.zeros(M), length], 1)  # s of the two endpoints, h = 0
     fits = []
     for side in (h > 0, h < 0):
-        c, good, span = _side_planes(s, h, d, near & side, min_points, trim_px)
-        fits.append((c[:, :1] + c[:, 1:2] * ends, good & (span >= 0.5 * length)))
+        c, good = _side_planes(s, h, d, near & side, length, min_points, trim_px)
+        fits.append((c[:, :1] + c[:, 1:2] * ends, good))
     (dA, okA), (dB, okB) = fits
     agree = (np.abs(dA - dB) < agree_px).all(1)
     both = okA & okB & agree
     out = np.where(both[:, None], 0.5 * (dA + dB), np.where(okA[:, None], dA, dB))
-    ok = both | (okA & ~okB) | (okB & ~okA)
+    ok = both | (okA ^ okB)  # both sides agreeing, or the one side there is
     ok &= (out > 0).all(1) & (length > 0)
     return out, ok
