@@ -156,3 +156,13 @@ def test_wrong_shapes_are_named():
         row_segment_disparities(np.zeros((1, 4)), np.zeros((3, 2)), np.zeros(3))
     with pytest.raises(ValueError, match="disparities"):
         row_segment_disparities(seg, np.zeros((3, 2)), np.zeros(4))
+
+
+def test_steep_segments_follow_the_angle_to_the_rows():
+    from jaxpose.vision.stereo_match import steep_segments
+
+    ang = np.radians([0.0, 5.0, 11.9, 12.1, 45.0, 90.0, 170.0])
+    seg = np.stack([np.zeros((len(ang), 2)), 50 * np.c_[np.cos(ang), np.sin(ang)]], 1)
+    assert steep_segments(seg, 12.0).tolist() == [False, False, False, True, True, True, False]
+    with pytest.raises(ValueError, match="segments must be"):
+        steep_segments(np.zeros((3, 4)), 12.0)

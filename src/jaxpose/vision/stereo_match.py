@@ -518,6 +518,9 @@ def steep_segments(segments: np.ndarray, min_epipolar_angle_deg: float) -> np.nd
     """``(M,)`` whether each left-image segment ``(M, 2, 2)`` (pixels) is steep enough for the
     row search: at least ``min_epipolar_angle_deg`` from the image rows (the epipolar lines of a
     rectified rig). The others are never matched in stereo."""
+    segments = np.asarray(segments)  # (its dtype kept: the matcher's samples use the same)
+    if segments.ndim != 3 or segments.shape[1:] != (2, 2):
+        raise ValueError(f"segments must be (M, 2, 2) pixels; got shape {segments.shape}")
     d = segments[:, 1] - segments[:, 0]
     length = np.linalg.norm(d, axis=1)
     return np.abs(d[:, 1]) >= np.sin(np.radians(min_epipolar_angle_deg)) * np.maximum(length, 1e-12)
