@@ -234,3 +234,38 @@ def test_free_lines_are_moved_onto_the_true_lines(free_lines):
         assert across.max() < 1e-6
     else:
         assert across.max() > 1e-3
+
+
+@pytest.mark.parametrize("held_lines", [False, True])
+def test_a_line_with_no_plane_in_the_window_is_left_out_unless_held(held_lines):
+    """A line landmark placed askew (one endpoint 5 cm off its true line) and matched in every
+    frame's left image, with no observation plane in the window: left out (the default), the
+    adjustment returns the true poses from the exact points; held where the map has it
+    (``held_lines=True``), it pulls the poses off (its true image lines no longer fit)."""
+    from window_scenes import pixels
+
+    from jaxpose.pipelines.stereo._arrays import lines_from_segments
+
+    rig, X, poses = window_scene()
+    rng = np.random.default_rng(7)
+    P = np.array([[-0.25, 0.2, 0.1], [0.2, -0.25, -0.15]])  # the true line, body frame
+    placed = P.copy()
+    placed[1] += np.array([0.0, 0.05, 0.0])
+    m = LandmarkMap()
+    win = WindowAdjuster(rig, frames=5, iterations=8, max_points=60, held_lines=held_lines)
+    ids = m.add("points", X + rng.normal(0, 0.01, X.shape), np.zeros((60, 32)), Pose(*poses[0]), 0)
+    lid = m.add("lines", placed[None], np.zeros((1, 32)), Pose(*poses[0]), 0)
+    for j, (R, t) in enumerate(poses):
+        Re, te = perturbed(rng, R, t) if j else (R, t)
+        rec = win.start(Re, te, fixed=j == 0)
+        observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
+        seg = pixels(rig, R, t, P)[0][None]  # the true line's left image
+        rec.line_ids = m.lines.ids[lid]
+        rec.lines = lines_from_segments(seg)
+        rec.line_weight = 1.0
+    if not held_lines:
+        _assert_adjusts_to_truth(win, m, poses, X)
+    else:
+        assert win.adjust(m)
+        off = max(angle_deg(fr.R, R) for fr, (R, _) in zip(win.frames, poses, strict=True))
+        assert off > 1e-3

@@ -238,7 +238,15 @@ def observe_point_rays(
 
 
 def observe_line_planes(
-    landmarks: LandmarkMap, rig: StereoCamera, idx, S, pose: Pose, *, log=None, right=None
+    landmarks: LandmarkMap,
+    rig: StereoCamera,
+    idx,
+    S,
+    pose: Pose,
+    *,
+    log=None,
+    right=None,
+    left: bool = True,
 ) -> None:
     """Observation planes (body frame) of line landmarks ``idx`` from their stereo triangulations
     ``S`` (``(n, 2, 3)``, left camera at ``pose``): the planes through each camera centre and the
@@ -252,7 +260,10 @@ def observe_line_planes(
     baseline lies in both), so its depth, the keypoints' beside it, enters instead as the plane
     through the segment across the line of sight (normal in the left plane, perpendicular to
     the segment), weighted as a disparity of the same pixel noise would be: ``b^2 / Z^4``
-    (a depth error ``e`` is a disparity error ``f b e / Z^2``)."""
+    (a depth error ``e`` is a disparity error ``f b e / Z^2``).
+
+    ``left=False``: the right (or across) plane only, where the frame's left plane is added
+    apart (``TrackerOptions.frame_planes``, :func:`observe_left_planes`)."""
     if len(idx) == 0:
         return
     R, t = rt(pose)
@@ -276,9 +287,43 @@ def observe_line_planes(
         ),
     )
     for cam, (n, d_body, d_cam, wc) in enumerate(planes):
+        if cam == 0 and not left:
+            continue
         landmarks.observe_lines(idx, n @ R, d_body, wc)
         if log is not None:
             log.add_planes(landmarks.lines.ids[idx], n, d_cam, cam, wc)
+
+
+def observe_left_planes(
+    landmarks: LandmarkMap, rig: StereoCamera, idx, segments, pose: Pose, *, log=None
+) -> None:
+    """The left-image observation planes of line landmarks ``idx`` matched in a tracked frame:
+    the plane through the left camera centre and each image segment ``segments`` (``(n, 2, 2)``
+    pixels, :attr:`FrameFeatures.segments`), weighted ``1 / depth^2`` at the depth of the
+    landmark line at ``pose`` (pixel-error weighting, as :func:`observe_line_planes`), into the
+    landmarks' multi-view line fit; ``log`` records them (camera ``0``). The lines' analogue of
+    :func:`observe_point_rays` for every tracked frame (``TrackerOptions.frame_planes``): a
+    line whose first stereo triangulation was off is then refined by the parallax of its later
+    views instead of being held where it was put (its new stereo triangulations disagree with
+    it and are gated out, :func:`line_disparity_agrees`)."""
+    idx = np.asarray(idx, int)
+    if len(idx) == 0:
+        return
+    R, t = rt(pose)
+    seg = np.asarray(segments, float)
+    if seg.shape != (len(idx), 2, 2):
+        raise ValueError(f"segments must be ({len(idx)}, 2, 2) pixels; got {seg.shape}")
+    c = rig.left
+    ray = np.stack(
+        [(seg[..., 0] - float(c.cx)) / float(c.fx), (seg[..., 1] - float(c.cy)) / float(c.fy)], -1
+    )
+    ray = np.concatenate([ray, np.ones((*ray.shape[:2], 1))], -1)  # (n, 2, 3)
+    n = _unit_rows(np.cross(ray[:, 0], ray[:, 1]))
+    z = landmarks.lines.X[idx] @ R[2] + t[2]  # (n, 2) depths of the landmark's endpoints
+    w = 1.0 / np.maximum(z.mean(1), 1e-3) ** 2
+    landmarks.observe_lines(idx, n @ R, -(n @ t), w)
+    if log is not None:
+        log.add_planes(landmarks.lines.ids[idx], n, np.zeros(len(idx)), 0, w)
 
 
 def _unit_rows(v: np.ndarray) -> np.ndarray:
@@ -376,7 +421,14 @@ def update_map(
                 )
                 own = stereo.matched_lines()[has_l][agree]
                 observe_line_planes(
-                    landmarks, rig, idx[agree], S[has_l][agree], pose, log=log, right=own
+                    landmarks,
+                    rig,
+                    idx[agree],
+                    S[has_l][agree],
+                    pose,
+                    log=log,
+                    right=own,
+                    left=not o.frame_planes,
                 )
         new_l = ~has_l & ~np.isin(il, list(rejected_l))
         ids_l = landmarks.add("lines", Sb[new_l], feats.line_desc[il[new_l]], pose, frame)

@@ -35,12 +35,14 @@ _FIELD_KINDS = dict(
         "frame_rays",
         "stereo_residuals",
         "line_planes",
+        "frame_planes",
         "line_stereo_residuals",
         "row_lines",
         "measured_line_sigma",
         "predicted_disparity",
         "threads",
         "window_free_lines",
+        "window_held_lines",
         "keep_history",
         "budget_window",
         "anchor_points",
@@ -227,6 +229,17 @@ class TrackerOptions:
             used only when its stereo triangulation agrees with the landmark line to
             ``refine_disparity_px`` at both endpoints (the point rays' gate): a stereo or LBD
             mismatch would otherwise tilt the line for good.
+        frame_planes: with ``line_planes``, add every tracked frame's left-image plane of each
+            line kept in its pose solve to the line's multi-view fit (the lines' ``frame_rays``;
+            :func:`~jaxpose.pipelines.stereo.keyframes.observe_left_planes`), else only those of
+            keyframes whose stereo triangulation agrees with the landmark. A line whose first
+            triangulation was off then moves with its later views, and the windowed adjustment
+            frees it. Off: measured against the lines held in the window (the default before
+            2026-12-02), the development scenes' worst axes summed 0.96 of it over seeds 0-5
+            (``d5`` 0.61) and 32 of 36 runs beyond 3.5 m of the development draws met the
+            targets against 28, but on one tumbling scene at 4.3 m a line moved with the
+            drifting pose and the run went 225 mm astray, on both noise seeds tried
+            (``docs/stereo-evaluation.md``, *Lines held in the window*).
         line_stereo_residuals: with ``stereo_residuals``, also fit the right-image lines of the
             matched segments that have a stereo match (the landmark segment shifted by
             ``R^T t_rl``, as the points), so that a line counts in both images as a point does.
@@ -321,6 +334,16 @@ class TrackerOptions:
             (their endpoints free, observed by the stereo planes of the window's frames, the
             planes of older frames as a prior; the adjusted planes re-solve the lines); off,
             the lines' endpoints are held where they were placed.
+        window_held_lines: with ``window_free_lines``, also hold the lines the adjustment does
+            not free (matched in the window's left images but with no observation plane there,
+            or whose planes do not meet) where the map has them, in the pose blocks (the
+            default until 2026-12-02); off, they are left out of the adjustment (their frames'
+            own pose solves still fit them). A held line is taken as exact: on the tumbling
+            ``d5`` (seed 1) one line placed askew by its only stereo pair moved the window's
+            last pose by 5 mm. Off, the development scenes' worst axes summed over seeds 0-5
+            are 0.966 of on (``d5`` 0.65, the others 0.96-1.02), and 29 of 36 runs beyond 3.5 m
+            of the development draws meet the targets against 28 (``docs/stereo-evaluation.md``,
+            *Lines held in the window*).
         window_anchors, window_anchor_every, window_anchor_points: the first adjustment at
             least ``window_anchor_every`` tracked frames after the last global one is a global
             one: the recent window together with up to ``window_anchors`` past frames spread
@@ -442,6 +465,7 @@ class TrackerOptions:
     lsd_area_px: float | None = 120_000.0
     fine_corners_area_px: float | None = None
     line_planes: bool = True
+    frame_planes: bool = False
     line_stereo_residuals: bool = True
     row_lines: bool = False
     measured_line_sigma: bool = True
@@ -464,6 +488,7 @@ class TrackerOptions:
     window_points: int = 300
     window_motion_sigma: tuple[float, float] | None = (0.3, 5.0)
     window_free_lines: bool = True
+    window_held_lines: bool = False
     window_anchors: int = 0
     window_anchor_every: int = 8
     window_anchor_points: int = 1000

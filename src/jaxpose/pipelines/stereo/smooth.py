@@ -70,6 +70,7 @@ def adjust_sequence(
         ),
         free_lines=free_lines,
         lines=lines,
+        held_lines=True,  # as measured (docs/stereo-evaluation.md, *Offline smoothing*)
     )
     adj.anchor_oldest = False  # the given first frame (fixed) is the gauge
     adj.frames.extend(frames)

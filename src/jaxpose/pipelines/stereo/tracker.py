@@ -76,6 +76,7 @@ from jaxpose.pipelines.stereo.frames import (
 )
 from jaxpose.pipelines.stereo.guided import match_by_projection
 from jaxpose.pipelines.stereo.keyframes import (
+    observe_left_planes,
     observe_point_rays,
     stereo_correspondences,
     update_map,
@@ -193,6 +194,7 @@ class StereoTracker:
                 max_lines=options.max_lines,
                 motion_sigma=options.window_motion_sigma,
                 free_lines=options.window_free_lines and options.use_lines,
+                held_lines=options.window_held_lines,
                 anchors=options.window_anchors,
                 anchor_points=options.window_anchor_points,
                 history=options.keep_history,
@@ -569,6 +571,15 @@ class StereoTracker:
                     )
                 self.map.record("lines", lcand, l_m[in_l], k)
                 in_w = in_l if fit.window_lines is None else fit.window_lines
+                if o.frame_planes and o.line_planes and in_w.any():
+                    observe_left_planes(
+                        self.map,
+                        self.rig,
+                        l_m[in_w],
+                        feats.segments[l_cur[in_w]],
+                        pose,
+                        log=self._rays,
+                    )
                 if self._rays is not None and in_w.any():
                     self._rays.line_ids = self.map.lines.ids[l_m[in_w]]
                     self._rays.lines = lines_from_segments(feats.segments[l_cur[in_w]])

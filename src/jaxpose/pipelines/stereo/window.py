@@ -20,8 +20,10 @@ window, else by the oldest frame's. The line landmarks are adjusted the same way
 centre and an image segment, :func:`~jaxpose.pipelines.stereo.keyframes.observe_line_planes`)
 has its two endpoints free, observed by those planes (Yang et al. 2024 eq. 9 in the plane's
 form, left and right image), and keeps the planes of the frames outside the window as a prior
-(the line's plane normal equations less the window's planes); the other lines' endpoints are
-held where the map has them, their left-image lines in the pose blocks only. The solver is
+(the line's plane normal equations less the window's planes). The window's other matched lines
+(no plane in the window, or planes that do not meet) are left out, as the points beyond the
+cap are: held where the map has them (``held_lines``, the default until 2026-12-02) they were
+taken as exact, and one placed askew by its only stereo pair tilted a window. The solver is
 :func:`jaxpose.core.refine.adjust_window` (Gauss-Newton with a small Levenberg damping, the Schur
 complement on the ``3 x 3`` landmark and endpoint blocks, Jacobians by ``jax.jacfwd`` of one
 observation's residual; compiled once): this module gathers the window's observations, priors
@@ -157,10 +159,8 @@ class WindowAdjuster:
             with the poses (:class:`jaxpose.core.refine.WindowLines`: their endpoints free,
             the planes from outside the window as a prior; at most ``max_lines``, those with
             the most planes in the window; five development scenes had at most 85 of 96); off,
-            or for the others, the lines' endpoints are held where the map has them (at most
-            ``2 max_lines`` endpoint rows a frame without free lines, a sixth of that with them:
-            then only the lines whose planes do not yet meet are held, at most 6 a frame on
-            those scenes; a frame with more keeps its first ones).
+            the lines' endpoints are held where the map has them (at most ``2 max_lines``
+            endpoint rows a frame; a frame with more keeps its first ones).
         anchors: most past frames kept for the global adjustment (:meth:`adjust` with
             ``spanning=True``): the fixed first frame and frames spread over the run (a frame
             leaving the recent window is kept when it is at least ``spacing`` frames after
@@ -171,6 +171,13 @@ class WindowAdjuster:
             :mod:`jaxpose.pipelines.stereo.smooth`; memory grows with the sequence.
         lines: ``False``: no line term at all, held or free (the poses from the points' rays
             alone; a diagnosis of what the lines do).
+        held_lines: with ``free_lines``, also hold the window's other matched lines (no
+            observation plane in the window, or planes that do not meet) where the map has them,
+            their left-image lines in the pose blocks (``2 ceil(max_lines / 6)`` endpoint rows a
+            frame); off (the default), they are left out of the adjustment, as the points
+            beyond ``max_points`` are. A line held so is taken as exact: one placed askew by
+            its only stereo pair moved a 2.5 m window's last pose by 5 mm
+            (``docs/stereo-evaluation.md``, *Lines held in the window*).
     """
 
     anchor_oldest = True
@@ -189,6 +196,7 @@ class WindowAdjuster:
         anchor_points: int = 1000,
         history: bool = False,
         lines: bool = True,
+        held_lines: bool = False,
     ):
         if frames < 2:
             raise ValueError(f"window frames must be >= 2; got {frames}")
@@ -210,9 +218,13 @@ class WindowAdjuster:
         self.max_points = int(max_points)
         self.max_lines = int(max_lines)
         self.free_lines = bool(free_lines) and bool(lines)
+        self.held_lines = bool(held_lines)
         # endpoint rows of held lines a frame: all of a frame's lines without free lines; with
         # them only the lines whose planes do not yet meet (a sixth of the lines is ample)
-        self._held_rows = 2 * self.max_lines if not self.free_lines else 2 * -(-self.max_lines // 6)
+        if not self.free_lines:
+            self._held_rows = 2 * self.max_lines
+        else:  # a padding row a frame when none is held
+            self._held_rows = 2 * -(-self.max_lines // 6) if self.held_lines else 1
         self.motion_sigma = motion_sigma  # (deg, mm), or None
         c = rig.left
         self.f = (float(c.fx), float(c.fy))
@@ -344,7 +356,8 @@ class WindowAdjuster:
         X = s.X[lm].copy()
         free_lines = self._free_line_terms(landmarks, frames) if self.free_lines else None
         held = None if free_lines is None else free_lines["ids"]
-        lines = self._line_terms(landmarks, frames, held) if self.lines else None
+        hold = self.lines and (self.held_lines or not self.free_lines)
+        lines = self._line_terms(landmarks, frames, held) if hold else None
         Rs_new, ts_new, X = self._solve(
             Rs,
             ts,
