@@ -65,6 +65,13 @@ def test_alignment_leaves_unmatched_and_unknown_landmarks_at_their_detection():
     assert not ok.any()
 
 
+def _rot(v):
+    a = np.linalg.norm(v)
+    k = v / a
+    S = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(a) * S + (1 - np.cos(a)) * S @ S
+
+
 def test_affine_map_is_the_inverse_jacobian_of_the_plane_transfer():
     """Against finite differences of the transfer written out: a reference pixel offset, lifted
     onto the plane through the landmark facing the reference camera, seen from the current one."""
@@ -101,6 +108,62 @@ def test_affine_map_is_the_inverse_jacobian_of_the_plane_transfer():
         np.testing.assert_allclose(A[n] @ J, np.eye(2), atol=1e-6)
         q = K @ (R_cur @ X[n] + t_cur)  # the offset 0 is the landmark itself
         np.testing.assert_allclose(transfer(n, np.zeros(2)), q[:2] / q[2], rtol=1e-9)
+
+
+def test_affine_map_on_a_given_surface_plane_is_the_inverse_jacobian_of_its_transfer():
+    """With ``normals``: a reference offset lifted onto the plane through the landmark with that
+    normal (the ray's intersection, written out), seen from the current camera; finite
+    differences. A NaN normal keeps the plane facing the reference camera."""
+    cam = PinholeCamera(800.0, 780.0, 320.0, 240.0, width=640, height=480)
+    K = np.array([[800.0, 0, 320.0], [0, 780.0, 240.0], [0, 0, 1]])
+    rng = np.random.default_rng(2)
+    X = rng.normal(0, 0.3, (6, 3))
+    R_ref = np.stack([_rot(rng.normal(0, 0.3, 3)) for _ in X])
+    t_ref = np.array([0.0, 0.0, 3.0]) + rng.normal(0, 0.1, (6, 3))
+    R_cur, t_cur = _rot(np.array([0.1, -0.2, 0.05])), np.array([0.05, -0.02, 3.2])
+    N = rng.normal(size=(6, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    N[5] = np.nan
+    Xr = np.einsum("nij,nj->ni", R_ref, X) + t_ref
+    uv_ref = (Xr @ K.T)[:, :2] / Xr[:, 2:]
+
+    def transfer(n, offset):
+        ray = np.linalg.solve(K, np.append(uv_ref[n] + offset, 1.0))
+        nr = R_ref[n] @ N[n]
+        P_ref = ray * (nr @ Xr[n]) / (nr @ ray)
+        P_cur = R_cur @ (R_ref[n].T @ (P_ref - t_ref[n])) + t_cur
+        q = K @ P_cur
+        return q[:2] / q[2]
+
+    A = affine_to_reference(cam, X, uv_ref, R_ref, t_ref, R_cur, t_cur, normals=N)
+    facing = affine_to_reference(cam, X, uv_ref, R_ref, t_ref, R_cur, t_cur)
+    h = 1e-4
+    for n in range(5):
+        J = np.stack(
+            [(transfer(n, h * e) - transfer(n, -h * e)) / (2 * h) for e in np.eye(2)], axis=1
+        )
+        np.testing.assert_allclose(A[n] @ J, np.eye(2), atol=1e-6)
+        assert np.abs(A[n] - facing[n]).max() > 1e-3  # the surface's plane is not the facing one
+    np.testing.assert_allclose(A[5], facing[5], atol=1e-12)
+
+
+def test_surface_normals_of_landmarks_on_a_box():
+    """Landmarks scattered on two faces of a box (1 mm noise): the normal of a landmark amid a
+    face is that face's (within 3 degrees); one on the edge where the faces meet gets none."""
+    from jaxpose.pipelines.stereo.landmarks import surface_normals
+
+    rng = np.random.default_rng(4)
+    top = np.c_[rng.uniform(-0.5, 0.5, (400, 2)), np.full(400, 0.3)]  # z = 0.3
+    side = np.c_[np.full(400, 0.5), rng.uniform(-0.5, 0.5, 400), rng.uniform(-0.5, 0.3, 400)]
+    edge = np.array([[0.5, 0.0, 0.3]])
+    X = np.concatenate([top, side, edge]) + np.r_[rng.normal(0, 0.001, (800, 3)), np.zeros((1, 3))]
+    mid_top = np.argmin(np.linalg.norm(X[:400] - [-0.2, 0.0, 0.3], axis=1))
+    mid_side = 400 + np.argmin(np.linalg.norm(X[400:800] - [0.5, 0.0, -0.1], axis=1))
+    n = surface_normals(X, [mid_top, mid_side, 800])
+    assert np.degrees(np.arccos(abs(n[0] @ [0, 0, 1.0]))) < 3.0
+    assert np.degrees(np.arccos(abs(n[1] @ [1.0, 0, 0]))) < 3.0
+    assert np.isnan(n[2]).all()
+    assert np.isnan(surface_normals(X[:5], [0])).all()  # too few landmarks
 
 
 def test_reanchoring_takes_a_new_patch_only_past_the_turn():

@@ -40,6 +40,7 @@ def affine_to_reference(
     t_ref: np.ndarray,
     R_cur: np.ndarray,
     t_cur: np.ndarray,
+    normals: np.ndarray | None = None,
 ) -> np.ndarray:
     """``(n, 2, 2)`` affine maps from pixel offsets in the current image to pixel offsets in the
     reference image, about each landmark's pixel.
@@ -47,7 +48,12 @@ def affine_to_reference(
     The landmark lies on the plane through it that faces the reference camera (depth ``z_ref``
     constant): a reference offset ``d`` is the point ``z_ref K^-1 (uv_ref + d, 1)``, carried to the
     current camera by ``R_cur R_ref^T (. - t_ref) + t_cur`` and projected; the map returned is the
-    inverse of that projection's Jacobian in ``d``.
+    inverse of that projection's Jacobian in ``d``. With ``normals`` (``(n, 3)`` unit, body
+    frame; a NaN row: the plane facing the camera) the plane through the landmark is the
+    surface's: the offset's ray ``r = K^-1 (uv_ref + d, 1)`` meets it at ``r (n . X_ref) /
+    (n . r)``. On a face turned from the reference view the facing plane mispredicts the
+    foreshortening, and the alignment then settles off the landmark by a part of a pixel, the
+    same way frame after frame as the target turns.
 
     Args:
         camera: pinhole camera without distortion (the rectified left camera).
@@ -61,6 +67,20 @@ def affine_to_reference(
     M = np.einsum("ij,nkj->nik", R_cur, R_ref)  # R_cur R_ref^T
     P_cur = np.einsum("ij,nj->ni", R_cur, X_body) + t_cur
     dP = M[:, :, :2] * (z_ref[:, None, None] / np.array([fx, fy])[None, None, :])  # (n, 3, 2)
+    if normals is not None:
+        E = np.zeros((3, 2))
+        E[0, 0], E[1, 1] = 1.0 / fx, 1.0 / fy  # d r / d d
+        n_ref = np.einsum("nij,nj->ni", R_ref, np.asarray(normals, float))
+        X_ref = np.einsum("nij,nj->ni", R_ref, X_body) + t_ref
+        uv = np.asarray(ref_uv, float)
+        u, v = (uv[:, 0] - float(camera.cx)) / fx, (uv[:, 1] - float(camera.cy)) / fy
+        r = np.stack([u, v, np.ones(len(uv))], 1)  # the reference pixel's ray
+        nX, nr = np.einsum("ni,ni->n", n_ref, X_ref), np.einsum("ni,ni->n", n_ref, r)
+        ok = np.isfinite(nX) & np.isfinite(nr) & (np.abs(nr) > 1e-3 * np.linalg.norm(r, axis=1))
+        sc = np.where(ok, nX / np.where(ok, nr, 1.0), z_ref)  # the ray's scale to the plane
+        ds = -(nX / np.where(ok, nr, 1.0) ** 2)[:, None] * (n_ref @ E)  # (n, 2)
+        dP_plane = E[None] * sc[:, None, None] + r[:, :, None] * ds[:, None, :]
+        dP[ok] = np.einsum("nij,njk->nik", M[ok], dP_plane[ok])
     x, y, z = P_cur[:, 0], P_cur[:, 1], P_cur[:, 2]
     J = np.empty((len(X_body), 2, 2))
     J[:, 0] = fx * (dP[:, 0] / z[:, None] - x[:, None] * dP[:, 2] / z[:, None] ** 2)
@@ -211,9 +231,11 @@ class PatchAnchors:
         pixels: np.ndarray,
         R_cur: np.ndarray,
         t_cur: np.ndarray,
+        normals: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Aligned pixels of the landmarks ``ids`` (body points ``X_body (n, 3)``) detected at
-        ``pixels (n, 2)`` in ``image``, the current frame at the pose ``R_cur, t_cur``.
+        ``pixels (n, 2)`` in ``image``, the current frame at the pose ``R_cur, t_cur``;
+        ``normals``: their surface normals ``(n, 3)`` for the warp (:func:`affine_to_reference`).
 
         Returns ``(pixels (n, 2), aligned (n,) bool)``: the aligned pixel where the alignment
         holds (a patch, a warp within ``max_scale``, Lucas-Kanade converged within
@@ -233,6 +255,7 @@ class PatchAnchors:
                 self.t[p],
                 R_cur,
                 t_cur,
+                None if normals is None else np.asarray(normals, float)[has],
             )
         return self.match(image, ids, A, pixels)
 

@@ -126,6 +126,31 @@ def planes_meet(ev: np.ndarray) -> np.ndarray:
     return ev[:, 1] > 1e-4 * ev[:, 2]
 
 
+def surface_normals(
+    X: np.ndarray, idx, k: int = 40, max_flatness: float = 0.3, tree=None
+) -> np.ndarray:
+    """Unit surface normals ``(len(idx), 3)`` at the point landmarks ``X[idx]`` (body frame),
+    from their ``k`` nearest landmarks (themselves among them): the direction of least spread
+    of those points (principal components), kept where they lie on a plane, the least spread
+    at most ``max_flatness`` of the middle one (in standard deviations); a NaN row elsewhere
+    (an edge or corner of the target, where two faces meet, or too few points). ``tree``: a
+    ``scipy.spatial.cKDTree`` of ``X`` already built."""
+    X = np.asarray(X, float)
+    idx = np.asarray(idx, int)
+    out = np.full((len(idx), 3), np.nan)
+    if len(idx) == 0 or len(X) < max(int(k), 4):
+        return out
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(X) if tree is None else tree
+    _, nb = tree.query(X[idx], k=int(k))
+    P = X[nb] - X[nb].mean(axis=1, keepdims=True)  # (n, k, 3)
+    ev, V = np.linalg.eigh(np.einsum("nki,nkj->nij", P, P))
+    flat = np.sqrt(np.maximum(ev[:, 0], 0)) <= max_flatness * np.sqrt(np.maximum(ev[:, 1], 0))
+    out[flat] = V[flat, :, 0]
+    return out
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     return v / np.where(n > 0, n, 1.0)

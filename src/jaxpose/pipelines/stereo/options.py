@@ -36,6 +36,7 @@ _FIELD_KINDS = dict(
         "stereo_residuals",
         "line_planes",
         "frame_planes",
+        "anchor_normals",
         "line_stereo_residuals",
         "row_lines",
         "measured_line_sigma",
@@ -404,6 +405,14 @@ class TrackerOptions:
             meeting the targets against 21 (``docs/stereo-evaluation.md``, *Anchored
             observations by default*).
             Its time (about 13 ms of CPU a frame at 1.5 m) is in the ``match`` stage.
+            ``anchor_normals``: warp each patch by the plane of the surface at its landmark
+            (:func:`~jaxpose.pipelines.stereo.landmarks.surface_normals` of the 40 nearest
+            landmarks, where they lie flat) instead of the plane facing the reference camera.
+            Off: with the true face normals (an oracle) a fast turn at 3.7 m falls from 60 to
+            16 mm of lateral drift, but the normals estimated from the landmarks raise the
+            development scenes' worst axes by 30% (seeds 0-1; ``d1`` 34% lower, ``d4`` and
+            ``d6`` 42% higher) and two development draws' far scenes by 1-13%
+            (``docs/stereo-evaluation.md``, *What still fails*, *Fast turns at range*).
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
         landmark_point_sigma: weight each point of the all-features solve by its landmark's
@@ -503,6 +512,7 @@ class TrackerOptions:
     budget_repeat_discount: float = 2.0
     anchor_points: bool = True
     anchor_turn_deg: float | None = 10.0
+    anchor_normals: bool = False
     anchor_half_px: int = 3
     anchor_cornerness: float = 0.1
     measured_point_sigma: bool = False

@@ -81,7 +81,7 @@ from jaxpose.pipelines.stereo.keyframes import (
     stereo_correspondences,
     update_map,
 )
-from jaxpose.pipelines.stereo.landmarks import LandmarkMap, map_origin
+from jaxpose.pipelines.stereo.landmarks import LandmarkMap, map_origin, surface_normals
 from jaxpose.pipelines.stereo.options import (
     STAGES,
     FrameResult,
@@ -474,8 +474,9 @@ class StereoTracker:
         """The features with the matched keypoints moved to their landmarks' aligned patches."""
         R, t = rt(pose)
         m = self.map.points
+        normals = surface_normals(m.X, i_m) if self.options.anchor_normals else None
         px, _ = self._anchors.align(
-            left, self.rig.left, m.ids[i_m], m.X[i_m], feats.points[i_cur], R, t
+            left, self.rig.left, m.ids[i_m], m.X[i_m], feats.points[i_cur], R, t, normals
         )
         points = feats.points.copy()
         points[i_cur] = px
