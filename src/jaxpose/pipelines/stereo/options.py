@@ -410,8 +410,8 @@ class TrackerOptions:
             landmarks, where they lie flat) instead of the plane facing the reference camera.
             Off: with the true face normals (an oracle) a fast turn at 3.7 m falls from 60 to
             16 mm of lateral drift, but the normals estimated from the landmarks raise the
-            development scenes' worst axes by 30% (seeds 0-1; ``d1`` 34% lower, ``d4`` and
-            ``d6`` 42% higher) and two development draws' far scenes by 1-13%
+            development scenes' worst axes by 30% (seeds 0-1; ``d1`` 34% lower, ``d4`` 43%
+            and ``d6`` 42% higher) and two development draws' far scenes by 1-13%
             (``docs/stereo-evaluation.md``, *What still fails*, *Fast turns at range*).
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
