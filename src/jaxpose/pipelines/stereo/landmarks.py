@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from jaxpose.core.geometry import Pose
 from jaxpose.pipelines.stereo._arrays import rt, scatter_add, solve3, sym3_eigvalsh
@@ -140,8 +141,6 @@ def surface_normals(
     out = np.full((len(idx), 3), np.nan)
     if len(idx) == 0 or len(X) < max(int(k), 4):
         return out
-    from scipy.spatial import cKDTree
-
     tree = cKDTree(X) if tree is None else tree
     _, nb = tree.query(X[idx], k=int(k))
     P = X[nb] - X[nb].mean(axis=1, keepdims=True)  # (n, k, 3)
