@@ -128,6 +128,12 @@ def pixel_jacobian(x_cam: np.ndarray, fx: float, fy: float) -> np.ndarray:
     return J
 
 
+def unit_rows(v: np.ndarray) -> np.ndarray:
+    """``v`` scaled to unit length along its last axis (a zero row stays zero)."""
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 0, n, 1.0)
+
+
 def lines_from_segments(segments: np.ndarray) -> np.ndarray:
     """Homogeneous lines ``(s, 1) x (e, 1)`` of ``(k, 2, 2)`` segments (Yang et al. 2024, eq. 7;
     the NumPy twin of :func:`jaxpose.core.residuals.line_from_segment`, kept eager so that a

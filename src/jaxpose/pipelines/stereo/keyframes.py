@@ -18,7 +18,14 @@ from scipy.spatial import cKDTree
 
 from jaxpose.core.camera import StereoCamera
 from jaxpose.core.geometry import Pose
-from jaxpose.pipelines.stereo._arrays import find, pad, project, rt
+from jaxpose.pipelines.stereo._arrays import (
+    find,
+    lines_from_segments,
+    pad,
+    project,
+    rt,
+    unit_rows,
+)
 from jaxpose.pipelines.stereo._clock import StageClock
 from jaxpose.pipelines.stereo.landmarks import LandmarkMap
 from jaxpose.pipelines.stereo.options import TrackerOptions
@@ -272,9 +279,9 @@ def observe_line_planes(
     z = np.maximum(S[..., 2].mean(1), 1e-3)
     w = 1.0 / z**2
     C_r = -np.asarray(rig.t_rl, float)
-    n_l = _unit_rows(np.cross(S[:, 0], S[:, 1]))
-    across = _unit_rows(np.cross(S[:, 1] - S[:, 0], n_l))  # in the left plane, across the line
-    n_r = _unit_rows(np.cross(S[:, 0] - C_r, S[:, 1] - C_r))
+    n_l = unit_rows(np.cross(S[:, 0], S[:, 1]))
+    across = unit_rows(np.cross(S[:, 1] - S[:, 0], n_l))  # in the left plane, across the line
+    n_r = unit_rows(np.cross(S[:, 0] - C_r, S[:, 1] - C_r))
     b2 = float(np.dot(C_r, C_r))
     C0 = np.zeros(3)
     planes = (  # (normal, offset in the body frame, offset in the camera frame, weight)
@@ -313,21 +320,13 @@ def observe_left_planes(
     seg = np.asarray(segments, float)
     if seg.shape != (len(idx), 2, 2):
         raise ValueError(f"segments must be ({len(idx)}, 2, 2) pixels; got {seg.shape}")
-    c = rig.left
-    ray = np.stack(
-        [(seg[..., 0] - float(c.cx)) / float(c.fx), (seg[..., 1] - float(c.cy)) / float(c.fy)], -1
-    )
-    ray = np.concatenate([ray, np.ones((*ray.shape[:2], 1))], -1)  # (n, 2, 3)
-    n = _unit_rows(np.cross(ray[:, 0], ray[:, 1]))
+    K = np.asarray(rig.left.K, float)
+    n = unit_rows(lines_from_segments(seg) @ K)  # the image line's plane: K^T l
     z = landmarks.lines.X[idx] @ R[2] + t[2]  # (n, 2) depths of the landmark's endpoints
     w = 1.0 / np.maximum(z.mean(1), 1e-3) ** 2
     landmarks.observe_lines(idx, n @ R, -(n @ t), w)
     if log is not None:
         log.add_planes(landmarks.lines.ids[idx], n, np.zeros(len(idx)), 0, w)
-
-
-def _unit_rows(v: np.ndarray) -> np.ndarray:
-    return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
 
 
 def line_disparity_agrees(

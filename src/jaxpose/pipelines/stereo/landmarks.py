@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from jaxpose.core.geometry import Pose
-from jaxpose.pipelines.stereo._arrays import rt, scatter_add, solve3, sym3_eigvalsh
+from jaxpose.pipelines.stereo._arrays import rt, scatter_add, solve3, sym3_eigvalsh, unit_rows
 
 __all__ = ["LandmarkMap", "LandmarkSet", "map_origin"]
 
@@ -127,32 +127,23 @@ def planes_meet(ev: np.ndarray) -> np.ndarray:
     return ev[:, 1] > 1e-4 * ev[:, 2]
 
 
-def surface_normals(
-    X: np.ndarray, idx, k: int = 40, max_flatness: float = 0.3, tree=None
-) -> np.ndarray:
+def surface_normals(X: np.ndarray, idx, k: int = 40, max_flatness: float = 0.3) -> np.ndarray:
     """Unit surface normals ``(len(idx), 3)`` at the point landmarks ``X[idx]`` (body frame),
     from their ``k`` nearest landmarks (themselves among them): the direction of least spread
     of those points (principal components), kept where they lie on a plane, the least spread
     at most ``max_flatness`` of the middle one (in standard deviations); a NaN row elsewhere
-    (an edge or corner of the target, where two faces meet, or too few points). ``tree``: a
-    ``scipy.spatial.cKDTree`` of ``X`` already built."""
+    (an edge or corner of the target, where two faces meet, or too few points)."""
     X = np.asarray(X, float)
     idx = np.asarray(idx, int)
     out = np.full((len(idx), 3), np.nan)
     if len(idx) == 0 or len(X) < max(int(k), 4):
         return out
-    tree = cKDTree(X) if tree is None else tree
-    _, nb = tree.query(X[idx], k=int(k))
+    _, nb = cKDTree(X).query(X[idx], k=int(k))
     P = X[nb] - X[nb].mean(axis=1, keepdims=True)  # (n, k, 3)
     ev, V = np.linalg.eigh(np.einsum("nki,nkj->nij", P, P))
     flat = np.sqrt(np.maximum(ev[:, 0], 0)) <= max_flatness * np.sqrt(np.maximum(ev[:, 1], 0))
     out[flat] = V[flat, :, 0]
     return out
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.where(n > 0, n, 1.0)
 
 
 class LandmarkMap:
@@ -220,7 +211,7 @@ class LandmarkMap:
             return np.zeros(0, int)
         c = s.centres()
         centre_body = -R.T @ t  # camera centre in the body frame
-        d = _unit(centre_body[None] - c)
+        d = unit_rows(centre_body[None] - c)
         z = c @ R[2] + t[2]
         return np.nonzero((np.einsum("ij,ij->i", d, s.view) >= self.cos_view) & (z > 1e-3))[0]
 
@@ -234,7 +225,7 @@ class LandmarkMap:
         if n == 0:
             return np.zeros(0, int)
         c = X_body if X_body.ndim == 2 else X_body.mean(axis=1)
-        view = _unit((-R.T @ t)[None] - c)
+        view = unit_rows((-R.T @ t)[None] - c)
         start = len(s)
         s.X = np.concatenate([s.X, X_body])
         desc = np.asarray(desc, np.uint8).reshape(n, -1)
@@ -263,7 +254,7 @@ class LandmarkMap:
         idx = np.asarray(idx, int)
         if len(idx) == 0:
             return
-        d = _unit(np.asarray(directions, float))
+        d = unit_rows(np.asarray(directions, float))
         c = np.asarray(origins, float)
         w = np.ones(len(idx)) if weights is None else np.asarray(weights, float)
         P = w[:, None, None] * (np.eye(3)[None] - d[:, :, None] * d[:, None, :])
@@ -319,8 +310,8 @@ class LandmarkMap:
             s.X[idx] = s.X[idx] + w.reshape((-1,) + (1,) * (X_body.ndim - 1)) * (X_body - s.X[idx])
         R, t = rt(pose)
         c = s.centres()[idx]
-        v = _unit((-R.T @ t)[None] - c)
-        s.view[idx] = _unit(s.view[idx] + w[:, None] * (v - s.view[idx]))
+        v = unit_rows((-R.T @ t)[None] - c)
+        s.view[idx] = unit_rows(s.view[idx] + w[:, None] * (v - s.view[idx]))
         s.desc[idx] = np.asarray(desc, np.uint8).reshape(len(idx), -1)
         s.memory[idx, s.n_obs[idx] % s.memory.shape[1]] = s.desc[idx]
         np.add.at(s.n_obs, idx, 1)
