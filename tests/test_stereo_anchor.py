@@ -145,6 +145,8 @@ def test_affine_map_on_a_given_surface_plane_is_the_inverse_jacobian_of_its_tran
         np.testing.assert_allclose(A[n] @ J, np.eye(2), atol=1e-6)
         assert np.abs(A[n] - facing[n]).max() > 1e-3  # the surface's plane is not the facing one
     np.testing.assert_allclose(A[5], facing[5], atol=1e-12)
+    with pytest.raises(ValueError, match="normals must be"):
+        affine_to_reference(cam, X, uv_ref, R_ref, t_ref, R_cur, t_cur, normals=N[:3])
 
 
 def test_surface_normals_of_landmarks_on_a_box():

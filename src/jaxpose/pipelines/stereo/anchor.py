@@ -68,9 +68,12 @@ def affine_to_reference(
     P_cur = np.einsum("ij,nj->ni", R_cur, X_body) + t_cur
     dP = M[:, :, :2] * (z_ref[:, None, None] / np.array([fx, fy])[None, None, :])  # (n, 3, 2)
     if normals is not None:
+        normals = np.asarray(normals, float)
+        if normals.shape != (len(X_body), 3):
+            raise ValueError(f"normals must be ({len(X_body)}, 3); got shape {normals.shape}")
         E = np.zeros((3, 2))
         E[0, 0], E[1, 1] = 1.0 / fx, 1.0 / fy  # d r / d d
-        n_ref = np.einsum("nij,nj->ni", R_ref, np.asarray(normals, float))
+        n_ref = np.einsum("nij,nj->ni", R_ref, normals)
         X_ref = np.einsum("nij,nj->ni", R_ref, X_body) + t_ref
         uv = np.asarray(ref_uv, float)
         u, v = (uv[:, 0] - float(camera.cx)) / fx, (uv[:, 1] - float(camera.cy)) / fy
