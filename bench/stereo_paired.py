@@ -85,7 +85,8 @@ def package_at(rev: str, folder: Path) -> str:
 def _in_package(value, name: str):
     """``value`` (options, cameras, a pose: frozen dataclasses or equinox modules, nested)
     rebuilt from the classes of the same names in package ``name``; a field the other class does
-    not have is left out, and said."""
+    not have, or whose default there is of another kind (a flag that became a choice), is left
+    out, and said."""
     kind = type(value)
     if not kind.__module__.startswith("jaxpose."):
         return value
@@ -97,7 +98,19 @@ def _in_package(value, name: str):
         dropped = sorted(set(fields) - known)
         if dropped:
             print(f"note: {name} has no {kind.__name__} field {', '.join(dropped)}: left out")
-        return other(**{k: _in_package(v, name) for k, v in fields.items() if k in known})
+        kept = {k: _in_package(v, name) for k, v in fields.items() if k in known}
+        try:
+            return other(**kept)
+        except (TypeError, ValueError):  # a field that changed kind: the other's own default
+            defaults = {f.name: f.default for f in dataclasses.fields(other)}
+            for k in [k for k in kept if type(kept[k]) is not type(defaults.get(k))]:
+                try:
+                    result = other(**{j: v for j, v in kept.items() if j != k})
+                except (TypeError, ValueError):
+                    continue
+                print(f"note: {name}'s {kind.__name__} refuses {k}={kept[k]!r}: its default")
+                return result
+            raise
     raise TypeError(f"cannot rebuild a {kind.__name__} in {name}")
 
 

@@ -28,8 +28,12 @@ import numpy as np
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.pipelines.stereo._arrays import find
 from jaxpose.vision.stereo_match import parabolic_offset
+from jaxpose.vision.stereo_slant import plane_normals, slanted_disparity
 
-__all__ = ["PatchAnchors", "affine_to_reference"]
+__all__ = ["PatchAnchors", "affine_to_reference", "stereo_normals"]
+
+#: The least ZNCC of a slanted-window fit whose normal is used (:func:`stereo_normals`).
+SLANT_MIN_ZNCC = 0.9
 
 
 def affine_to_reference(
@@ -89,6 +93,25 @@ def affine_to_reference(
     J[:, 0] = fx * (dP[:, 0] / z[:, None] - x[:, None] * dP[:, 2] / z[:, None] ** 2)
     J[:, 1] = fy * (dP[:, 1] / z[:, None] - y[:, None] * dP[:, 2] / z[:, None] ** 2)
     return np.linalg.inv(J)
+
+
+def stereo_normals(
+    left: np.ndarray,
+    right: np.ndarray,
+    camera: PinholeCamera,
+    pixels: np.ndarray,
+    disparity: np.ndarray,
+    R: np.ndarray,
+) -> np.ndarray:
+    """Surface normals ``(n, 3)`` (body frame) at the features ``pixels (n, 2)`` of the rectified
+    pair ``left, right`` (disparities ``(n,)``, the pose's rotation ``R``, body to left camera)
+    from the slant of the disparity across a window about each
+    (:func:`~jaxpose.vision.stereo_slant.slanted_disparity`): NaN rows where the fit fails or
+    its ZNCC is below ``SLANT_MIN_ZNCC``. ``camera``: the rectified left camera."""
+    fit = slanted_disparity(left, right, pixels, disparity)
+    n_cam = plane_normals(camera, pixels, fit.disparity, fit.slope)
+    good = fit.ok & (fit.zncc >= SLANT_MIN_ZNCC)
+    return np.where(good[:, None], n_cam @ np.asarray(R, float), np.nan)
 
 
 def _bilinear(images: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -151,6 +174,7 @@ class PatchAnchors:
         self.uv = np.zeros((0, 2))
         self.R = np.zeros((0, 3, 3))
         self.t = np.zeros((0, 3))
+        self.normals = np.zeros((0, 3))  # body frame; NaN: the plane facing the reference
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -173,13 +197,22 @@ class PatchAnchors:
             ok[np.nonzero(ok)[0][~fg]] = False
         return patches, ok
 
-    def capture(self, image: np.ndarray, ids, uv, R: np.ndarray, t: np.ndarray) -> None:
+    def capture(
+        self, image: np.ndarray, ids, uv, R: np.ndarray, t: np.ndarray, normals=None
+    ) -> None:
         """Store the patches around ``uv (n, 2)`` of the landmarks ``ids`` (new, increasing)
         created in ``image`` at the pose ``R, t``; landmarks too near the border or over the
-        sky get none."""
+        sky get none. ``normals``: the surface normals at the landmarks ``(n, 3)`` (body
+        frame; a NaN row or ``None``: the plane facing the reference camera), kept for the
+        warp of :meth:`align`."""
         ids, uv = np.asarray(ids, np.int64), np.asarray(uv, float).reshape(-1, 2)
+        if normals is None:
+            normals = np.full((len(ids), 3), np.nan)
+        normals = np.asarray(normals, float)
+        if normals.shape != (len(ids), 3):
+            raise ValueError(f"normals must be ({len(ids)}, 3); got shape {normals.shape}")
         patches, ok = self._cut(image, uv)
-        ids, uv = ids[ok], uv[ok]
+        ids, uv, normals = ids[ok], uv[ok], normals[ok]
         if not len(ids):
             return
         if not len(self.ids):  # 8-bit images keep 8-bit patches (a quarter of the memory)
@@ -189,6 +222,7 @@ class PatchAnchors:
         self.uv = np.concatenate([self.uv, uv])
         self.R = np.concatenate([self.R, np.broadcast_to(R, (len(ids), 3, 3))])
         self.t = np.concatenate([self.t, np.broadcast_to(t, (len(ids), 3))])
+        self.normals = np.concatenate([self.normals, normals])
 
     def reanchor(self, image, ids, uv, X_body, R: np.ndarray, t: np.ndarray, min_deg: float):
         """Take the patches of the landmarks ``ids`` anew from ``image`` (pose ``R, t``) at their
@@ -222,7 +256,7 @@ class PatchAnchors:
         """Forget the patches of landmarks no longer in the map."""
         keep = np.isin(self.ids, ids_alive)
         if not keep.all():
-            for name in ("ids", "patches", "uv", "R", "t"):
+            for name in ("ids", "patches", "uv", "R", "t", "normals"):
                 setattr(self, name, getattr(self, name)[keep])
 
     def align(
@@ -238,7 +272,8 @@ class PatchAnchors:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Aligned pixels of the landmarks ``ids`` (body points ``X_body (n, 3)``) detected at
         ``pixels (n, 2)`` in ``image``, the current frame at the pose ``R_cur, t_cur``;
-        ``normals``: their surface normals ``(n, 3)`` for the warp (:func:`affine_to_reference`).
+        ``normals``: their surface normals ``(n, 3)`` for the warp (:func:`affine_to_reference`;
+        ``None``: those kept by :meth:`capture`).
 
         Returns ``(pixels (n, 2), aligned (n,) bool)``: the aligned pixel where the alignment
         holds (a patch, a warp within ``max_scale``, Lucas-Kanade converged within
@@ -258,7 +293,9 @@ class PatchAnchors:
                 self.t[p],
                 R_cur,
                 t_cur,
-                None if normals is None else np.asarray(normals, float)[has],
+                _any_finite(self.normals[p])
+                if normals is None
+                else np.asarray(normals, float)[has],
             )
         return self.match(image, ids, A, pixels)
 
@@ -314,6 +351,11 @@ class PatchAnchors:
         out[sel[inside]] = new[inside]
         aligned[sel[inside]] = True
         return out, aligned
+
+
+def _any_finite(normals: np.ndarray) -> np.ndarray | None:
+    """``normals``, or ``None`` where none is finite (the warp then skips the plane terms)."""
+    return normals if np.isfinite(normals).any() else None
 
 
 def _integer_search(image, T, d: np.ndarray, search: int, cc: np.ndarray) -> np.ndarray:

@@ -372,13 +372,14 @@ def update_map(
     frame: int,
     *,
     log=None,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Keyframe update at ``pose``: the frame's triangulated features matched to a landmark refine
     it (when the new depth agrees with the landmark's to ``refine_disparity_px``); the others are
     added as new landmarks (unless rejected by the frame's fit, ``rejected_*``, or an unmatched
     landmark projects within ``duplicate_px``); then the map is culled. ``assoc_*``: current
     feature index -> landmark index; ``log``: records the point rays (``observe_point_rays``).
-    Returns the stable ids of the new point landmarks and their left pixels ``(n, 2)``."""
+    Returns the stable ids of the new point landmarks, their left pixels ``(n, 2)`` and their
+    disparities ``(n,)`` (pixels)."""
     o = options
     fb = float(rig.left.fx) * float(rig.baseline)
     R, t = rt(pose)
@@ -405,8 +406,9 @@ def update_map(
             d, _ = tree.query(feats.points[ip[new]], distance_upper_bound=o.duplicate_px)
             new[np.nonzero(new)[0][np.isfinite(d)]] = False
     ids = landmarks.add("points", Pb[new], feats.point_desc[ip[new]], pose, frame)
-    added = (landmarks.points.ids[ids], feats.points[ip[new]])
-    observe_point_rays(landmarks, rig, ids, feats.points[ip[new]], pose, right=False, log=log)
+    left_new = feats.points[ip[new]]
+    added = (landmarks.points.ids[ids], left_new, left_new[:, 0] - pr[new][:, 0])
+    observe_point_rays(landmarks, rig, ids, left_new, pose, right=False, log=log)
     observe_point_rays(landmarks, rig, ids, pr[new], pose, right=True, log=log)
     if o.use_lines and len(il):
         Sb = (S - t) @ R

@@ -27,6 +27,12 @@ BUDGET_NOISE = ("pixel", "landmark", "measured", "both")
 BUDGET_WEIGHTS = ("chaser", "relative")
 
 
+#: Where the anchored patches' warp takes the surface plane through each landmark
+#: (:mod:`jaxpose.pipelines.stereo.anchor`): the plane facing the reference camera, the plane of
+#: the nearest landmarks, or the slant of the reference frame's stereo disparity.
+ANCHOR_NORMALS = ("facing", "map", "stereo")
+
+
 #: Kinds of the plain fields of :class:`TrackerOptions` (:func:`jaxpose.core._checks.check_fields`).
 _FIELD_KINDS = dict(
     flags=(
@@ -36,7 +42,6 @@ _FIELD_KINDS = dict(
         "stereo_residuals",
         "line_planes",
         "frame_planes",
-        "anchor_normals",
         "line_stereo_residuals",
         "row_lines",
         "measured_line_sigma",
@@ -405,14 +410,17 @@ class TrackerOptions:
             meeting the targets against 21 (``docs/stereo-evaluation.md``, *Anchored
             observations by default*).
             Its time (about 13 ms of CPU a frame at 1.5 m) is in the ``match`` stage.
-            ``anchor_normals``: warp each patch by the plane of the surface at its landmark
-            (:func:`~jaxpose.pipelines.stereo.landmarks.surface_normals` of the 40 nearest
-            landmarks, where they lie flat) instead of the plane facing the reference camera.
-            Off: with the true face normals (an oracle) a fast turn at 3.7 m falls from 60 to
-            16 mm of lateral drift, but the normals estimated from the landmarks raise the
-            development scenes' worst axes by 30% (seeds 0-1; ``d1`` 34% lower, ``d4`` 43%
-            and ``d6`` 42% higher) and two development draws' far scenes by 1-13%
-            (``docs/stereo-evaluation.md``, *What still fails*, *Fast turns at range*).
+            ``anchor_normals``: the plane through each landmark that warps its patch:
+            ``"facing"`` (the default) the plane facing the reference camera; ``"map"`` the
+            plane of the 40 nearest landmarks where they lie flat
+            (:func:`~jaxpose.pipelines.stereo.landmarks.surface_normals`); ``"stereo"`` the
+            plane that the slant of the stereo disparity about the keypoint fixes in the frame
+            that creates the landmark (:func:`~jaxpose.vision.stereo_slant.slanted_disparity`,
+            a median 4-9 degrees from the true faces where the facing plane is 25-73 off).
+            With the true face normals (an oracle) a fast turn at 3.7 m falls from 60 to 16 mm
+            of lateral drift, but the oracle raises the development scenes' worst axes by 31%
+            (seeds 0-1), ``"stereo"`` by 21% and ``"map"`` by 30%
+            (``docs/stereo-evaluation.md``, *Surface normals from the stereo slant*).
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
         landmark_point_sigma: weight each point of the all-features solve by its landmark's
@@ -512,7 +520,7 @@ class TrackerOptions:
     budget_repeat_discount: float = 2.0
     anchor_points: bool = True
     anchor_turn_deg: float | None = 10.0
-    anchor_normals: bool = False
+    anchor_normals: str = "facing"
     anchor_half_px: int = 3
     anchor_cornerness: float = 0.1
     measured_point_sigma: bool = False
@@ -541,6 +549,10 @@ class TrackerOptions:
             raise ValueError(
                 "TrackerOptions.depth_range_m must be two finite depths 0 < near < far (metres); "
                 f"got {lo_hi!r}"
+            )
+        if self.anchor_normals not in ANCHOR_NORMALS:
+            raise ValueError(
+                f"anchor_normals must be one of {ANCHOR_NORMALS}; got {self.anchor_normals!r}"
             )
         if self.budget_rule not in BUDGET_RULES:
             raise ValueError(f"budget_rule must be one of {BUDGET_RULES}; got {self.budget_rule!r}")

@@ -60,7 +60,7 @@ from jaxpose.pipelines.stereo._arrays import (
     warm_up_projection,
 )
 from jaxpose.pipelines.stereo._clock import StageClock
-from jaxpose.pipelines.stereo.anchor import PatchAnchors
+from jaxpose.pipelines.stereo.anchor import PatchAnchors, stereo_normals
 from jaxpose.pipelines.stereo.budget import fit_pose_budgeted
 from jaxpose.pipelines.stereo.disparity import depth_window, feature_windows, measured_margin
 from jaxpose.pipelines.stereo.frames import (
@@ -333,7 +333,7 @@ class StereoTracker:
             added = update_map(
                 self.map, self.rig, o, pose, feats, stereo, {}, {}, set(), set(), k, log=log
             )
-            self._capture(left, added, pose)
+            self._capture(left, right, added, pose)
         if o.mature_obs > 1:  # the first frame's landmarks sit at the given pose: mature
             self.map.points.n_obs[:] = np.maximum(self.map.points.n_obs, o.mature_obs)
         self._started = True
@@ -422,7 +422,7 @@ class StereoTracker:
                     k,
                     log=self._rays,
                 )
-                self._capture(left, added, result.pose)
+                self._capture(left, right, added, result.pose)
             self._since_kf = 0
             result.keyframe = True
         if self._rays is not None:
@@ -450,12 +450,16 @@ class StereoTracker:
         moved = Pose(jnp.asarray(R), jnp.asarray(t - R @ self.map_origin))
         return replace(item, pose=moved) if hasattr(item, "pose") else moved
 
-    def _capture(self, left, added, pose: Pose) -> None:
-        """Keep the reference patches of the new point landmarks (``anchor_points``)."""
+    def _capture(self, left, right, added, pose: Pose) -> None:
+        """Keep the reference patches of the new point landmarks (``anchor_points``), with
+        their surface normals from the stereo pair's slant where ``anchor_normals="stereo"``."""
         if self._anchors is None:
             return
         R, t = rt(pose)
-        self._anchors.capture(left, added[0], added[1], R, t)
+        normals = None
+        if self.options.anchor_normals == "stereo":
+            normals = stereo_normals(left, right, self.rig.left, added[1], added[2], R)
+        self._anchors.capture(left, added[0], added[1], R, t, normals)
         if len(self._anchors) > 2 * max(len(self.map.points), 1000):
             self._anchors.keep(self.map.points.ids)
 
@@ -474,7 +478,7 @@ class StereoTracker:
         """The features with the matched keypoints moved to their landmarks' aligned patches."""
         R, t = rt(pose)
         m = self.map.points
-        normals = surface_normals(m.X, i_m) if self.options.anchor_normals else None
+        normals = surface_normals(m.X, i_m) if self.options.anchor_normals == "map" else None
         px, _ = self._anchors.align(
             left, self.rig.left, m.ids[i_m], m.X[i_m], feats.points[i_cur], R, t, normals
         )
