@@ -2,19 +2,13 @@
 
 import numpy as np
 import pytest
+from textures import random_texture
 
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.pipelines.stereo.anchor import PatchAnchors, affine_to_reference
 
-RNG = np.random.default_rng(3)
-KX, KY = RNG.normal(0, 0.35, 40), RNG.normal(0, 0.35, 40)
-PHASE, AMP = RNG.uniform(0, 2 * np.pi, 40), RNG.uniform(0.5, 1.0, 40)
-
-
-def texture(x, y):
-    """A smooth random texture defined everywhere (grey levels about 128)."""
-    arg = KX * x[..., None] + KY * y[..., None] + PHASE
-    return 128 + 12 * np.sum(AMP * np.cos(arg), axis=-1)
+#: A smooth random texture defined everywhere (grey levels about 128), in pixels.
+texture = random_texture(3, 40, 0.35, 12.0)
 
 
 def _rotation(deg, scale):

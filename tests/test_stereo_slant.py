@@ -2,21 +2,15 @@
 
 import numpy as np
 import pytest
+from textures import random_texture
 
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.vision.stereo_slant import plane_normals, slanted_disparity
 
 F, CX, CY, W, H, BASE = 800.0, 330.0, 236.0, 640, 480, 0.3
 CAM = PinholeCamera.from_K([[F, 0, CX], [0, F, CY], [0, 0, 1]], width=W, height=H)
-RNG = np.random.default_rng(11)
-KX, KY = RNG.normal(0, 25.0, 60), RNG.normal(0, 25.0, 60)
-PHASE, AMP = RNG.uniform(0, 2 * np.pi, 60), RNG.uniform(0.5, 1.0, 60)
-
-
-def _texture(a, b):
-    """A smooth random texture on the plane's own coordinates (metres); grey about 128."""
-    arg = KX * a[..., None] + KY * b[..., None] + PHASE
-    return 128 + 10 * np.sum(AMP * np.cos(arg), axis=-1)
+#: A smooth random texture on the plane's own coordinates (metres); grey about 128.
+_texture = random_texture(11, 60, 25.0, 10.0)
 
 
 def _plane_pair(normal, point):
