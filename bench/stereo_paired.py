@@ -85,8 +85,8 @@ def package_at(rev: str, folder: Path) -> str:
 def _in_package(value, name: str):
     """``value`` (options, cameras, a pose: frozen dataclasses or equinox modules, nested)
     rebuilt from the classes of the same names in package ``name``; a field the other class does
-    not have, or whose default there is of another kind (a flag that became a choice), is left
-    out, and said."""
+    not have is left out, and said, and so is one whose value it refuses, of another kind than
+    its default there (a flag that became a choice): it then keeps its own default."""
     kind = type(value)
     if not kind.__module__.startswith("jaxpose."):
         return value

@@ -226,6 +226,8 @@ def test_no_patch_over_the_dark_background():
         (dict(anchor_turn_deg=-5.0), "anchor_turn_deg"),
         (dict(anchor_cornerness=1.5), "anchor_cornerness"),
         (dict(anchor_cornerness=-0.1), "anchor_cornerness"),
+        pytest.param(dict(anchor_normals=True), "anchor_normals", marks=pytest.mark.typecheck_off),
+        (dict(anchor_normals="slant"), "anchor_normals"),
     ],
 )
 def test_bad_anchor_options_are_refused_by_name(bad, name):
