@@ -60,7 +60,7 @@ def test_the_slope_covariance_matches_its_spread_under_noise():
     """Forty draws of Gaussian noise (3 grey levels) on the same turned plane: the spread of
     the fitted slopes is the one the fit's covariance predicts to within a factor of 2 above
     and 0.8 below (the covariance is optimistic: 1.1-1.6 times over three noise seeds when the
-    test was written, as it neglects the left window's noise)."""
+    test was written; the estimate takes the left window as exact)."""
     normal, point = (0.7, 0.0, -0.7), np.array([0.1, -0.05, 3.0])
     left, right = _plane_pair(normal, point)
     pixels = np.array([[300.0, 200.0]])

@@ -68,8 +68,8 @@ def slanted_disparity(
         (pixels of disparity per pixel along ``u`` and ``v``), the zero-mean NCC of the fitted
         windows ``(n,)``, ``ok (n,)``: the window lies inside both images and the last step
         moved the disparity by less than 0.02 pixel, and the slope's covariance ``(n, 2, 2)``
-        (the residuals' variance times the inverse normal matrix's slope block; it neglects the
-        left window's own noise, and under noise on both images the slopes spread 1.1-1.6
+        (the residuals' variance times the inverse normal matrix's slope block; it takes the left
+        window as exact, and under noise on both images the slopes spread 1.1-1.6
         times its prediction in the tests).
     """
     L, R = _as_float(left), _as_float(right)
