@@ -41,7 +41,8 @@ def _true_disparity(normal, point, pixels):
 def test_the_slant_of_a_ray_cast_plane_gives_its_normal(normal):
     """A textured plane at 3 m, facing the camera or turned by 45 degrees about either axis:
     from a start 0.7 px off, the fitted disparity is the ray-cast one to 0.05 px and the
-    plane's normal is the true normal to 2 degrees (the facing window's normal is 45 off)."""
+    plane's normal is the true normal to 2 degrees (for the turned planes, the normal of a
+    window taken as facing the camera is about 45 degrees off)."""
     point = np.array([0.1, -0.05, 3.0])
     left, right = _plane_pair(normal, point)
     pixels = np.array([[300.0, 200.0], [360.5, 260.25], [280.0, 300.0], [400.0, 180.0]])
