@@ -81,10 +81,16 @@ from jaxpose.vision.stereo_render import (
 )
 
 
+def model_boxes(model) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The ``(low, high)`` corners of the target's two boxes, body and wing (the antennas are
+    left out): the geometry the ray casts and the true faces of these benches are taken from."""
+    V = model.vertices
+    return [(V[:8].min(0), V[:8].max(0)), (V[8:16].min(0), V[8:16].max(0))]
+
+
 def raycast(pixels, R, t, camera, model) -> np.ndarray:
     """Body points ``(N, 3)`` hit by the rays of left pixels at pose ``(R, t)``; NaN on a miss."""
-    V = model.vertices
-    boxes = [(V[:8].min(0), V[:8].max(0)), (V[8:16].min(0), V[8:16].max(0))]
+    boxes = model_boxes(model)
     fx, fy, cx, cy = (float(v) for v in (camera.fx, camera.fy, camera.cx, camera.cy))
     d = np.stack([(pixels[:, 0] - cx) / fx, (pixels[:, 1] - cy) / fy, np.ones(len(pixels))], 1)
     o, d = -R.T @ t, d @ R  # camera centre and rays in the body frame

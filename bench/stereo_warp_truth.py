@@ -34,7 +34,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import stereo  # noqa: E402  (bench/stereo.py)
-from stereo_diagnose import _errors, _scene_by_name, raycast  # noqa: E402
+from stereo_diagnose import _errors, _scene_by_name, model_boxes, raycast  # noqa: E402
 
 from jaxpose.pipelines.stereo.anchor import PatchAnchors, affine_to_reference  # noqa: E402
 from jaxpose.vision.stereo_render import default_rig, render_sequence, tumbler_model  # noqa: E402
@@ -45,10 +45,9 @@ WARPS = ("facing", "exact")
 def face_normals(X: np.ndarray, model, tol_m: float = 0.01) -> np.ndarray:
     """Unit normals ``(n, 3)`` of the faces of the model's two boxes (body and wing) nearest the
     body points ``X (n, 3)``; NaN rows for points farther than ``tol_m`` from every face."""
-    V = model.vertices
     best = np.full(len(X), np.inf)
     normals = np.full((len(X), 3), np.nan)
-    for lo, hi in ((V[:8].min(0), V[:8].max(0)), (V[8:16].min(0), V[8:16].max(0))):
+    for lo, hi in model_boxes(model):
         for axis in range(3):
             others = [a for a in range(3) if a != axis]
             inside = np.all(

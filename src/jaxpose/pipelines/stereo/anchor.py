@@ -67,7 +67,8 @@ def affine_to_reference(
         R_cur, t_cur: ``(3, 3)``, ``(3,)`` body-to-camera pose of the current frame.
     """
     fx, fy = float(camera.fx), float(camera.fy)
-    z_ref = np.einsum("nij,nj->ni", R_ref, X_body)[:, 2] + t_ref[:, 2]
+    X_ref = np.einsum("nij,nj->ni", R_ref, X_body) + t_ref  # the landmarks, reference camera
+    z_ref = X_ref[:, 2]
     M = np.einsum("ij,nkj->nik", R_cur, R_ref)  # R_cur R_ref^T
     P_cur = np.einsum("ij,nj->ni", R_cur, X_body) + t_cur
     dP = M[:, :, :2] * (z_ref[:, None, None] / np.array([fx, fy])[None, None, :])  # (n, 3, 2)
@@ -78,7 +79,6 @@ def affine_to_reference(
         E = np.zeros((3, 2))
         E[0, 0], E[1, 1] = 1.0 / fx, 1.0 / fy  # d r / d d
         n_ref = np.einsum("nij,nj->ni", R_ref, normals)
-        X_ref = np.einsum("nij,nj->ni", R_ref, X_body) + t_ref
         uv = np.asarray(ref_uv, float)
         u, v = (uv[:, 0] - float(camera.cx)) / fx, (uv[:, 1] - float(camera.cy)) / fy
         r = np.stack([u, v, np.ones(len(uv))], 1)  # the reference pixel's ray
