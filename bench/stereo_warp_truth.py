@@ -221,6 +221,7 @@ def main(argv=None) -> int:
         p.error(f"--frames must be at least 2; got {args.frames}")
     try:
         stereo.tracker_options(args.option)
+        _scene_by_name(args.scene, args.frames, args.seed)  # a name it does not know: said
     except ValueError as err:
         p.error(str(err))
     out = []

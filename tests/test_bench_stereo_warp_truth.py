@@ -56,3 +56,11 @@ def test_a_short_run_aligns_patches_near_their_physical_points():
         assert max(r["constant_px"]) < 1.0
     with pytest.raises(SystemExit):
         bench.main(["d1-clean-2m", "--frames", "1"])
+
+
+def test_an_unknown_scene_or_option_is_named(capsys):
+    cases = ((["d9-nowhere"], "d9-nowhere"), (["d1-clean-2m", "--option", "nope=1"], "nope"))
+    for argv, name in cases:
+        with pytest.raises(SystemExit):
+            bench.main(argv)
+        assert name in capsys.readouterr().err
