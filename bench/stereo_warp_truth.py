@@ -15,6 +15,12 @@ times or more) into its mean (constant part), what is left (varying part), and a
 over the frames (drift a frame), RMS over the patches, pixels, per image axis::
 
     python bench/stereo_warp_truth.py d4-glints-4m-slow --frames 30 [--seed 0] [--option ...]
+        [--true-landmarks]
+
+``--true-landmarks`` also gives the map the truth: after every frame each point landmark the
+anchors hold is moved to its physical point (its first reference keypoint ray-cast at that
+frame's true pose, in the body frame). The tracker's own stereo triangulation and adjustment
+still run within each frame; what the next frame starts from is the true map.
 
 The scene is one of ``bench/stereo.py``, ``hNN`` of ``bench/stereo_heldout.py``'s default draw,
 or ``NAME={StereoScene fields as JSON}``. Ends with one JSON line of the figures.
@@ -66,7 +72,7 @@ class TruthAnchors(PatchAnchors):
     """:class:`PatchAnchors` whose warps come from the truth (module docstring); it records
     each aligned pixel's offset from its physical point's true pixel."""
 
-    def __init__(self, base: PatchAnchors, truth, model, warp: str):
+    def __init__(self, base: PatchAnchors, truth, model, warp: str, camera):
         super().__init__(
             half=base.half,
             search_px=base.search,
@@ -76,16 +82,31 @@ class TruthAnchors(PatchAnchors):
             min_cornerness=base.min_cornerness,
             lk_iterations=base.lk_iterations,
         )
-        self.truth, self.model, self.warp = truth, model, warp
+        self.truth, self.model, self.warp, self.camera = truth, model, warp, camera
         self.frame = 0
         self.ref = np.zeros(0, int)  # each patch's reference frame
         self.offsets: dict[tuple[int, int], list] = {}  # (id, reference frame) -> offsets
         self.aligned_counts: list[int] = []  # aligned patches, per call of align
+        self.physical: dict[int, np.ndarray] = {}  # landmark id -> its first physical point
 
     def capture(self, image, ids, uv, R, t, normals=None) -> None:
         n = len(self.ids)
         super().capture(image, ids, uv, R, t, normals)
         self.ref = np.concatenate([self.ref, np.full(len(self.ids) - n, self.frame)])
+        new = slice(n, len(self.ids))
+        R_k, t_k = self.truth[self.frame]
+        X = raycast(self.uv[new], R_k, t_k, self.camera, self.model)
+        for i, x in zip(self.ids[new], X, strict=True):
+            if np.isfinite(x).all():
+                self.physical.setdefault(int(i), x)
+
+    def move_to_truth(self, points) -> int:
+        """Move the map's point landmarks ``points`` (a ``LandmarkSet``) that have a physical
+        point to it; how many moved."""
+        rows = [j for j, i in enumerate(points.ids) if int(i) in self.physical]
+        if rows:
+            points.X[rows] = np.stack([self.physical[int(points.ids[j])] for j in rows])
+        return len(rows)
 
     def reanchor(self, image, ids, uv, X_body, R, t, min_deg):
         before = self.uv.copy()
@@ -169,8 +190,12 @@ def offset_split(offsets: dict) -> dict:
     }
 
 
-def run(name: str, frames: int, seed: int, warp: str, option=()) -> dict:
-    """Track scene ``name`` with the true warps of kind ``warp``; the figures of one run."""
+def run(
+    name: str, frames: int, seed: int, warp: str, option=(), true_landmarks: bool = False
+) -> dict:
+    """Track scene ``name`` with the true warps of kind ``warp`` (and, with
+    ``true_landmarks``, the map's point landmarks moved to the truth after every frame); the
+    figures of one run."""
     from jaxpose.pipelines.stereo import StereoTracker
 
     scene = _scene_by_name(name, frames, seed)
@@ -181,12 +206,14 @@ def run(name: str, frames: int, seed: int, warp: str, option=()) -> dict:
         raise ValueError("the bench needs the anchored observations (anchor_points=True)")
     truth = [(np.asarray(fr.pose.R, float), np.asarray(fr.pose.t, float)) for fr in seq]
     tracker = StereoTracker(rig, seq[0].pose, options=options)
-    anchors = TruthAnchors(tracker._anchors, truth, tumbler_model(scene.size_m), warp)
+    anchors = TruthAnchors(tracker._anchors, truth, tumbler_model(scene.size_m), warp, rig.left)
     tracker._anchors = anchors
-    results = []
+    results, moved = [], []
     for k, fr in enumerate(seq):
         anchors.frame = k
         results.append(tracker.process(fr.left, fr.right))
+        if true_landmarks:
+            moved.append(anchors.move_to_truth(tracker.map.points))
     axis = np.asarray(scene.spin_axis_body, float)
     spin_axis_cam = truth[0][0] @ axis / np.linalg.norm(axis)
     errors = _errors(results[1:], [fr.pose for fr in seq[1:]], spin_axis_cam)
@@ -195,6 +222,8 @@ def run(name: str, frames: int, seed: int, warp: str, option=()) -> dict:
         "seed": seed,
         "frames": frames,
         "warp": warp,
+        "true_landmarks": true_landmarks,
+        "landmarks_moved_a_frame": round(float(np.mean(moved)), 1) if moved else 0.0,
         "chaser_position_mm": errors["chaser_position_mm"],
         "attitude_deg": errors["attitude_rotvec_deg"],
         "lost": errors["lost"],
@@ -216,6 +245,11 @@ def main(argv=None) -> int:
         metavar="NAME=VALUE",
         help="a TrackerOptions field for both runs (repeatable), as bench/stereo.py takes it",
     )
+    p.add_argument(
+        "--true-landmarks",
+        action="store_true",
+        help="move the map's point landmarks to their physical points after every frame",
+    )
     args = p.parse_args(argv)
     if args.frames < 2:
         p.error(f"--frames must be at least 2; got {args.frames}")
@@ -227,7 +261,7 @@ def main(argv=None) -> int:
     out = []
     for warp in args.warps:
         print(f"{args.scene}, {args.frames} frames, seed {args.seed}: {warp} warp ...", flush=True)
-        r = run(args.scene, args.frames, args.seed, warp, args.option)
+        r = run(args.scene, args.frames, args.seed, warp, args.option, args.true_landmarks)
         out.append(r)
         print(
             f"  chaser position {r['chaser_position_mm']} mm, attitude {r['attitude_deg']} deg, "
@@ -236,7 +270,16 @@ def main(argv=None) -> int:
             f"{r.get('drift_px_a_frame')} over {r['patches']} patches",
             flush=True,
         )
-    print(json.dumps({"bench": "stereo_warp_truth", "options": args.option, "runs": out}))
+    print(
+        json.dumps(
+            {
+                "bench": "stereo_warp_truth",
+                "options": args.option,
+                "true_landmarks": args.true_landmarks,
+                "runs": out,
+            }
+        )
+    )
     return 0
 
 

@@ -58,6 +58,26 @@ def test_a_short_run_aligns_patches_near_their_physical_points():
         bench.main(["d1-clean-2m", "--frames", "1"])
 
 
+def test_true_landmarks_move_only_the_points_with_a_physical_point():
+    """``move_to_truth`` puts each landmark whose id has a physical point on it and leaves the
+    others where they were."""
+    from types import SimpleNamespace
+
+    anchors = bench.TruthAnchors.__new__(bench.TruthAnchors)
+    anchors.physical = {7: np.array([1.0, 2.0, 3.0]), 9: np.array([-1.0, 0.0, 0.5])}
+    points = SimpleNamespace(ids=np.array([3, 7, 9]), X=np.zeros((3, 3)))
+    assert anchors.move_to_truth(points) == 2
+    np.testing.assert_array_equal(points.X, [[0, 0, 0], [1.0, 2.0, 3.0], [-1.0, 0.0, 0.5]])
+
+
+def test_a_short_run_with_the_true_map():
+    """Three frames with ``true_landmarks``: the map's landmarks are moved every frame, and
+    the run still tracks."""
+    r = bench.run("d1-clean-2m", 3, 0, "facing", true_landmarks=True)
+    assert r["lost"] == 0 and r["true_landmarks"]
+    assert r["landmarks_moved_a_frame"] > 50
+
+
 def test_an_unknown_scene_or_option_is_named(capsys):
     cases = ((["d9-nowhere"], "d9-nowhere"), (["d1-clean-2m", "--option", "nope=1"], "nope"))
     for argv, name in cases:
