@@ -100,12 +100,14 @@ class TruthAnchors(PatchAnchors):
             if np.isfinite(x).all():
                 self.physical.setdefault(int(i), x)
 
-    def move_to_truth(self, points) -> int:
-        """Move the map's point landmarks ``points`` (a ``LandmarkSet``) that have a physical
-        point to it; how many moved."""
+    def move_to_truth(self, points, origin=(0.0, 0.0, 0.0)) -> int:
+        """Move the map's point landmarks ``points`` (a ``LandmarkSet``, in the map's frame,
+        whose origin lies at ``origin`` in the body frame) that have a physical point to it;
+        how many moved."""
         rows = [j for j, i in enumerate(points.ids) if int(i) in self.physical]
         if rows:
-            points.X[rows] = np.stack([self.physical[int(points.ids[j])] for j in rows])
+            X = np.stack([self.physical[int(points.ids[j])] for j in rows])
+            points.X[rows] = X - np.asarray(origin, float)
         return len(rows)
 
     def reanchor(self, image, ids, uv, X_body, R, t, min_deg):
@@ -213,7 +215,7 @@ def run(
         anchors.frame = k
         results.append(tracker.process(fr.left, fr.right))
         if true_landmarks:
-            moved.append(anchors.move_to_truth(tracker.map.points))
+            moved.append(anchors.move_to_truth(tracker.map.points, tracker.map_origin))
     axis = np.asarray(scene.spin_axis_body, float)
     spin_axis_cam = truth[0][0] @ axis / np.linalg.norm(axis)
     errors = _errors(results[1:], [fr.pose for fr in seq[1:]], spin_axis_cam)

@@ -59,8 +59,8 @@ def test_a_short_run_aligns_patches_near_their_physical_points():
 
 
 def test_true_landmarks_move_only_the_points_with_a_physical_point():
-    """``move_to_truth`` puts each landmark whose id has a physical point on it and leaves the
-    others where they were."""
+    """``move_to_truth`` puts each landmark whose id has a physical point on it, in the map's
+    frame, and leaves the others where they were."""
     from types import SimpleNamespace
 
     anchors = bench.TruthAnchors.__new__(bench.TruthAnchors)
@@ -68,6 +68,9 @@ def test_true_landmarks_move_only_the_points_with_a_physical_point():
     points = SimpleNamespace(ids=np.array([3, 7, 9]), X=np.zeros((3, 3)))
     assert anchors.move_to_truth(points) == 2
     np.testing.assert_array_equal(points.X, [[0, 0, 0], [1.0, 2.0, 3.0], [-1.0, 0.0, 0.5]])
+    points.X[:] = 0.0  # a map whose origin lies at (1, 0, 0) in the body frame
+    assert anchors.move_to_truth(points, origin=[1.0, 0.0, 0.0]) == 2
+    np.testing.assert_array_equal(points.X, [[0, 0, 0], [0.0, 2.0, 3.0], [-2.0, 0.0, 0.5]])
 
 
 def test_a_short_run_with_the_true_map():
