@@ -18,9 +18,9 @@ over the frames (drift a frame), RMS over the patches, pixels, per image axis::
         [--true-landmarks]
 
 ``--true-landmarks`` also gives the map the truth: after every frame each point landmark the
-anchors hold is moved to its physical point (its first reference keypoint ray-cast at that
-frame's true pose, in the body frame). The tracker's own stereo triangulation and adjustment
-still run within each frame; what the next frame starts from is the true map.
+anchors hold is moved to its physical point (its first reference keypoint ray-cast at the true
+pose of the frame that made it, in the map's frame). The tracker's own stereo triangulation and
+adjustment still run within each frame; what the next frame starts from is the true map.
 
 The scene is one of ``bench/stereo.py``, ``hNN`` of ``bench/stereo_heldout.py``'s default draw,
 or ``NAME={StereoScene fields as JSON}``. Ends with one JSON line of the figures.
