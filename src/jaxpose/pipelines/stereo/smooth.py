@@ -71,8 +71,8 @@ def adjust_sequence(
         free_lines=free_lines,
         lines=lines,
         held_lines=True,  # as measured (docs/stereo-evaluation.md, *Offline smoothing*)
+        gauge="rays",  # the given first frame (fixed) is the gauge
     )
-    adj.anchor_oldest = False  # the given first frame (fixed) is the gauge
     adj.frames.extend(frames)
     ran = False
     for _ in range(rounds):

@@ -195,6 +195,7 @@ class StereoTracker:
                 motion_sigma=options.window_motion_sigma,
                 free_lines=options.window_free_lines and options.use_lines,
                 held_lines=options.window_held_lines,
+                gauge=options.window_gauge,
                 anchors=options.window_anchors,
                 anchor_points=options.window_anchor_points,
                 history=options.keep_history,

@@ -14,8 +14,12 @@ they observed: a bundle adjustment (Triggs et al. 2000) of the left and right pi
 the information of its observation rays from frames outside the window as a Gaussian prior
 (the normal equations ``M, b`` of :meth:`~jaxpose.pipelines.stereo.LandmarkMap.observe`, in
 pixels: ``f^2 (X^T M X - 2 b^T X)``). Long-lived landmarks are therefore held by all their past
-observations (anchors), and the gauge is fixed by the first frame's pose while it is in the
-window, else by the oldest frame's. The line landmarks are adjusted the same way
+observations (anchors). The gauge is fixed by the first frame's pose while it is in the
+window, then by those priors (``gauge="rays"``, the default since 2026-12-02; the oldest frame's
+pose held where it is when fewer than ten of the window's landmarks have rays from outside it
+that meet), or by the oldest frame's pose (``gauge="oldest"``, before). Holding the oldest pose
+fixed takes it as exact, so the error it carries stays in the window's frames; the priors are
+the information the frames that left gathered. The line landmarks are adjusted the same way
 (``free_lines``): each line seen by the window's stereo planes (the planes through a camera
 centre and an image segment, :func:`~jaxpose.pipelines.stereo.keyframes.observe_line_planes`)
 has its two endpoints free, observed by those planes (Yang et al. 2024 eq. 9 in the plane's
@@ -49,9 +53,14 @@ from jaxpose.core.geometry import Pose
 from jaxpose.core.refine import WindowLines, WindowObservations, WindowOptions, adjust_window
 from jaxpose.core.status import Status
 from jaxpose.pipelines.stereo._arrays import find, rows_times, scatter_add, sym3_eigvalsh
-from jaxpose.pipelines.stereo.landmarks import LandmarkMap, planes_meet
+from jaxpose.pipelines.stereo.landmarks import LandmarkMap, planes_meet, rays_meet
+from jaxpose.pipelines.stereo.options import WINDOW_GAUGES
 
 __all__ = ["FrameRays", "WindowAdjuster"]
+
+#: Landmarks whose rays from outside the window must meet for those rays to hold the gauge
+#: (``gauge="rays"``); with fewer the oldest frame holds it.
+GAUGE_POINTS = 10
 
 
 @dataclass
@@ -178,9 +187,12 @@ class WindowAdjuster:
             beyond ``max_points`` are. A line held so is taken as exact: one placed askew by
             its only stereo pair moved a 2.5 m window's last pose by 5 mm
             (``docs/stereo-evaluation.md``, *Lines held in the window*).
+        gauge: what holds the gauge once no frame of the window is fixed
+            (:data:`~jaxpose.pipelines.stereo.options.WINDOW_GAUGES`):
+            ``"rays"`` the rays of the frames that left the window (the landmarks' priors;
+            the oldest frame's pose where fewer than :data:`GAUGE_POINTS` of the window's
+            landmarks have such rays that meet), ``"oldest"`` the oldest frame's pose.
     """
-
-    anchor_oldest = True
 
     def __init__(
         self,
@@ -197,7 +209,10 @@ class WindowAdjuster:
         history: bool = False,
         lines: bool = True,
         held_lines: bool = False,
+        gauge: str = "rays",
     ):
+        if gauge not in WINDOW_GAUGES:
+            raise ValueError(f"gauge must be one of {WINDOW_GAUGES}; got {gauge!r}")
         if frames < 2:
             raise ValueError(f"window frames must be >= 2; got {frames}")
         if anchors < 0:
@@ -219,6 +234,7 @@ class WindowAdjuster:
         self.max_lines = int(max_lines)
         self.free_lines = bool(free_lines) and bool(lines)
         self.held_lines = bool(held_lines)
+        self.gauge = gauge
         # endpoint rows of held lines a frame: all of a frame's lines without free lines; with
         # them only the lines whose planes do not yet meet (a sixth of the lines is ample)
         if not self.free_lines:
@@ -338,9 +354,6 @@ class WindowAdjuster:
         P = w[:, None, None] * (np.eye(3)[None] - d_old[:, :, None] * d_old[:, None, :])
         scatter_add(M_out, li, -P)
         scatter_add(b_out, li, -np.einsum("nij,nj->ni", P, o_old))
-        free = np.array([not fr.fixed for fr in frames])
-        if free.all() and self.anchor_oldest:
-            free[0] = False  # the oldest frame fixes the gauge
         # at most max_points landmarks in the solve: those observed most often in the window
         # (the long tracks that tie its frames together); the others' rays move all the same
         sj, sli, spx, sright = jj, li, px, right
@@ -353,6 +366,9 @@ class WindowAdjuster:
             keep = new_index[li] >= 0
             sj, sli, spx, sright = jj[keep], new_index[li[keep]], px[keep], right[keep]
             lm, M_out, b_out = lm[sel], M_out[sel], b_out[sel]
+        free = np.array([not fr.fixed for fr in frames])
+        if free.all() and not (self.gauge == "rays" and self._rays_hold(M_out)):
+            free[0] = False  # the oldest frame fixes the gauge
         X = s.X[lm].copy()
         free_lines = self._free_line_terms(landmarks, frames) if self.free_lines else None
         held = None if free_lines is None else free_lines["ids"]
@@ -390,6 +406,12 @@ class WindowAdjuster:
         for fr, R, t in zip(frames, Rs_new, ts_new, strict=True):
             fr.R, fr.t = R, t
         return True
+
+    @staticmethod
+    def _rays_hold(M_out: np.ndarray) -> bool:
+        """Whether the rays of frames outside the window fix the gauge: at least
+        :data:`GAUGE_POINTS` of the window's landmarks have such rays that meet in a point."""
+        return bool(len(M_out)) and int(rays_meet(M_out).sum()) >= GAUGE_POINTS
 
     def _free_line_terms(self, landmarks: LandmarkMap, frames):
         """The free line landmarks of the window: those with observation planes in the window's
