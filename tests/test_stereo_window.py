@@ -44,38 +44,17 @@ def test_adjustment_recovers_the_true_poses_and_landmarks():
     _assert_adjusts_to_truth(win, m, poses, X)
 
 
-def test_older_rays_are_a_prior_that_holds_the_landmarks():
-    """A landmark's rays from frames that left the window stay in its triangulation: with the
-    older frames at the true poses, a window whose only fixed information is those rays (no
-    fixed frame; the default gauge, ``"rays"``, leaves the oldest frame free) returns the true
-    poses, the oldest one's too."""
-    rig, X, poses = window_scene(n_frames=6)
-    m = LandmarkMap()
-    win = WindowAdjuster(rig, frames=3, iterations=8, max_points=60)
-    assert win.gauge == "rays"
-    ids = m.add("points", X, np.zeros((60, 32)), Pose(*poses[0]), 0)
-    rng = np.random.default_rng(2)
-    for j, (R, t) in enumerate(poses):
-        # the window's frames off by up to 0.5 degree
-        Re, te = perturbed(rng, R, t) if j >= 3 else (R, t)
-        rec = win.start(Re, te)
-        observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
-    assert [fr.fixed for fr in win.frames] == [False] * 3
-    assert win.adjust(m)
-    for fr, (R, t) in zip(win.frames, poses[3:], strict=True):
-        assert angle_deg(fr.R, R) < 1e-4
-        np.testing.assert_allclose(fr.t, t, atol=1e-6)
-    np.testing.assert_allclose(m.points.X, X, atol=1e-6)
-
-
-def _window_without_a_fixed_frame(gauge, prior_frames):
+def _window_without_a_fixed_frame(gauge=None, prior_frames=3):
     """Six frames of the window scene through a 3-frame window; the first ``prior_frames`` at
     their true poses (their rays stay as the landmarks' priors when they leave), the later ones
-    off by up to 0.5 degree; no frame fixed. With ``prior_frames=0`` the landmarks are made
-    (and first observed) by the window's oldest frame, so no ray from outside it exists."""
+    off by up to 0.5 degree; no frame fixed (``gauge=None``: the adjuster's default). With
+    ``prior_frames=0`` the landmarks are made (and first observed) by the window's oldest frame,
+    so no ray from outside it exists. Returns the adjuster, the map, the window's true poses
+    and the true points."""
     rig, X, poses = window_scene(n_frames=6)
     m = LandmarkMap()
-    win = WindowAdjuster(rig, frames=3, iterations=8, max_points=60, gauge=gauge)
+    kw = {} if gauge is None else {"gauge": gauge}
+    win = WindowAdjuster(rig, frames=3, iterations=8, max_points=60, **kw)
     rng = np.random.default_rng(2)
     start = 3 - prior_frames
     ids = None
@@ -85,13 +64,28 @@ def _window_without_a_fixed_frame(gauge, prior_frames):
             ids = m.add("points", X, np.zeros((60, 32)), Pose(Re, te), 0)
         rec = win.start(Re, te)
         observe(m, rig, ids, R, t, X, Pose(Re, te), rec)
-    return win, m, poses[3:]
+    return win, m, poses[3:], X
+
+
+def test_older_rays_are_a_prior_that_holds_the_landmarks():
+    """A landmark's rays from frames that left the window stay in its triangulation: with the
+    older frames at the true poses, a window whose only fixed information is those rays (no
+    fixed frame; the default gauge, ``"rays"``, leaves the oldest frame free) returns the true
+    poses, the oldest one's too."""
+    win, m, poses, X = _window_without_a_fixed_frame()
+    assert win.gauge == "rays"
+    assert [fr.fixed for fr in win.frames] == [False] * 3
+    assert win.adjust(m)
+    for fr, (R, t) in zip(win.frames, poses, strict=True):
+        assert angle_deg(fr.R, R) < 1e-4
+        np.testing.assert_allclose(fr.t, t, atol=1e-6)
+    np.testing.assert_allclose(m.points.X, X, atol=1e-6)
 
 
 def test_the_oldest_gauge_holds_the_oldest_frame_where_it_is():
     """``gauge="oldest"``: the oldest frame's pose is held as it is even where the rays of
     the frames that left the window would correct it (the gauge of before 2026-12-02)."""
-    win, m, poses = _window_without_a_fixed_frame("oldest", prior_frames=3)
+    win, m, poses, _ = _window_without_a_fixed_frame("oldest")
     R0, t0 = win.frames[0].R.copy(), win.frames[0].t.copy()
     assert angle_deg(R0, poses[0][0]) > 0.05  # it starts off the truth
     assert win.adjust(m)
@@ -103,13 +97,13 @@ def test_the_rays_gauge_falls_back_to_the_oldest_frame_without_rays_from_outside
     """``gauge="rays"`` with no landmark seen outside the window: nothing would fix the
     window's gauge, so the oldest frame holds it (its pose unchanged) and the adjustment
     still runs; the same window with the rays of three earlier frames frees it."""
-    win, m, _ = _window_without_a_fixed_frame("rays", prior_frames=0)
+    win, m, _, _ = _window_without_a_fixed_frame("rays", prior_frames=0)
     R0, t0 = win.frames[0].R.copy(), win.frames[0].t.copy()
     assert win.adjust(m)
     np.testing.assert_array_equal(win.frames[0].R, R0)
     np.testing.assert_array_equal(win.frames[0].t, t0)
     assert np.all(np.isfinite(m.points.X))
-    win, m, poses = _window_without_a_fixed_frame("rays", prior_frames=3)
+    win, m, poses, _ = _window_without_a_fixed_frame("rays")
     assert win.adjust(m)
     assert angle_deg(win.frames[0].R, poses[0][0]) < 1e-4
 
