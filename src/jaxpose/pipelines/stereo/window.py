@@ -411,7 +411,7 @@ class WindowAdjuster:
     def _rays_hold(M_out: np.ndarray) -> bool:
         """Whether the rays of frames outside the window fix the gauge: at least
         :data:`GAUGE_POINTS` of the window's landmarks have such rays that meet in a point."""
-        return bool(len(M_out)) and int(rays_meet(M_out).sum()) >= GAUGE_POINTS
+        return int(rays_meet(M_out).sum()) >= GAUGE_POINTS  # none for an empty window
 
     def _free_line_terms(self, landmarks: LandmarkMap, frames):
         """The free line landmarks of the window: those with observation planes in the window's
