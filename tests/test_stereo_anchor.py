@@ -228,6 +228,10 @@ def test_no_patch_over_the_dark_background():
         (dict(anchor_cornerness=-0.1), "anchor_cornerness"),
         pytest.param(dict(anchor_normals=True), "anchor_normals", marks=pytest.mark.typecheck_off),
         (dict(anchor_normals="slant"), "anchor_normals"),
+        (dict(anchor_follow_px=-1), "anchor_follow_px"),
+        pytest.param(
+            dict(anchor_follow_px=2.5), "anchor_follow_px", marks=pytest.mark.typecheck_off
+        ),
     ],
 )
 def test_bad_anchor_options_are_refused_by_name(bad, name):

@@ -269,11 +269,14 @@ class PatchAnchors:
         R_cur: np.ndarray,
         t_cur: np.ndarray,
         normals: np.ndarray | None = None,
+        *,
+        search: int | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Aligned pixels of the landmarks ``ids`` (body points ``X_body (n, 3)``) detected at
         ``pixels (n, 2)`` in ``image``, the current frame at the pose ``R_cur, t_cur``;
         ``normals``: their surface normals ``(n, 3)`` for the warp (:func:`affine_to_reference`;
-        ``None``: those kept by :meth:`capture`).
+        ``None``: those kept by :meth:`capture`); ``search``: the integer shifts searched
+        (``None``: ``search_px``).
 
         Returns ``(pixels (n, 2), aligned (n,) bool)``: the aligned pixel where the alignment
         holds (a patch, a warp within ``max_scale``, Lucas-Kanade converged within
@@ -297,7 +300,7 @@ class PatchAnchors:
                 if normals is None
                 else np.asarray(normals, float)[has],
             )
-        return self.match(image, ids, A, pixels)
+        return self.match(image, ids, A, pixels, search=search)
 
     def _lookup(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For each of ``ids``, its row here (0 where absent) and whether it has one."""
@@ -308,15 +311,22 @@ class PatchAnchors:
         return pos, has
 
     def match(
-        self, image: np.ndarray, ids: np.ndarray, A: np.ndarray, pixels: np.ndarray
+        self,
+        image: np.ndarray,
+        ids: np.ndarray,
+        A: np.ndarray,
+        pixels: np.ndarray,
+        *,
+        search: int | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`align` with the warps given: ``A (n, 2, 2)`` maps pixel offsets in ``image``
         to offsets in each landmark's reference patch (NaN: no warp)."""
+        search = self.search if search is None else int(search)
         pixels = np.asarray(pixels, float).reshape(-1, 2)
         out, aligned = pixels.copy(), np.zeros(len(pixels), bool)
         pos, has = self._lookup(np.asarray(ids, np.int64))
         h, w = image.shape[:2]
-        reach = self.half + self.search + 1
+        reach = self.half + search + 1
         c = np.round(pixels).astype(int)
         has &= (c[:, 0] >= reach) & (c[:, 0] < w - reach)
         has &= (c[:, 1] >= reach) & (c[:, 1] < h - reach)
@@ -341,13 +351,13 @@ class PatchAnchors:
             _bilinear(self.patches[p].astype(np.float32), ref[:, 0], ref[:, 1])
         )  # (n, k*k)
         cc = c[sel]
-        if self.search:  # the integer shift of best ZNCC around the detected keypoint first
-            start = _integer_search(image, T, d, self.search, cc)
+        if search:  # the integer shift of best ZNCC around the detected keypoint first
+            start = _integer_search(image, T, d, search, cc)
         else:
             start = pixels[sel]
         new, conv, zncc, corner = _lucas_kanade(image, T, self.half, start, self.lk_iterations)
         inside = conv & (zncc >= self.min_zncc) & (corner >= self.min_cornerness)
-        inside &= np.abs(new - pixels[sel]).max(axis=1) <= self.search + 1.5
+        inside &= np.abs(new - pixels[sel]).max(axis=1) <= search + 1.5
         out[sel[inside]] = new[inside]
         aligned[sel[inside]] = True
         return out, aligned

@@ -82,6 +82,7 @@ _FIELD_KINDS = dict(
         "window_anchor_every": 1,
         "window_anchor_points": 1,
         "anchor_half_px": 1,
+        "anchor_follow_px": 0,
         "predicted_disparity_after": 0,
     },
     positive=(
@@ -437,6 +438,10 @@ class TrackerOptions:
             of lateral drift, but the oracle raises the development scenes' worst axes by 31%
             (seeds 0-1), ``"stereo"`` by 21% and ``"map"`` by 30%
             (``docs/stereo-evaluation.md``, *Surface normals from the stereo slant*).
+            ``anchor_follow_px``: the point landmarks of the last frame's pose solve that ORB
+            does not match in this one are followed by their patch alone (SVO's tracking
+            without a detection): aligned from their predicted pixel after an integer ZNCC
+            search of this many pixels each way, and kept where the alignment holds; 0: off.
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
         landmark_point_sigma: weight each point of the all-features solve by its landmark's
@@ -540,6 +545,7 @@ class TrackerOptions:
     anchor_normals: str = "facing"
     anchor_half_px: int = 3
     anchor_cornerness: float = 0.1
+    anchor_follow_px: int = 0
     measured_point_sigma: bool = False
     landmark_point_sigma: bool = False
 

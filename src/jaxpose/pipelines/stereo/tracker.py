@@ -63,6 +63,7 @@ from jaxpose.pipelines.stereo._clock import StageClock
 from jaxpose.pipelines.stereo.anchor import PatchAnchors, stereo_normals
 from jaxpose.pipelines.stereo.budget import fit_pose_budgeted
 from jaxpose.pipelines.stereo.disparity import depth_window, feature_windows, measured_margin
+from jaxpose.pipelines.stereo.follow import follow
 from jaxpose.pipelines.stereo.frames import (
     as_gray_uint8,
     checked_pair,
@@ -209,6 +210,7 @@ class StereoTracker:
             else None
         )
         self._rays = None  # the ray record of the frame being tracked (windowed adjustment)
+        self._followed = np.zeros(0, np.int64)  # the last solve's point landmarks (stable ids)
         self._since_adjust = 0  # tracked frames since the last adjustment (window_every)
         self._since_global = 0  # tracked frames since the last global adjustment
         self._far = False  # the window holds _far_frames frames (far_window)
@@ -394,6 +396,21 @@ class StereoTracker:
             l_m, l_cur = l_m[: o.max_lines], l_cur[: o.max_lines]
             if self._anchors is not None and len(i_m):
                 feats = self._align(left, feats, i_m, i_cur, pose_pred)
+            if self._anchors is not None and o.anchor_follow_px:
+                feats, i_m, i_cur = follow(
+                    self._anchors,
+                    self.map.points,
+                    self.rig.left,
+                    left,
+                    feats,
+                    (i_m, i_cur),
+                    self._followed,
+                    cand,
+                    pose_pred,
+                    search_px=o.anchor_follow_px,
+                    duplicate_px=o.duplicate_px,
+                    limit=o.max_points // 2 if o.stereo_residuals else o.max_points,
+                )
         stereo = None
         if o.stereo_residuals or o.keyframe_every <= 1:
             stereo = self._stereo(left, right, feats, clock, pose_pred, (i_m, i_cur, l_m, l_cur))
@@ -563,6 +580,7 @@ class StereoTracker:
                         self._window.resize(self._far_frames if far else o.window_frames)
                     self._rays = self._window.start(R, t, index=k)
                 self.map.record("points", cand, i_m[in_p], k)
+                self._followed = np.sort(self.map.points.ids[i_m[in_p]])
                 self._reanchor(left, feats, i_cur[in_p], i_m[in_p], pose)
                 if o.frame_rays:
                     kept = fit.kept_points  # left in the last pass: residual below reject_px
@@ -598,6 +616,7 @@ class StereoTracker:
                 self._rejected_p = set(i_cur[~in_p].tolist())
                 self._rejected_l = set(l_cur[~in_l].tolist())
         if result.status != Status.OK:
+            self._followed = np.zeros(0, np.int64)
             self._misses += 1
             self._run = 0
             self._pose_prev = pose_pred  # predict one more step of constant motion next time
