@@ -117,3 +117,18 @@ def test_following_keeps_more_landmarks_in_each_frame_s_solve():
             assert np.linalg.norm(r.t - np.asarray(fr.pose.t)) < 0.03
         inliers[px] = sum(r.inliers for r in results[1:])
     assert inliers[3] > 1.1 * inliers[0], inliers
+
+
+def test_a_followed_patch_needs_a_closer_correlation_than_a_matched_keypoint():
+    """Sensor noise that leaves the patch's ZNCC between the anchors' 0.8 and
+    ``FOLLOW_MIN_ZNCC``: the alignment from a detection keeps it, following does not."""
+    cam, cur, anchors, points, pose, uv = _scene()
+    rng = np.random.default_rng(3)
+    noisy = cur + rng.normal(0.0, 20.0, cur.shape).astype(np.float32)
+    R, t = np.asarray(pose.R), np.asarray(pose.t)
+    _, ok = anchors.align(noisy, cam, np.array([7]), points.X, uv[None], R, t)
+    assert ok[0]  # a keypoint ORB matched there would be aligned
+    out, i_m, _ = _follow(_features([[20.0, 20.0]]), cam, noisy, anchors, points, pose)
+    assert len(i_m) == 0 and len(out.points) == 1
+    out, i_m, _ = _follow(_features([[20.0, 20.0]]), cam, cur, anchors, points, pose)
+    assert len(i_m) == 1  # without the noise it is followed

@@ -271,12 +271,13 @@ class PatchAnchors:
         normals: np.ndarray | None = None,
         *,
         search: int | None = None,
+        min_zncc: float | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Aligned pixels of the landmarks ``ids`` (body points ``X_body (n, 3)``) detected at
         ``pixels (n, 2)`` in ``image``, the current frame at the pose ``R_cur, t_cur``;
         ``normals``: their surface normals ``(n, 3)`` for the warp (:func:`affine_to_reference`;
-        ``None``: those kept by :meth:`capture`); ``search``: the integer shifts searched
-        (``None``: ``search_px``).
+        ``None``: those kept by :meth:`capture`); ``search``, ``min_zncc``: for this call, the
+        integer shifts searched and the least ZNCC (``None``: ``search_px``, ``min_zncc``).
 
         Returns ``(pixels (n, 2), aligned (n,) bool)``: the aligned pixel where the alignment
         holds (a patch, a warp within ``max_scale``, Lucas-Kanade converged within
@@ -300,7 +301,7 @@ class PatchAnchors:
                 if normals is None
                 else np.asarray(normals, float)[has],
             )
-        return self.match(image, ids, A, pixels, search=search)
+        return self.match(image, ids, A, pixels, search=search, min_zncc=min_zncc)
 
     def _lookup(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For each of ``ids``, its row here (0 where absent) and whether it has one."""
@@ -318,10 +319,12 @@ class PatchAnchors:
         pixels: np.ndarray,
         *,
         search: int | None = None,
+        min_zncc: float | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`align` with the warps given: ``A (n, 2, 2)`` maps pixel offsets in ``image``
         to offsets in each landmark's reference patch (NaN: no warp)."""
         search = self.search if search is None else int(search)
+        min_zncc = self.min_zncc if min_zncc is None else float(min_zncc)
         pixels = np.asarray(pixels, float).reshape(-1, 2)
         out, aligned = pixels.copy(), np.zeros(len(pixels), bool)
         pos, has = self._lookup(np.asarray(ids, np.int64))
@@ -356,7 +359,7 @@ class PatchAnchors:
         else:
             start = pixels[sel]
         new, conv, zncc, corner = _lucas_kanade(image, T, self.half, start, self.lk_iterations)
-        inside = conv & (zncc >= self.min_zncc) & (corner >= self.min_cornerness)
+        inside = conv & (zncc >= min_zncc) & (corner >= self.min_cornerness)
         inside &= np.abs(new - pixels[sel]).max(axis=1) <= search + 1.5
         out[sel[inside]] = new[inside]
         aligned[sel[inside]] = True

@@ -3,17 +3,19 @@
 Search by projection (:mod:`~jaxpose.pipelines.stereo.guided`) matches a landmark only where ORB
 detects a keypoint near its predicted pixel and the descriptors agree. On a target that turns a
 few degrees a frame both fail within a few frames for many landmarks that are still in view: on
-a fast turn at 3.7 m about 150 of the 250-350 landmarks of a frame's solve are not matched in the
-next, and about 70% of those still align to their anchored patch
-(:class:`~jaxpose.pipelines.stereo.anchor.PatchAnchors`) near their predicted pixel. The map then
+a fast turn at 3.7 m about 150 of the 250-350 landmarks matched in a frame are not matched in the
+next, and about 60% of those still align to their anchored patch
+(:class:`~jaxpose.pipelines.stereo.anchor.PatchAnchors`) near their projection. The map then
 renews itself at the turn's pace, and each new landmark takes its place at the pose of the frame
 that made it, so the pose error of that frame stays in the map.
 
 :func:`follow` keeps such landmarks observed as SVO does (Forster et al. 2014, sec. IV-B, feature
 alignment without a detection): from the predicted pixel, an integer ZNCC search and the
-Lucas-Kanade alignment of the warped patch. Only the landmarks kept in the previous frame's
-solve are followed, so a track ends where its patch stops aligning (the correlation, the warp's
-stretch or the corner test fails), not where the descriptor does.
+Lucas-Kanade alignment of the warped patch, kept at a ZNCC of :data:`FOLLOW_MIN_ZNCC` or more.
+Only the landmarks kept in the previous frame's solve are followed, so a track ends where its
+patch stops aligning (the correlation, the warp's stretch or the corner test fails), not where
+the descriptor does. ``TrackerOptions(anchor_follow_px=3)`` turns it on; it is off by default
+(``docs/stereo-evaluation.md``, *Landmarks followed by their patch*).
 """
 
 from __future__ import annotations
@@ -30,7 +32,13 @@ from jaxpose.pipelines.stereo.anchor import PatchAnchors
 from jaxpose.pipelines.stereo.landmarks import LandmarkSet
 from jaxpose.vision.stereo_features import FrameFeatures
 
-__all__ = ["follow"]
+__all__ = ["FOLLOW_MIN_ZNCC", "follow"]
+
+#: The least ZNCC of a followed patch with the image. Without a detection that agrees, the
+#: alignment alone vouches for the landmark, so it is asked for more than the anchors' 0.8 for
+#: a keypoint ORB matched. Chosen on development draws (``docs/stereo-evaluation.md``,
+#: *Landmarks followed by their patch*): at 0.8 a few runs drifted far.
+FOLLOW_MIN_ZNCC = 0.95
 
 
 def follow(
@@ -82,7 +90,17 @@ def follow(
     j = j[np.argsort(-points.n_obs[j], kind="stable")][: limit - len(i_m)]
     R, t = rt(pose)
     start = project(camera, pose, points.X[j])
-    px, ok = anchors.align(image, camera, points.ids[j], points.X[j], start, R, t, search=search_px)
+    px, ok = anchors.align(
+        image,
+        camera,
+        points.ids[j],
+        points.X[j],
+        start,
+        R,
+        t,
+        search=search_px,
+        min_zncc=max(anchors.min_zncc, FOLLOW_MIN_ZNCC),
+    )
     j, px = j[ok], px[ok]
     if not len(j):
         return empty

@@ -441,7 +441,12 @@ class TrackerOptions:
             ``anchor_follow_px``: the point landmarks of the last frame's pose solve that ORB
             does not match in this one are followed by their patch alone (SVO's tracking
             without a detection): aligned from their predicted pixel after an integer ZNCC
-            search of this many pixels each way, and kept where the alignment holds; 0: off.
+            search of this many pixels each way, and kept where the alignment holds
+            (:mod:`~jaxpose.pipelines.stereo.follow`); 0: off, the default. At 3 on the 56
+            development-draw runs at 3.3-5 m the worst axis is 22% lower in the geometric mean
+            but 49 meet the targets against 50, the suite's development scenes are 8% higher,
+            and a frame costs about 30% more CPU at range (``docs/stereo-evaluation.md``,
+            *Landmarks followed by their patch*).
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
         landmark_point_sigma: weight each point of the all-features solve by its landmark's
