@@ -113,6 +113,7 @@ _FIELD_KINDS = dict(
         "duplicate_px",
         "disparity_margin_px",
         "budget_repeat_discount",
+        "anchor_affine_prior",
     ),
     fractions=("cull_ratio", "line_scale_memory", "anchor_cornerness"),
     optional=(
@@ -124,6 +125,7 @@ _FIELD_KINDS = dict(
         "window_depth_m",
         "window_far_m",
         "anchor_turn_deg",
+        "anchor_affine_prior",
     ),
 )
 
@@ -447,6 +449,13 @@ class TrackerOptions:
             but 49 meet the targets against 50, the suite's development scenes are 8% higher,
             and a frame costs about 30% more CPU at range (``docs/stereo-evaluation.md``,
             *Landmarks followed by their patch*).
+            ``anchor_affine_prior``: ``None`` (the default), the alignment fits the translation
+            only; a weight ``lambda >= 0``, it also corrects the predicted warp by a 2 x 2 map,
+            held to the prediction by a prior of ``lambda`` times the data's own weight of the
+            correction (:class:`~jaxpose.pipelines.stereo.anchor.PatchAnchors`). On a face
+            turned 45 degrees from the reference view it takes the facing plane's 0.2 px offset
+            to 0.05 px at 0.25 (``docs/stereo-evaluation.md``, *The warp corrected by the
+            alignment*, which has the measurements behind the default).
         measured_point_sigma: weight each point of the all-features solve by its landmark's
             running post-fit residual RMS instead of ``sigma_px``.
         landmark_point_sigma: weight each point of the all-features solve by its landmark's
@@ -551,6 +560,7 @@ class TrackerOptions:
     anchor_half_px: int = 3
     anchor_cornerness: float = 0.1
     anchor_follow_px: int = 0
+    anchor_affine_prior: float | None = None
     measured_point_sigma: bool = False
     landmark_point_sigma: bool = False
 

@@ -205,7 +205,11 @@ class StereoTracker:
             else None
         )
         self._anchors = (
-            PatchAnchors(half=options.anchor_half_px, min_cornerness=options.anchor_cornerness)
+            PatchAnchors(
+                half=options.anchor_half_px,
+                min_cornerness=options.anchor_cornerness,
+                affine_prior=options.anchor_affine_prior,
+            )
             if options.anchor_points
             else None
         )
