@@ -21,7 +21,8 @@ alignment of Shi and Tomasi 1994, held to the prediction by a prior): where the 
 mispredicts a turned face's foreshortening, the translation then settles on the landmark.
 
 Pure NumPy (application side), vectorised over the landmarks of a frame: about 13 ms of CPU a
-frame at 1.5 m, two thirds of it the Lucas-Kanade steps (the 2-core machine).
+frame at 1.5 m, two thirds of it the Lucas-Kanade steps (the 2-core machine), which take about
+twice as long with the warp's correction (2.7 against 5.4 ms for 300 landmarks).
 """
 
 from __future__ import annotations
