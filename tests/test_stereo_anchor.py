@@ -191,7 +191,7 @@ def test_reanchoring_takes_a_new_patch_only_past_the_turn():
     np.testing.assert_allclose(anchors.R[0], R)
 
 
-@pytest.mark.parametrize("affine_prior", [None, 0.25])
+@pytest.mark.parametrize("affine_prior", [None, 0.5])
 def test_a_short_anchored_tracking_run_loses_no_frame(affine_prior):
     from jaxpose.core.status import Status
     from jaxpose.pipelines.stereo import StereoTracker, TrackerOptions
@@ -347,8 +347,11 @@ def test_the_affine_alignment_corrects_the_facing_plane_s_warp(face_deg):
     assert offsets[0.0] < offsets[0.25] < offsets[1.0] < min(offsets[None], 0.3)
 
 
-@pytest.mark.parametrize("prior", [-1.0, float("nan")])
-def test_a_negative_or_missing_affine_prior_is_refused(prior):
+@pytest.mark.parametrize(
+    "prior",
+    [-1.0, float("nan"), float("inf"), pytest.param("half", marks=pytest.mark.typecheck_off)],
+)
+def test_a_negative_or_not_finite_affine_prior_is_refused(prior):
     with pytest.raises(ValueError, match="affine_prior"):
         PatchAnchors(affine_prior=prior)
 

@@ -153,11 +153,12 @@ class PatchAnchors:
         min_cornerness: the smaller over the larger eigenvalue of the aligned window's gradient
             moments must reach this (0: any; along an edge the shift is not fixed).
         lk_iterations: Gauss-Newton steps of the alignment (the last below 0.1 px to count).
-        affine_prior: ``None`` (the default): the steps align the translation only. A weight
-            ``lambda >= 0``: they also correct the predicted warp by a 2 x 2 map ``D`` (offsets
-            ``d`` sampled at ``(I + D) d``), with the prior ``lambda ||J_D D||^2`` (the data's
-            own weight of the correction, ``J_D`` its columns; 0: free, 1: half of what the data
-            alone would give where the correction is uncorrelated with the rest);
+        affine_prior: ``None`` (the default here; the tracker passes
+            ``TrackerOptions.anchor_affine_prior``, 0.5): the steps align the translation only.
+            A weight ``lambda >= 0``: they also correct the predicted warp by a 2 x 2 map ``D``
+            (offsets ``d`` sampled at ``(I + D) d``), with the prior ``lambda ||J_D D||^2``
+            (the data's own weight of the correction, ``J_D`` its columns; 0: free, 1: half of
+            what the data alone would give where the correction is uncorrelated with the rest);
             :func:`_lucas_kanade_affine`.
     """
 
@@ -173,8 +174,15 @@ class PatchAnchors:
         lk_iterations: int = 4,
         affine_prior: float | None = None,
     ):
-        if affine_prior is not None and not affine_prior >= 0:
-            raise ValueError(f"affine_prior must be None or a number >= 0; got {affine_prior!r}")
+        if affine_prior is not None:
+            try:
+                good = np.isfinite(float(affine_prior)) and float(affine_prior) >= 0
+            except (TypeError, ValueError):
+                good = False
+            if not good:
+                raise ValueError(
+                    f"affine_prior must be None or a finite number >= 0; got {affine_prior!r}"
+                )
         self.affine_prior = None if affine_prior is None else float(affine_prior)
         self.half, self.search = int(half), int(search_px)
         self.min_zncc, self.max_scale = float(min_zncc), float(max_scale)
