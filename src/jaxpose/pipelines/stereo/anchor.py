@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from jaxpose.core._checks import is_finite_number
 from jaxpose.core.camera import PinholeCamera
 from jaxpose.pipelines.stereo._arrays import find
 from jaxpose.vision.stereo_match import parabolic_offset
@@ -174,15 +175,10 @@ class PatchAnchors:
         lk_iterations: int = 4,
         affine_prior: float | None = None,
     ):
-        if affine_prior is not None:
-            try:
-                good = np.isfinite(float(affine_prior)) and float(affine_prior) >= 0
-            except (TypeError, ValueError):
-                good = False
-            if not good:
-                raise ValueError(
-                    f"affine_prior must be None or a finite number >= 0; got {affine_prior!r}"
-                )
+        if affine_prior is not None and not (is_finite_number(affine_prior) and affine_prior >= 0):
+            raise ValueError(
+                f"affine_prior must be None or a finite number >= 0; got {affine_prior!r}"
+            )
         self.affine_prior = None if affine_prior is None else float(affine_prior)
         self.half, self.search = int(half), int(search_px)
         self.min_zncc, self.max_scale = float(min_zncc), float(max_scale)
@@ -464,13 +460,18 @@ def _lucas_kanade(image, T, half: int, centre, iterations: int):
         a = np.where(np.abs(sol[:, 2]) > 1e-9, sol[:, 2], 1.0)
         step = np.clip(sol[:, :2] / a[:, None], -1.0, 1.0)
         p = p + step
-    zncc = np.einsum("nk,nk->n", _standardise(J[:, 2]), _standardise(T32[..., 0]))
-    # the aperture: the smaller over the larger eigenvalue of the window's gradient moments
-    # (an edge fixes the shift across it only; 1 for a corner with no preferred direction)
+    return (p, np.abs(step).max(axis=1) < 0.1, *_fit_scores(J[:, 2], T32[..., 0], JtJ))
+
+
+def _fit_scores(window, T, JtJ) -> tuple[np.ndarray, np.ndarray]:
+    """The ZNCC of each last sampled ``window (n, k)`` with its template ``T (n, k)``, and the
+    window's aperture from the normal equations ``JtJ`` (rows 0 and 1 the image's gradients):
+    the smaller over the larger eigenvalue of the gradient moments (an edge fixes the shift
+    across it only; 1 for a corner with no preferred direction)."""
+    zncc = np.einsum("nk,nk->n", _standardise(window), _standardise(T))
     a, b, c = JtJ[:, 0, 0], JtJ[:, 1, 1], JtJ[:, 0, 1]
     root = np.sqrt((a - b) ** 2 + 4 * c**2)
-    cornerness = (a + b - root) / np.maximum(a + b + root, 1e-12)
-    return p, np.abs(step).max(axis=1) < 0.1, zncc, cornerness
+    return zncc, (a + b - root) / np.maximum(a + b + root, 1e-12)
 
 
 def _sample_with_gradients(image: np.ndarray, x: np.ndarray, y: np.ndarray):
@@ -542,8 +543,4 @@ def _lucas_kanade_affine(image, T, d: np.ndarray, centre, iterations: int, prior
         p = p + step
         D = np.clip(D + np.clip(sol[:, 2:6] / a[:, None], -0.2, 0.2), -0.4, 0.4)
         gain = a
-    zncc = np.einsum("nk,nk->n", _standardise(J[:, 6]), _standardise(T32[..., 0]))
-    a, b, c = JtJ[:, 0, 0], JtJ[:, 1, 1], JtJ[:, 0, 1]
-    root = np.sqrt((a - b) ** 2 + 4 * c**2)
-    cornerness = (a + b - root) / np.maximum(a + b + root, 1e-12)
-    return p, np.abs(step).max(axis=1) < 0.1, zncc, cornerness
+    return (p, np.abs(step).max(axis=1) < 0.1, *_fit_scores(J[:, 6], T32[..., 0], JtJ))
